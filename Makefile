@@ -1,0 +1,35 @@
+# The two set-up commands of the README:  `make demo` (main job, small default)  and  `make test`.
+# Both create .venv and install everything; torch==2.13.0 (CPU build) goes in first.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+OUT ?= out/demo
+
+.PHONY: install browser demo test test-slow clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q -e '.[dev]'
+	touch $@
+
+install: $(BIN)/.installed
+
+browser:
+	@command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium >/dev/null)
+
+demo: install
+	$(BIN)/basic-shapes generate --out $(OUT)/data --objects-per-class 4 --variants 9 --seed 0
+	$(BIN)/basic-shapes info $(OUT)/data
+	$(BIN)/basic-shapes show $(OUT)/data --object 0 --out $(OUT)/object0.png
+	@echo "demo outputs in $(OUT)/"
+
+test: install browser
+	$(BIN)/python -m pytest
+
+test-slow: install
+	$(BIN)/python -m pytest -m slow
+
+clean:
+	rm -rf $(VENV) out
