@@ -254,6 +254,15 @@ def dataset_fingerprint(directory: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+def _object(s: Shard, objs: dict, k: int, oi: np.ndarray, var: np.ndarray):
+    rows = np.flatnonzero(oi == k)
+    meshes = [(int(var[i]), *s.mesh(i)) for i in rows]
+    obj = {"id": int(objs["id"][k]), "class": s.class_names[objs["class"][k]],
+           "scale": objs["scale"][k], "split": str(objs["split"][k]), "shard_object_index": k,
+           "hausdorff": s.file["meshes/hausdorff"][rows[0]:rows[-1] + 1]}
+    return obj, meshes
+
+
 def iter_objects(directory: str | os.PathLike, split: str | None = None):
     """Yield (shard path, object dict, list of (variant, vertices, faces)) per object.
 
@@ -262,18 +271,24 @@ def iter_objects(directory: str | os.PathLike, split: str | None = None):
     for p in list_shards(directory):
         with Shard(p) as s:
             objs = s.objects()
-            names = s.class_names
             oi = s.file["meshes/object_index"][()]
             var = s.file["meshes/variant"][()]
             for k in range(s.n_objects):
-                if split is not None and objs["split"][k] != split:
-                    continue
-                rows = np.flatnonzero(oi == k)
-                meshes = [(int(var[i]), *s.mesh(i)) for i in rows]
-                obj = {"id": int(objs["id"][k]), "class": names[objs["class"][k]],
-                       "scale": objs["scale"][k], "split": str(objs["split"][k]),
-                       "shard_object_index": k}
-                yield p, obj, meshes
+                if split is None or objs["split"][k] == split:
+                    yield (p, *_object(s, objs, k, oi, var))
+
+
+def find_object(directory: str | os.PathLike, object_id: int):
+    """(shard path, object dict, meshes) of one object, reading only the shard that holds it."""
+    for p in list_shards(directory):
+        with Shard(p) as s:
+            ids = s.file["objects/id"][()]
+            hit = np.flatnonzero(ids == object_id)
+            if len(hit):
+                oi = s.file["meshes/object_index"][()]
+                var = s.file["meshes/variant"][()]
+                return (p, *_object(s, s.objects(), int(hit[0]), oi, var))
+    raise ShardError(f"{directory}: no object with id {object_id}")
 
 
 def rewrite_atomically(path: str | os.PathLike, edit) -> None:

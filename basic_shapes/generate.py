@@ -1,0 +1,189 @@
+"""Plan a dataset, build its shards on Dask workers, write them atomically, resume after a kill.
+
+Determinism: every random choice flows from the dataset seed through ``SeedSequence`` keyed
+by class and object id, and each shard is built by one task from its own plan alone, so the
+bytes do not depend on the number of workers or on scheduling.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from basic_shapes import __version__
+from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, sample_scales
+from basic_shapes.shards import ObjectRecord, Shard, ShardError, atomic_path, shard_name, write_shard
+
+CONFIG_FILE = "dataset.json"
+TEST_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    classes: tuple[str, ...] = ("cube", "cylinder", "sphere")
+    objects_per_class: int = 1000
+    variants: int = 99
+    seed: int = 0
+    objects_per_shard: int = 8
+    scale_range: tuple[float, float] = SCALE_RANGE
+    min_scale_distance: float = MIN_DISTANCE
+    test_fraction: float = TEST_FRACTION
+    toolkit_version: str = field(default=__version__)
+
+    def validate(self) -> None:
+        from basic_shapes.primitives import PRIMITIVES
+
+        unknown = [c for c in self.classes if c not in PRIMITIVES]
+        if unknown:
+            raise ValueError(f"unknown class {', '.join(unknown)}; known: {', '.join(PRIMITIVES)}")
+        if not self.classes or len(set(self.classes)) != len(self.classes):
+            raise ValueError(f"classes must be non-empty and distinct, got {','.join(self.classes)}")
+        for name, lo in (("objects_per_class", 1), ("variants", 0), ("objects_per_shard", 1)):
+            if getattr(self, name) < lo:
+                raise ValueError(f"{name} must be >= {lo}, got {getattr(self, name)}")
+        if self.variants >= 1000:
+            raise ValueError(f"variants must be < 1000 (mesh ids reserve 3 digits), got {self.variants}")
+        if not 0 <= self.test_fraction < 1:
+            raise ValueError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["classes"] = list(self.classes)
+        d["scale_range"] = list(self.scale_range)
+        return d
+
+
+@dataclass(frozen=True)
+class ObjectPlan:
+    id: int
+    class_name: str
+    class_index: int
+    scale: tuple[float, float, float]
+    seed: int
+    split: str
+
+
+def _rng(seed: int, *key: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
+def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:
+    """Every object's class, scale, seed and split: cheap, done once by the client."""
+    plans = []
+    for ci, name in enumerate(cfg.classes):
+        key = zlib.crc32(name.encode())
+        rng = _rng(cfg.seed, 0, key)
+        scales = sample_scales(cfg.objects_per_class, rng, cfg.scale_range, cfg.min_scale_distance)
+        n_test = round(cfg.test_fraction * cfg.objects_per_class)
+        if cfg.test_fraction > 0 and cfg.objects_per_class >= 2:
+            n_test = max(1, n_test)
+        test = set(rng.permutation(cfg.objects_per_class)[:n_test].tolist())
+        for k in range(cfg.objects_per_class):
+            oid = ci * cfg.objects_per_class + k
+            seed = int(_rng(cfg.seed, 1, key, k).integers(0, 2**63 - 1))
+            plans.append(ObjectPlan(oid, name, ci, tuple(float(x) for x in scales[k]), seed,
+                                    "test" if k in test else "train"))
+    return plans
+
+
+def shard_plans(cfg: GenerateConfig) -> list[list[ObjectPlan]]:
+    objs = plan_objects(cfg)
+    n = cfg.objects_per_shard
+    return [objs[i:i + n] for i in range(0, len(objs), n)]
+
+
+def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
+    """One Dask task: make, verify and write every mesh of the shard's objects."""
+    from basic_shapes.blender import object_meshes
+
+    t0 = time.perf_counter()
+    objects = [ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
+                            object_meshes(p.class_name, np.array(p.scale), p.seed,
+                                          cfg_json["variants"]))
+               for p in plans]
+    write_shard(path, objects, cfg_json["classes"], cfg_json, cfg_json["toolkit_version"])
+    return {"path": path, "meshes": sum(len(o.meshes) for o in objects),
+            "seconds": time.perf_counter() - t0}
+
+
+def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
+    """Refuse a directory that holds another dataset; record this config otherwise."""
+    cfg_path = out / CONFIG_FILE
+    if cfg_path.exists():
+        try:
+            old = json.loads(cfg_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ShardError(f"{cfg_path}: unreadable dataset config ({exc.msg})") from None
+        if old != cfg.to_json():
+            diff = sorted(k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k))
+            raise ShardError(f"{out}: holds a dataset with a different config "
+                             f"({', '.join(diff)} differ); use another --out")
+        return
+    if any(out.glob("shard-*.h5")):
+        raise ShardError(f"{out}: holds shards but no {CONFIG_FILE}; use another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(cfg_path) as tmp:
+        tmp.write_text(json.dumps(cfg.to_json(), indent=2, sort_keys=True))
+
+
+def _is_done(path: Path, cfg: GenerateConfig) -> bool:
+    if not path.exists():
+        return False
+    try:
+        with Shard(path) as s:
+            return s.config == cfg.to_json()
+    except ShardError:
+        return False
+
+
+def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
+             scheduler: str | None = None, progress: bool = True) -> dict:
+    """Generate (or finish generating) the dataset in ``out``; returns run statistics.
+
+    ``workers=0`` builds in this process without Dask (debugging); otherwise a LocalCluster
+    with ``workers`` single-threaded processes (default: one per core), or the cluster at
+    ``scheduler``.
+    """
+    cfg.validate()
+    out = Path(out)
+    _check_out_dir(out, cfg)
+    for stale in out.glob("*.tmp"):
+        stale.unlink()
+    tasks = [(str(out / shard_name(i)), plans) for i, plans in enumerate(shard_plans(cfg))]
+    todo = [t for t in tasks if not _is_done(Path(t[0]), cfg)]
+    t0 = time.perf_counter()
+    results = list(_run(todo, cfg.to_json(), workers, scheduler, progress))
+    wall = time.perf_counter() - t0
+    meshes = sum(r["meshes"] for r in results)
+    return {"shards": len(tasks), "built": len(todo), "skipped": len(tasks) - len(todo),
+            "meshes": meshes, "seconds": wall, "meshes_per_second": meshes / wall if wall else 0.0}
+
+
+def _run(todo, cfg_json, workers, scheduler, progress):
+    from tqdm import tqdm
+
+    bar = tqdm(total=sum(len(p) for _, p in todo) * (cfg_json["variants"] + 1), unit="mesh",
+               disable=not progress or not todo, desc="generate")
+    if workers == 0 and scheduler is None:
+        for path, plans in todo:
+            r = build_shard(path, plans, cfg_json)
+            bar.update(r["meshes"])
+            yield r
+        bar.close()
+        return
+    from basic_shapes.cluster import dask_client
+    from distributed import as_completed
+
+    with dask_client(workers, scheduler) as client:
+        futures = [client.submit(build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}",
+                                 pure=False) for path, plans in todo]
+        for fut in as_completed(futures):
+            r = fut.result()
+            bar.update(r["meshes"])
+            yield r
+    bar.close()
