@@ -1,0 +1,108 @@
+"""The paper's neural simulators g = d(a(f(V, F))) and one topology-invariant model.
+
+``build_model(name, ...)`` makes any of them from a JSON-able config; ``MeshSimulator``
+is the full model, ``ClassificationHead`` / ``ReconstructionHead`` are the pretraining heads.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from benchmark.models.aggregator import Aggregator
+from benchmark.models.decoder import Decoder
+from benchmark.models.direct import DirectEmbedding
+from benchmark.models.features import N_BINS, MeshBatch, collate, featurize
+from benchmark.models.graph import GraphEmbedding
+from benchmark.models.invariant import PointEmbedding
+from benchmark.models.token import TokenEmbedding
+
+EMBEDDINGS = ("direct", "graph", "token", "invariant")
+FACE_EMBEDDINGS = ("direct", "graph", "token")  # the paper's; the only ones pretrained
+
+
+class MeshSimulator(nn.Module):
+    """Face (or point) embedding -> transformer aggregator -> MLP decoder with scale."""
+
+    def __init__(self, embedding: nn.Module, aggregator: Aggregator, decoder: Decoder):
+        super().__init__()
+        self.embedding, self.aggregator, self.decoder = embedding, aggregator, decoder
+
+    def embed_faces(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(B, L, dim) embeddings, their mask, and the embedding's auxiliary loss."""
+        out = self.embedding(batch)
+        if len(out) == 3:
+            emb, aux, mask = out
+        else:
+            (emb, aux), mask = out, batch.mask
+        return emb, mask, aux
+
+    def encode(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        emb, mask, aux = self.embed_faces(batch)
+        return self.aggregator(emb, mask), aux
+
+    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        """Predicted dB response (B, n_outputs) and the auxiliary loss to add in training."""
+        z, aux = self.encode(batch)
+        return self.decoder(z, batch.scale_bin), aux
+
+
+class ClassificationHead(nn.Module):
+    """Pretraining by shape classification: a linear layer on the CLS output."""
+
+    def __init__(self, dim: int, n_classes: int):
+        super().__init__()
+        self.linear = nn.Linear(dim, n_classes)
+
+    def loss(self, model: MeshSimulator, batch: MeshBatch) -> tuple[torch.Tensor, dict]:
+        z, aux = model.encode(batch)
+        logits = self.linear(z)
+        ce = F.cross_entropy(logits, batch.label)
+        acc = (logits.argmax(1) == batch.label).float().mean()
+        return ce + aux, {"ce": ce.item(), "acc": acc.item()}
+
+
+class ReconstructionHead(nn.Module):
+    """MeshGPT-style autoencoder: every face embedding must reproduce that face's nine
+    discretized corner coordinates (a classification over ``N_BINS`` levels each)."""
+
+    def __init__(self, dim: int, hidden: int = 256):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(), nn.Linear(hidden, 9 * N_BINS))
+
+    def loss(self, model: MeshSimulator, batch: MeshBatch) -> tuple[torch.Tensor, dict]:
+        emb, mask, aux = model.embed_faces(batch)
+        logits = self.mlp(emb[mask]).unflatten(-1, (9, N_BINS))
+        target = batch.tokens[mask][:, :9]
+        ce = F.cross_entropy(logits.flatten(0, 1), target.flatten())
+        acc = (logits.argmax(-1) == target).float().mean()
+        return ce + aux, {"ce": ce.item(), "acc": acc.item()}
+
+
+def build_model(name: str, n_outputs: int, n_scale_bins: int, dim: int = 64,
+                embed_layers: int = 3, agg_layers: int = 2, n_heads: int = 4,
+                decoder_hidden: int = 256, codebook_size: int = 128, n_quantizers: int = 2,
+                n_points: int = 256) -> MeshSimulator:
+    """One of ``EMBEDDINGS`` with the shared aggregator and decoder. Every argument is a
+    plain number, so the call's keyword arguments are the model's JSON config."""
+    if name == "direct":
+        embedding = DirectEmbedding(dim)
+    elif name == "graph":
+        embedding = GraphEmbedding(dim, embed_layers)
+    elif name == "token":
+        embedding = TokenEmbedding(dim, embed_layers, codebook_size, n_quantizers)
+    elif name == "invariant":
+        embedding = PointEmbedding(dim, n_points)
+    else:
+        raise ValueError(f"unknown model {name!r}; choose one of {', '.join(EMBEDDINGS)}")
+    return MeshSimulator(embedding, Aggregator(dim, agg_layers, n_heads),
+                         Decoder(dim, n_outputs, n_scale_bins, hidden=decoder_hidden))
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+__all__ = ["EMBEDDINGS", "FACE_EMBEDDINGS", "MeshSimulator", "MeshBatch", "ClassificationHead",
+           "ReconstructionHead", "build_model", "collate", "count_parameters", "featurize"]
