@@ -1,0 +1,61 @@
+"""Read one mesh file (OBJ, STL, PLY) for the command line, in metres.
+
+Mesh files carry no units, so the caller states them (``--units``) and we scale to metres,
+the simulator's unit. STL stores a triangle soup: coincident vertices are merged so that
+closure and convexity can be detected. Anything unreadable is a one-line ``MeshFileError``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+FORMATS = (".obj", ".stl", ".ply")
+# Beyond this extent a mesh said to be in metres is more likely in millimetres (warn, don't fail:
+# large objects are legitimate).
+SUSPICIOUS_EXTENT_M = 100.0
+
+
+class MeshFileError(ValueError):
+    """A mesh file cannot be read as a triangle mesh."""
+
+
+def load_mesh(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np.ndarray]:
+    """(vertices float64 (V,3) in metres, faces int32 (F,3)) of a mesh file in ``units``."""
+    import trimesh
+
+    path = Path(path)
+    if units not in UNITS:
+        raise MeshFileError(f"{path}: unknown units {units!r}; expected one of {', '.join(UNITS)}")
+    if path.suffix.lower() not in FORMATS:
+        raise MeshFileError(f"{path}: unsupported mesh format {path.suffix or '(none)'!r}; "
+                            f"expected {', '.join(FORMATS)}")
+    if not path.is_file():
+        raise MeshFileError(f"{path}: no such file")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise MeshFileError(f"{path}: not a readable {path.suffix[1:].upper()} mesh "
+                            f"({exc.__class__.__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+                            ) from None
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
+    vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), np.float64)
+    if len(faces) == 0:
+        raise MeshFileError(f"{path}: holds no triangles")
+    if not np.isfinite(vertices).all():
+        raise MeshFileError(f"{path}: vertices contain NaN or inf")
+    merged = trimesh.Trimesh(vertices, faces, process=False)
+    merged.merge_vertices()
+    return np.asarray(merged.vertices) * UNITS[units], np.asarray(merged.faces, np.int32)
+
+
+def units_warning(path: str | os.PathLike, vertices: np.ndarray, units: str) -> str | None:
+    """A hint when a mesh stated in metres is implausibly large (millimetres given as metres)."""
+    extent = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    if units == "m" and extent > SUSPICIOUS_EXTENT_M:
+        return (f"{path}: the mesh spans {extent:.4g} m; if the file is in millimetres, "
+                f"pass --units mm")
+    return None
