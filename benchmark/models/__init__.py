@@ -15,7 +15,7 @@ from benchmark.models.decoder import Decoder
 from benchmark.models.direct import DirectEmbedding
 from benchmark.models.features import N_BINS, MeshBatch, collate, featurize
 from benchmark.models.graph import GraphEmbedding
-from benchmark.models.invariant import PointEmbedding
+from benchmark.models.invariant import ProbeEmbedding
 from benchmark.models.token import TokenEmbedding
 
 EMBEDDINGS = ("direct", "graph", "token", "invariant")
@@ -82,8 +82,8 @@ class ReconstructionHead(nn.Module):
 
 def build_model(name: str, n_outputs: int, n_scale_bins: int, dim: int = 64,
                 embed_layers: int = 3, agg_layers: int = 2, n_heads: int = 4,
-                decoder_hidden: int = 256, codebook_size: int = 128, n_quantizers: int = 2,
-                n_points: int = 256) -> MeshSimulator:
+                decoder_hidden: int = 256, codebook_size: int = 128, n_quantizers: int = 2
+) -> MeshSimulator:
     """One of ``EMBEDDINGS`` with the shared aggregator and decoder. Every argument is a
     plain number, so the call's keyword arguments are the model's JSON config."""
     if name == "direct":
@@ -93,7 +93,7 @@ def build_model(name: str, n_outputs: int, n_scale_bins: int, dim: int = 64,
     elif name == "token":
         embedding = TokenEmbedding(dim, embed_layers, codebook_size, n_quantizers)
     elif name == "invariant":
-        embedding = PointEmbedding(dim, n_points)
+        embedding = ProbeEmbedding(dim)
     else:
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(EMBEDDINGS)}")
     return MeshSimulator(embedding, Aggregator(dim, agg_layers, n_heads),

@@ -79,14 +79,18 @@ class MeshFeatures:
     tokens: np.ndarray  # (F, 16) int64 in [0, N_BINS)
     area: np.ndarray  # (F,) float32
     edge_index: np.ndarray  # (2, E) int64, local face indices
+    probes: np.ndarray | None = None  # (N_RAYS, PROBE_DIM) float32, invariant model only
 
     @property
     def n_faces(self) -> int:
         return len(self.direct)
 
 
-def featurize(vertices: np.ndarray, faces: np.ndarray) -> MeshFeatures:
-    """Direct (Kohler et al.) and discretized MeshGPT-style features of one normalized mesh."""
+def featurize(vertices: np.ndarray, faces: np.ndarray, probes: bool = False) -> MeshFeatures:
+    """Direct (Kohler et al.) and discretized MeshGPT-style features of one normalized mesh;
+    with ``probes``, also the ray probes of the invariant model."""
+    from benchmark.models.invariant import ray_probes
+
     g = face_geometry(vertices, faces)
     corners = g["triangles"] - g["centre"][:, None]
     direct = np.concatenate([g["centre"], corners.reshape(-1, 9), g["normal"]], 1)
@@ -102,7 +106,8 @@ def featurize(vertices: np.ndarray, faces: np.ndarray) -> MeshFeatures:
         _discretize(g["normal"], -1.0, 1.0),
     ], 1)
     return MeshFeatures(direct=direct.astype(np.float32), tokens=tokens,
-                        area=g["area"].astype(np.float32), edge_index=face_adjacency(faces))
+                        area=g["area"].astype(np.float32), edge_index=face_adjacency(faces),
+                        probes=ray_probes(vertices, faces) if probes else None)
 
 
 @dataclass
@@ -121,6 +126,7 @@ class MeshBatch:
     scale_bin: torch.Tensor  # (B,) long
     target: torch.Tensor | None = None  # (B, T) float, dB
     label: torch.Tensor | None = None  # (B,) long, pretraining class
+    probes: torch.Tensor | None = None  # (B, N_RAYS, PROBE_DIM) float, invariant model
 
     def to(self, device) -> "MeshBatch":
         return MeshBatch(**{f.name: None if getattr(self, f.name) is None
@@ -155,4 +161,6 @@ def collate(items: list[MeshFeatures], scale_bin=None, target=None, label=None) 
         edge_index=torch.from_numpy(np.ascontiguousarray(edges, np.int64)),
         scale_bin=torch.from_numpy(scale_bin),
         target=None if target is None else torch.as_tensor(np.asarray(target, np.float32)),
-        label=None if label is None else torch.as_tensor(np.asarray(label, np.int64)))
+        label=None if label is None else torch.as_tensor(np.asarray(label, np.int64)),
+        probes=None if any(it.probes is None for it in items)
+        else torch.from_numpy(np.stack([it.probes for it in items])))

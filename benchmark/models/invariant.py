@@ -1,62 +1,96 @@
-"""A topology-invariant embedding: area-weighted points on the surface, not faces.
+"""A topology-invariant embedding: the surface seen along fixed rays, not the faces.
 
-The encoder sees only points sampled uniformly on the surface (with the normal there), so
-any two meshings of the same surface give the same input *distribution*. Sampling is
-stratified along the cumulative face area, which keeps the sampling noise small; in eval
-mode the random numbers come from a fixed table, so a prediction is deterministic.
+From the bounding-box centre, ``N_RAYS`` fixed directions (a Fibonacci sphere) are cast
+against the mesh; each ray reports its nearest and farthest hit (distance and the surface
+normal there, oriented along the ray). These are properties of the surface alone: any two
+meshings of the same surface give the same probes up to floating-point round-off, so the
+model is invariant by construction, with no sampling noise. Every star-shaped surface (all
+Basic Shapes primitives) is seen completely; for others the probes see the innermost and
+outermost layer along each ray. A point-set encoder (shared MLP + the transformer
+aggregator, no positional encoding) turns the probes into the mesh embedding.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
 from benchmark.models.features import MeshBatch
 
+N_RAYS = 256
+PROBE_DIM = 12  # direction (3), hit flag, near distance + normal (4), far distance + normal (4)
 
-def sample_surface(batch: MeshBatch, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Area-weighted stratified surface samples -> points (B, N, 3) and normals (B, N, 3).
 
-    ``u`` (B, N, 3) uniform in [0, 1): u[..., 0] jitters the stratum, the rest pick the
-    barycentric position inside the chosen face.
+def fibonacci_directions(n: int = N_RAYS) -> np.ndarray:
+    """(n, 3) nearly uniform unit vectors; deterministic."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+
+
+def ray_probes(vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS,
+               chunk: int = 4096) -> np.ndarray:
+    """(n_rays, PROBE_DIM) float32 probe features of one mesh (float64 Moller-Trumbore).
+
+    Hits exactly on a shared edge count for both faces (a small barycentric tolerance), which
+    does not matter: both report the same distance, and the normals of a flat region agree.
     """
-    n = u.shape[1]
-    centre, corners = batch.direct[..., :3], batch.direct[..., 3:12].unflatten(-1, (3, 3))
-    normal = batch.direct[..., 12:15]
-    tri = centre[:, :, None] + corners  # (B, L, 3, 3)
-    area = batch.area * batch.mask
-    cdf = torch.cumsum(area, 1)
-    cdf = cdf / cdf[:, -1:].clamp_min(1e-30)
-    strata = (torch.arange(n, dtype=u.dtype, device=u.device) + u[..., 0]) / n
-    face = torch.searchsorted(cdf.contiguous(), strata.contiguous(), right=True)
-    n_faces = batch.mask.sum(1, keepdim=True)
-    face = torch.minimum(face, n_faces - 1)
-    t = torch.gather(tri, 1, face[..., None, None].expand(-1, -1, 3, 3))  # (B, N, 3, 3)
-    r1 = u[..., 1].sqrt()
-    w = torch.stack([1 - r1, r1 * (1 - u[..., 2]), r1 * u[..., 2]], -1)  # (B, N, 3)
-    points = (w[..., None] * t).sum(2)
-    normals = torch.gather(normal, 1, face[..., None].expand(-1, -1, 3))
-    return points, normals
+    v = np.asarray(vertices, np.float64)
+    origin = (v.min(0) + v.max(0)) / 2
+    tri = v[np.asarray(faces, np.int64)] - origin
+    d = fibonacci_directions(n_rays)
+    near = np.full(n_rays, np.inf)
+    far = np.full(n_rays, -np.inf)
+    near_n = np.zeros((n_rays, 3))
+    far_n = np.zeros((n_rays, 3))
+    eps = 1e-9
+    for s in range(0, len(tri), chunk):
+        t3 = tri[s:s + chunk]
+        e1, e2 = t3[:, 1] - t3[:, 0], t3[:, 2] - t3[:, 0]
+        normal = np.cross(e1, e2)
+        length = np.linalg.norm(normal, axis=1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        p = np.cross(d[:, None], e2[None])  # (R, T, 3)
+        det = np.einsum("tk,rtk->rt", e1, p)
+        ok = np.abs(det) > 1e-15
+        inv = np.divide(1.0, det, out=np.zeros_like(det), where=ok)
+        s_vec = -t3[:, 0]  # ray origin (0) minus first vertex
+        u = np.einsum("tk,rtk->rt", s_vec, p) * inv
+        q = np.cross(s_vec, e1)  # (T, 3)
+        w = np.einsum("rk,tk->rt", d, q) * inv
+        dist = np.einsum("tk,tk->t", e2, q)[None] * inv
+        hit = ok & (u >= -eps) & (w >= -eps) & (u + w <= 1 + eps) & (dist > 0)
+        dist_near = np.where(hit, dist, np.inf)
+        dist_far = np.where(hit, dist, -np.inf)
+        i_near, i_far = dist_near.argmin(1), dist_far.argmax(1)
+        rows = np.arange(n_rays)
+        better = dist_near[rows, i_near] < near
+        near[better] = dist_near[rows, i_near][better]
+        near_n[better] = normal[i_near[better]]
+        better = dist_far[rows, i_far] > far
+        far[better] = dist_far[rows, i_far][better]
+        far_n[better] = normal[i_far[better]]
+    hit = np.isfinite(near)
+    flip = lambda n: n * np.where(np.einsum("rk,rk->r", n, d) < 0, -1.0, 1.0)[:, None]  # noqa: E731
+    out = np.concatenate([d, hit[:, None], np.where(hit, near, 0)[:, None], flip(near_n),
+                          np.where(hit, far, 0)[:, None], flip(far_n)], 1)
+    return out.astype(np.float32)
 
 
-class PointEmbedding(nn.Module):
-    """Embeds ``n_points`` surface samples (position + normal) with a shared MLP. The output
-    mask is all True: every mesh yields exactly ``n_points`` tokens."""
+class ProbeEmbedding(nn.Module):
+    """Embeds the ray probes with a shared MLP; every mesh yields exactly ``N_RAYS`` tokens."""
 
-    def __init__(self, dim: int, n_points: int = 256, seed: int = 0):
+    def __init__(self, dim: int):
         super().__init__()
-        self.dim, self.n_points = dim, n_points
-        self.mlp = nn.Sequential(nn.Linear(6, dim), nn.GELU(), nn.Linear(dim, dim))
-        g = torch.Generator().manual_seed(seed)
-        self.register_buffer("eval_u", torch.rand(n_points, 3, generator=g), persistent=False)
+        self.dim = dim
+        self.mlp = nn.Sequential(nn.Linear(PROBE_DIM, dim), nn.GELU(), nn.Linear(dim, dim))
 
     def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        b = batch.size
-        if self.training:
-            u = torch.rand(b, self.n_points, 3, device=batch.direct.device)
-        else:
-            u = self.eval_u.to(batch.direct.device).expand(b, -1, -1)
-        points, normals = sample_surface(batch, u)
-        emb = self.mlp(torch.cat([points, normals], -1))
-        mask = torch.ones(b, self.n_points, dtype=torch.bool, device=emb.device)
+        if batch.probes is None:
+            raise ValueError("the invariant model needs ray probes: featurize(..., probes=True)")
+        emb = self.mlp(batch.probes)
+        mask = torch.ones(emb.shape[:2], dtype=torch.bool, device=emb.device)
         return emb, emb.new_zeros(()), mask
