@@ -5,7 +5,8 @@ What a model sees (docs/BENCHMARK.md, "Inputs"):
 * the mesh scale-normalized: ``(v - c) / s`` with ``c`` the centre of the mesh's own bounding
   box and ``s`` the largest extent of the object's scale (``/objects/scale``, the same for
   every variant of an object), so the longest axis spans [-0.5, 0.5];
-* the scale itself, in metres and discretized per axis into ``ScaleBins`` (log-spaced);
+* the scale itself, in metres and discretized per axis into ``ScaleBins`` (32 log-spaced
+  bins over the dataset's generator scale range);
 * the target: the object's range profiles in dB, ``T = 20 log10(max(|profile|, 1e-4))``.
 
 Only small per-mesh metadata is held in memory; meshes and labels are read on demand, so
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.scales import SCALE_RANGE
 from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, list_shards, mesh_uid
 
 FLOOR_AMPLITUDE = 1e-4
@@ -59,13 +61,19 @@ class ScaleBins:
     """Per-axis scale discretization: ``n`` bins with log-spaced edges from ``lo`` to ``hi`` m.
 
     Bin ``i`` holds scales in [edges[i], edges[i+1]); scales below ``lo`` fall in bin 0 and
-    scales at or above ``hi`` in bin ``n-1``. The default 0.1-4 m covers every object that
-    fits the radar's ±2 m range window; each bin is about 12% wide.
+    scales at or above ``hi`` in bin ``n-1``. The default spans the generator's scale range
+    (``basic_shapes.scales.SCALE_RANGE``, 0.2-2 m: each of the 32 bins is about 7.5% wide);
+    ``for_config`` follows the range a dataset was generated with.
     """
 
-    lo: float = 0.1
-    hi: float = 4.0
+    lo: float = SCALE_RANGE[0]
+    hi: float = SCALE_RANGE[1]
     n: int = 32
+
+    @classmethod
+    def for_config(cls, generator_config: dict, n: int = 32) -> "ScaleBins":
+        lo, hi = generator_config.get("scale_range", SCALE_RANGE)
+        return cls(float(lo), float(hi), n)
 
     def __post_init__(self):
         if not (0 < self.lo < self.hi) or self.n < 1:
@@ -125,6 +133,7 @@ class BenchmarkData:
         self.meshes = {key: np.concatenate([m[key] for m in meshes]) for key in meshes[0]}
         self.grid, self.class_names, self.config = grid, names, config
         self.target_shape = tuple(len(grid[n]) for n in GRID_NAMES)
+        self.scale_bins = ScaleBins.for_config(config)
         self._check_index()
         self.meshes["uid"] = np.array([mesh_uid(i, v) for i, v in zip(
             self.objects["id"][self.meshes["object"]], self.meshes["variant"])], np.int64)
@@ -211,8 +220,12 @@ class BenchmarkData:
                              f"{int(self.objects['id'][obj])}")
         return t
 
-    def batch(self, rows: np.ndarray, scale_bins: ScaleBins = ScaleBins()) -> dict:
-        """The protocol batch (docs/BENCHMARK.md) for global mesh rows ``rows``."""
+    def batch(self, rows: np.ndarray, scale_bins: ScaleBins | None = None) -> dict:
+        """The protocol batch (docs/BENCHMARK.md) for global mesh rows ``rows``.
+
+        Scale bins default to the dataset's own (``self.scale_bins``).
+        """
+        scale_bins = scale_bins or self.scale_bins
         verts, faces = [], []
         scale = self.objects["scale"][self.meshes["object"][rows]].astype(np.float64)
         for r, s in zip(rows, scale):
@@ -253,10 +266,10 @@ class MeshDataset:
     """
 
     def __init__(self, data: BenchmarkData | str | os.PathLike, split: str = "train",
-                 variants: str = "simple", scale_bins: ScaleBins = ScaleBins()):
+                 variants: str = "simple", scale_bins: ScaleBins | None = None):
         self.data = data if isinstance(data, BenchmarkData) else BenchmarkData(data)
         self.rows = self.data.mesh_rows(split, variants)
-        self.scale_bins = scale_bins
+        self.scale_bins = scale_bins or self.data.scale_bins
 
     def __len__(self) -> int:
         return len(self.rows)

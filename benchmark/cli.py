@@ -1,0 +1,114 @@
+"""`benchmark`: evaluate a model or a predictions file, train baselines, reproduce the paper.
+
+`evaluate` never imports torch (unless the model does); `train` and `reproduce` import
+their modules only when chosen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from pathlib import Path
+
+EPILOG = """examples:
+  benchmark evaluate --data data/bs --predictions preds.h5 --out results.json
+  benchmark evaluate --data data/bs --model benchmark.protocol:MeanResponseModel \\
+      --model-arg data_dir=data/bs --out results.json --write-predictions preds.h5
+  benchmark evaluate --data data/bs --model my_model.py:MyModel --out results.json
+  benchmark train --help
+  benchmark reproduce --preset tiny --out out/tiny"""
+
+DELEGATED = {
+    "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
+    "reproduce": ("benchmark.reproduce", "run a preset (tiny|small|paper) and write the paper's table"),
+}
+
+
+def _key_value(text: str) -> tuple[str, str]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, value
+
+
+def _delegate(command: str):
+    module = DELEGATED[command][0]
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise SystemExit(f"benchmark {command}: {module} is unavailable ({exc})") from None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; the arguments of a delegated subcommand are added only if it is ``command``."""
+    p = argparse.ArgumentParser(prog="benchmark", description=__doc__, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+    e = sub.add_parser(
+        "evaluate", help="score a model or a predictions file on the test split -> results JSON",
+        description="Score a model (run over every test mesh, timed) or a predictions file "
+        "(scored without running anyone's code) on the test split; both give identical "
+        "metrics. See docs/BENCHMARK.md for the protocol and the file layouts.")
+    e.add_argument("--data", required=True, help="labelled dataset directory (shards)")
+    src = e.add_mutually_exclusive_group(required=True)
+    src.add_argument("--model", metavar="SPEC", help="module:Class or path/to/file.py:Class "
+                     "(runs its code; prefer --predictions for untrusted submissions)")
+    src.add_argument("--predictions", metavar="FILE", help="predictions HDF5 file to score")
+    e.add_argument("--out", required=True, help="results JSON to write")
+    e.add_argument("--write-predictions", metavar="FILE", help="with --model: keep its predictions file")
+    e.add_argument("--model-arg", metavar="KEY=VALUE", type=_key_value, action="append", default=[],
+                   help="constructor argument for --model, as a string (repeatable)")
+    e.add_argument("--batch-size", type=int, default=16, help="meshes per predict call (default: %(default)s)")
+    e.add_argument("--name", help="model name for the results (default: the model's `name` "
+                   "attribute, its class name, or the predictions file's stem)")
+    e.add_argument("--params", type=int, help="parameter count (default: the model's `params`)")
+    e.add_argument("--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)")
+    e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
+    e.add_argument("--train-seed", type=int, help="seed the model was trained with")
+    e.add_argument("--quiet", action="store_true", help="no progress bar")
+    for name, (_, help_text) in DELEGATED.items():
+        d = sub.add_parser(name, help=help_text, description=help_text)
+        if name == command:
+            _delegate(name).add_arguments(d)
+    return p
+
+
+def evaluate_command(args: argparse.Namespace) -> int:
+    from basic_shapes.shards import ShardError
+    from benchmark.evaluate import evaluate, format_metrics
+    from benchmark.protocol import ModelError, PredictionsError, ResultsError, load_model, write_results
+
+    if args.write_predictions and not args.model:
+        raise SystemExit("benchmark evaluate: --write-predictions needs --model")
+    if args.batch_size < 1:
+        raise SystemExit("benchmark evaluate: --batch-size must be at least 1")
+    out = Path(args.out)
+    overrides = {"name": args.name, "params": args.params, "embedding": args.embedding,
+                 "regime": args.regime}
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        model = load_model(args.model, dict(args.model_arg)) if args.model else None
+        results = evaluate(args.data, model=model, predictions=args.predictions,
+                           write_predictions=args.write_predictions, overrides=overrides,
+                           train_seed=args.train_seed, batch_size=args.batch_size,
+                           progress=not args.quiet, scratch_dir=out.parent)
+        write_results(out, results)
+    except (ShardError, ModelError, PredictionsError, ResultsError, OSError) as exc:
+        raise SystemExit(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    print(format_metrics(results))
+    print(f"results written to {out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(command).parse_args(argv)
+    if args.command == "evaluate":
+        return evaluate_command(args)
+    return _delegate(args.command).run(args) or 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,385 @@
+"""The third-party model protocol, predictions files and results JSON (docs/BENCHMARK.md).
+
+A model is any object with ``predict(batch) -> np.ndarray``; ``batch`` is a dict of numpy
+data for B meshes (``BATCH_KEYS``) and the result is (B, n_aspect, n_roll, n_range) dB
+targets. Optional attributes ``name``, ``params``, ``embedding``, ``regime`` fill the results.
+
+Predictions files and results JSON are untrusted input: they are read with h5py and json
+only (never unpickled) and validated, with one-line errors naming the file.
+"""
+
+from __future__ import annotations
+
+import datetime
+import importlib
+import importlib.util
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Protocol
+
+import h5py
+import numpy as np
+
+from basic_shapes.shards import atomic_path
+from benchmark import __version__
+from benchmark.data import BenchmarkData
+from benchmark.metrics import METRIC_NAMES, Scorer
+
+BATCH_KEYS = {
+    "vertices": "list of B float32 (V_i, 3) scale-normalized vertices (benchmark.data.normalize_mesh)",
+    "faces": "list of B int64 (F_i, 3) 0-based triangle indices",
+    "scale_bins": "int64 (B, 3) per-axis scale bin (the dataset's benchmark.data.ScaleBins)",
+    "scale_m": "float64 (B, 3) object bounding-box extents in metres",
+}
+PREDICTIONS_FORMAT = "basic-shapes-predictions"
+PREDICTIONS_VERSION = 1
+
+
+class ModelError(ValueError):
+    """A model could not be loaded, or returned something that is not a valid prediction."""
+
+
+class PredictionsError(ValueError):
+    """A predictions file is foreign, malformed, or does not match the dataset."""
+
+
+class ResultsError(ValueError):
+    """A results JSON is malformed."""
+
+
+class Model(Protocol):
+    def predict(self, batch: dict) -> np.ndarray: ...
+
+
+# --- models -----------------------------------------------------------------------------------
+def load_model(spec: str, kwargs: dict | None = None) -> Model:
+    """Instantiate ``module:Class`` or ``path/to/file.py:Class`` with ``kwargs``.
+
+    This runs the model's code: for untrusted submissions, score a predictions file instead.
+    """
+    target, sep, cls_name = spec.rpartition(":")
+    if not sep or not target or not cls_name.isidentifier():
+        raise ModelError(f"{spec}: model must be given as module:Class or path/to/file.py:Class")
+    if target.endswith(".py") or os.sep in target or "/" in target:
+        path = Path(target)
+        if not path.is_file():
+            raise ModelError(f"{spec}: no such file {path}")
+        mod_name = "benchmark_user_model_" + re.sub(r"\W", "_", str(path.resolve()))
+        module_spec = importlib.util.spec_from_file_location(mod_name, path)
+        module = importlib.util.module_from_spec(module_spec)
+        try:
+            module_spec.loader.exec_module(module)
+        except Exception as exc:
+            raise ModelError(f"{spec}: importing {path} failed: {exc.__class__.__name__}: {exc}") from None
+    else:
+        try:
+            module = importlib.import_module(target)
+        except ImportError as exc:
+            raise ModelError(f"{spec}: cannot import module {target} ({exc})") from None
+    cls = getattr(module, cls_name, None)
+    if cls is None:
+        raise ModelError(f"{spec}: module {target} has no {cls_name}")
+    try:
+        model = cls(**(kwargs or {}))
+    except Exception as exc:
+        raise ModelError(f"{spec}: constructing {cls_name} failed: {exc.__class__.__name__}: {exc}") from None
+    if not callable(getattr(model, "predict", None)):
+        raise ModelError(f"{spec}: {cls_name} has no predict(batch) method")
+    return model
+
+
+def check_prediction(out, n: int, target_shape: tuple[int, ...], who: str) -> np.ndarray:
+    """Validate one ``predict`` result; return it as float32 (n, *target_shape)."""
+    try:
+        arr = np.asarray(out)
+    except Exception as exc:
+        raise ModelError(f"{who}: predict returned {type(out).__name__}, not an array ({exc})") from None
+    if arr.shape != (n, *target_shape) or arr.dtype.kind not in "fiu":
+        raise ModelError(f"{who}: predict returned {arr.dtype}{arr.shape}, expected a real "
+                         f"array of shape {(n, *target_shape)}")
+    arr = arr.astype(np.float32)
+    if not np.all(np.isfinite(arr)):
+        raise ModelError(f"{who}: predict returned non-finite values")
+    return arr
+
+
+class MeanResponseModel:
+    """Reference: the mean training target over simple meshes, for every mesh.
+
+    The canonical mode collapse: Variation MSE is exactly 0 and the detector flags it.
+    """
+
+    name, params, embedding, regime = "mean-response", 0, "none", "basic"
+
+    def __init__(self, data_dir: str):
+        with BenchmarkData(data_dir) as data:
+            rows = data.object_rows("train")
+            self.mean = sum(data.target(o).astype(np.float64) for o in rows) / len(rows)
+
+    def predict(self, batch: dict) -> np.ndarray:
+        return np.broadcast_to(self.mean, (len(batch["scale_m"]), *self.mean.shape)).astype(np.float32)
+
+
+class NearestScaleModel:
+    """Reference: mean training target of the ``k`` objects nearest in log scale.
+
+    Sees only the scale, never the mesh: topology-invariant by construction (Variation MSE 0)
+    and not collapsed, since its predictions vary with the object.
+    """
+
+    name, params, embedding, regime = "nearest-scale", 0, "none", "basic"
+
+    def __init__(self, data_dir: str, k: int | str = 3):
+        self.k = int(k)
+        with BenchmarkData(data_dir) as data:
+            rows = data.object_rows("train")
+            self.log_scale = np.log(data.objects["scale"][rows])
+            self.targets = np.stack([data.target(o) for o in rows])
+
+    def predict(self, batch: dict) -> np.ndarray:
+        d = np.linalg.norm(np.log(batch["scale_m"])[:, None] - self.log_scale[None], axis=-1)
+        nearest = np.argsort(d, axis=1, kind="stable")[:, :self.k]
+        return self.targets[nearest].mean(axis=1, dtype=np.float64).astype(np.float32)
+
+
+# --- predictions files ------------------------------------------------------------------------
+class PredictionsWriter:
+    """Write a predictions file row block by row block; the file appears only when complete."""
+
+    def __init__(self, path: str | os.PathLike, dataset_fingerprint: str, n_meshes: int,
+                 target_shape: tuple[int, ...]):
+        self.path, self.fingerprint = Path(path), dataset_fingerprint
+        self.n, self.shape, self.filled = n_meshes, tuple(target_shape), 0
+
+    def __enter__(self) -> "PredictionsWriter":
+        self._atomic = atomic_path(self.path)
+        tmp = self._atomic.__enter__()
+        self.file = h5py.File(tmp, "w", libver="earliest")
+        self.file.attrs["format"] = PREDICTIONS_FORMAT
+        self.file.attrs["version"] = PREDICTIONS_VERSION
+        self.file.attrs["dataset_fingerprint"] = self.fingerprint
+        self.uid = self.file.create_dataset("mesh_uid", (self.n,), np.int64, track_times=False)
+        self.target = self.file.create_dataset("target_db", (self.n, *self.shape), np.float32,
+                                               chunks=(1, *self.shape), track_times=False)
+        return self
+
+    def write(self, uids: np.ndarray, target_db: np.ndarray) -> None:
+        k = len(uids)
+        if self.filled + k > self.n:
+            raise PredictionsError(f"{self.path}: more than the declared {self.n} rows written")
+        self.uid[self.filled:self.filled + k] = np.asarray(uids, np.int64)
+        self.target[self.filled:self.filled + k] = np.asarray(target_db, np.float32)
+        self.filled += k
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.file.close()
+        if exc is None and self.filled != self.n:
+            exc = PredictionsError(f"{self.path}: {self.filled} of {self.n} rows written")
+        if exc is None:
+            self._atomic.__exit__(None, None, None)
+            return
+        self._atomic.__exit__(type(exc), exc, exc.__traceback__)  # removes the temporary file
+        if exc_type is None:
+            raise exc
+
+
+def write_predictions(path: str | os.PathLike, dataset_fingerprint: str, mesh_uid: np.ndarray,
+                      target_db: np.ndarray) -> None:
+    """Write a whole predictions file at once (for third parties with arrays in memory)."""
+    target_db = np.asarray(target_db)
+    with PredictionsWriter(path, dataset_fingerprint, len(mesh_uid), target_db.shape[1:]) as w:
+        w.write(mesh_uid, target_db)
+
+
+class Predictions:
+    """A validated predictions file for ``data``'s test split; rows read by mesh_uid."""
+
+    def __init__(self, path: str | os.PathLike, data: BenchmarkData):
+        self.path = Path(path)
+        try:
+            self.file = h5py.File(self.path, "r")
+        except (OSError, ValueError) as exc:
+            raise PredictionsError(f"{self.path}: not a readable HDF5 file "
+                                   f"({str(exc).splitlines()[0]})") from None
+        try:
+            self._validate(data)
+        except Exception:
+            self.file.close()
+            raise
+
+    def _fail(self, problem: str):
+        raise PredictionsError(f"{self.path}: {problem}")
+
+    def _validate(self, data: BenchmarkData) -> None:
+        f = self.file
+        if _attr(f, "format") != PREDICTIONS_FORMAT:
+            self._fail(f"not a predictions file (format attribute is not {PREDICTIONS_FORMAT!r})")
+        if _attr(f, "version") != str(PREDICTIONS_VERSION):
+            self._fail(f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}")
+        if _attr(f, "dataset_fingerprint") != data.fingerprint:
+            self._fail(f"made for dataset {_attr(f, 'dataset_fingerprint')}, not for "
+                       f"{data.directory} ({data.fingerprint})")
+        for name in ("mesh_uid", "target_db"):
+            if not isinstance(f.get(name, getlink=True), h5py.HardLink) \
+                    or not isinstance(f[name], h5py.Dataset) or f[name].is_virtual:
+                self._fail(f"/{name} is missing or not a plain dataset")
+        uid, tgt = f["mesh_uid"], f["target_db"]
+        if uid.ndim != 1 or uid.dtype != np.int64:
+            self._fail(f"/mesh_uid is {uid.dtype}{uid.shape}, expected int64 (m,)")
+        expected = (len(uid), *data.target_shape)
+        if tgt.shape != expected or tgt.dtype != np.float32:
+            self._fail(f"/target_db is {tgt.dtype}{tgt.shape}, expected float32{expected}")
+        uids = uid[()]
+        self.order = np.argsort(uids, kind="stable")
+        self.sorted_uids = uids[self.order]
+        dup = self.sorted_uids[1:][self.sorted_uids[1:] == self.sorted_uids[:-1]]
+        if len(dup):
+            self._fail(f"{len(dup)} duplicated mesh_uid rows (first {dup[0]})")
+        test = data.meshes["uid"][data.mesh_rows("test")]
+        missing = np.setdiff1d(test, self.sorted_uids)
+        if len(missing):
+            self._fail(f"missing {len(missing)} of {len(test)} test meshes (first mesh_uid {missing[0]})")
+        extra = np.setdiff1d(self.sorted_uids, test)
+        if len(extra):
+            self._fail(f"{len(extra)} rows are not test-split meshes of the dataset "
+                       f"(first mesh_uid {extra[0]})")
+
+    def read(self, uids: np.ndarray) -> np.ndarray:
+        """Predictions (len(uids), *target_shape) float32 for these mesh uids, in that order."""
+        rows = self.order[np.searchsorted(self.sorted_uids, uids)]
+        perm = np.argsort(rows)
+        out = np.empty((len(rows), *self.file["target_db"].shape[1:]), np.float32)
+        out[perm] = self.file["target_db"][rows[perm]]
+        bad = ~np.isfinite(out).reshape(len(out), -1).all(axis=1)
+        if bad.any():
+            self._fail(f"non-finite prediction for mesh_uid {uids[np.flatnonzero(bad)[0]]}")
+        return out
+
+    def close(self) -> None:
+        self.file.close()
+
+    def __enter__(self) -> "Predictions":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _attr(f: h5py.File, name: str) -> str | None:
+    value = f.attrs.get(name)
+    if isinstance(value, bytes):
+        value = value.decode(errors="replace")
+    return None if value is None else str(value)
+
+
+def score(data: BenchmarkData, predictions: Predictions) -> dict:
+    """Metrics of a validated predictions file, streamed object by object."""
+    scorer = Scorer(data.class_names)
+    for obj in data.object_rows("test"):
+        rows = data.meshes_of(obj)
+        pred = predictions.read(data.meshes["uid"][rows])
+        scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0], pred[1:])
+    return scorer.result()
+
+
+def score_predictions(data_dir: str | os.PathLike, predictions_path: str | os.PathLike) -> dict:
+    """The metrics dict (``Scorer.result``) of a predictions file against a labelled dataset."""
+    with BenchmarkData(data_dir) as data, Predictions(predictions_path, data) as preds:
+        return score(data, preds)
+
+
+# --- results JSON -----------------------------------------------------------------------------
+def make_results(dataset_fingerprint: str, metrics: dict, model: dict, speed: dict,
+                 seeds: dict) -> dict:
+    """A results record (docs/ARCHITECTURE.md, "Results JSON"), validated."""
+    results = {"benchmark_version": __version__, "dataset_fingerprint": dataset_fingerprint,
+               "model": model, "metrics": metrics, "speed": speed, "seeds": seeds,
+               "created": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    validate_results(results, "results")
+    return results
+
+
+def write_results(path: str | os.PathLike, results: dict) -> None:
+    """Validate and write atomically."""
+    validate_results(results, str(path))
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(results, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+def load_results(path: str | os.PathLike) -> dict:
+    """Read and validate a results JSON; ``ResultsError`` (one line) if anything is wrong."""
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ResultsError(f"{path}: cannot read ({exc.__class__.__name__})") from None
+    try:
+        results = json.loads(text, parse_constant=_reject_constant)
+    except ValueError as exc:
+        raise ResultsError(f"{path}: not valid JSON ({str(exc).splitlines()[0]})") from None
+    validate_results(results, str(path))
+    return results
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not allowed")
+
+
+def _is_number(x, allow_none: bool = False) -> bool:
+    if x is None:
+        return allow_none
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def validate_results(r, source: str) -> None:
+    """Check the structure and types of a results record; raise ``ResultsError`` naming ``source``."""
+    def need(cond: bool, problem: str):
+        if not cond:
+            raise ResultsError(f"{source}: {problem}")
+
+    need(isinstance(r, dict), "results must be a JSON object")
+    for key, kind in (("benchmark_version", str), ("dataset_fingerprint", str), ("model", dict),
+                      ("metrics", dict), ("speed", dict), ("seeds", dict), ("created", str)):
+        need(isinstance(r.get(key), kind), f"field {key!r} missing or not a {kind.__name__}")
+    need(re.fullmatch(r"[0-9a-f]{64}", r["dataset_fingerprint"]) is not None,
+         "dataset_fingerprint is not a sha256 hex digest")
+    m = r["model"]
+    need(isinstance(m.get("name"), str) and m["name"] != "", "model.name missing or empty")
+    need(m.get("params") is None or (isinstance(m["params"], int) and not isinstance(m["params"], bool)
+                                     and m["params"] >= 0), "model.params must be a count or null")
+    for key in ("embedding", "regime"):
+        need(m.get(key) is None or isinstance(m[key], str), f"model.{key} must be a string or null")
+    _validate_metrics(r["metrics"], need)
+    s = r["speed"]
+    need(_is_number(s.get("ms_per_mesh"), allow_none=True) and (s.get("ms_per_mesh") or 0) >= 0,
+         "speed.ms_per_mesh must be a non-negative number or null")
+    need(s.get("hardware") is None or isinstance(s["hardware"], str), "speed.hardware must be a string or null")
+    need(all(v is None or (isinstance(v, int) and not isinstance(v, bool)) for v in r["seeds"].values()),
+         "seeds must map names to integers or null")
+    try:
+        datetime.datetime.strptime(r["created"], "%Y-%m-%dT%H:%M:%SZ")
+    except ValueError:
+        need(False, "created is not a UTC timestamp like 2026-01-31T12:00:00Z")
+
+
+def _validate_metrics(met: dict, need) -> None:
+    def check_block(block, where: str):
+        need(isinstance(block, dict), f"{where} must be an object")
+        need(_is_number(block.get("simple_mse")) and block["simple_mse"] >= 0,
+             f"{where}.simple_mse must be a non-negative number")
+        for name in METRIC_NAMES[1:]:
+            need(_is_number(block.get(name), allow_none=True) and (block.get(name) or 0) >= 0,
+                 f"{where}.{name} must be a non-negative number or null")
+        need(isinstance(block.get("n_objects"), int) and block["n_objects"] > 0,
+             f"{where}.n_objects must be a positive integer")
+
+    check_block(met, "metrics")
+    need(isinstance(met.get("mode_collapse"), bool), "metrics.mode_collapse must be true or false")
+    need(_is_number(met.get("spread_ratio"), allow_none=True), "metrics.spread_ratio must be a number or null")
+    need(isinstance(met.get("n_meshes"), int) and met["n_meshes"] >= met["n_objects"],
+         "metrics.n_meshes must be an integer at least n_objects")
+    need(isinstance(met.get("per_class"), dict) and met["per_class"], "metrics.per_class must be a non-empty object")
+    for name, block in met["per_class"].items():
+        check_block(block, f"metrics.per_class.{name}")
