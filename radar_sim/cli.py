@@ -98,15 +98,13 @@ def cmd_rcs(args) -> None:
         print(f"{aspect:>10.4g} " + " ".join(f"{v:>13.4f}" for v in row))
 
 
-def _signature_from_shards(args):
+def dataset_signature(directory, object_id: int, config: str, mode: str = "auto"):
     """(coordinates, profiles, frequency response, title) of one object of a dataset.
 
     Uses the stored labels when they include the frequency response; otherwise simulates the
-    object's simple mesh with --config (the same computation as ``radar-sim label``).
+    object's simple mesh with ``config`` (the same computation as ``radar-sim label``).
     """
-    if args.object is None:
-        raise SystemExit(f"radar-sim: {args.source} is a dataset directory: pass --object ID")
-    path, obj, meshes = find_object(args.source, args.object)
+    path, obj, meshes = find_object(directory, object_id)
     title = f"object {obj['id']} ({obj['class']}, simple mesh)"
     with Shard(path) as s:
         if "radar/frequency_response" in s.file:
@@ -114,17 +112,17 @@ def _signature_from_shards(args):
             coords = {n: g[n][()] for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
             return coords, g["response"][k], g["frequency_response"][k], f"{title}, stored labels"
     vertices, faces = next((v, f) for variant, v, f in meshes if variant == 0)
-    return _simulated(vertices, faces, args, f"{title}, simulated")
+    return simulated_signature(vertices, faces, config, mode, title)
 
 
-def _simulated(vertices, faces, args, title):
+def simulated_signature(vertices, faces, config: str, mode: str, title: str):
     from radar_sim import simulate
 
-    config = load_config(args.config)
-    result = simulate(vertices, faces, config, mode=args.mode)
-    coords = {n: getattr(config, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
+    radar = load_config(config)
+    result = simulate(vertices, faces, radar, mode=mode)
+    coords = {n: getattr(radar, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
     return (coords, result.range_profiles, result.frequency_response,
-            f"{title}, {result.mode}, config {args.config}")
+            f"{title}, simulated ({result.mode}, config {config})")
 
 
 def cmd_plot(args) -> None:
@@ -133,11 +131,14 @@ def cmd_plot(args) -> None:
     if not Path(args.source).exists():
         raise SystemExit(f"radar-sim: {args.source}: no such file or directory")
     if Path(args.source).is_dir():
-        coords, profiles, response, title = _signature_from_shards(args)
+        if args.object is None:
+            raise SystemExit(f"radar-sim: {args.source} is a dataset directory: pass --object ID")
+        signature = dataset_signature(args.source, args.object, args.config, args.mode)
     else:
         vertices, faces = _mesh(args.source, args.units)
-        coords, profiles, response, title = _simulated(vertices, faces, args,
-                                                       f"{Path(args.source).name}")
+        signature = simulated_signature(vertices, faces, args.config, args.mode,
+                                        Path(args.source).name)
+    coords, profiles, response, title = signature
     plot_signature(args.out, range_profiles=profiles, frequency_response=response,
                    roll=args.roll, title=title, **coords)
     print(f"wrote {args.out}")

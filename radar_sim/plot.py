@@ -57,7 +57,7 @@ def plot_signature(out: str | os.PathLike, *, aspect_deg, roll_deg, range_m, fre
     ax.set_thetamin(float(aspect_deg.min()))
     ax.set_thetamax(float(aspect_deg.max()))
     ax.set_ylim(np.ceil(rcs.max() + 5) - DYNAMIC_RANGE_DB, np.ceil(rcs.max() + 5))
-    ax.set_title(f"RCS (dBsm) vs aspect at {frequency_hz[f] / 1e9:.4g} GHz")
+    ax.set_title(f"RCS (dBsm) vs aspect at {frequency_hz[f] / 1e9:.4g} GHz", pad=18)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
