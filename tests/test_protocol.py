@@ -1,0 +1,278 @@
+"""The model protocol, predictions files, results JSON and `benchmark evaluate`."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import h5py
+import numpy as np
+import pytest
+
+from basic_shapes.shards import dataset_fingerprint
+from benchmark.cli import main
+from benchmark.data import BenchmarkData
+from benchmark.evaluate import evaluate
+from benchmark.protocol import (ModelError, NearestScaleModel, PredictionsError, ResultsError, load_model,
+                                load_results, score_predictions, write_predictions, write_results)
+from benchmark_fixture import CLASSES, analytic_label, make_dataset
+
+GEOMETRY_MODEL = '''
+import numpy as np
+
+class GeometryModel:
+    """Depends on every input, so a mesh mixed up with another changes the metrics."""
+    name = "geometry"
+
+    def __init__(self, offset="0"):
+        self.offset = float(offset)
+
+    def predict(self, batch):
+        out = []
+        for v, f, bins, s in zip(batch["vertices"], batch["faces"], batch["scale_bins"], batch["scale_m"]):
+            base = -30.0 + 0.37 * bins.sum() + 0.011 * len(f) + 3.3 * np.abs(v).mean() + s.prod()
+            out.append(base + np.sin(np.arange(7 * 5 * 16)).reshape(7, 5, 16) * s[0] * 10 + self.offset)
+        return np.stack(out)
+'''
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("data"))
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "geometry_model.py"
+    path.write_text(GEOMETRY_MODEL)
+    return path
+
+
+@pytest.fixture(scope="module")
+def model_run(data_dir, model_file, tmp_path_factory):
+    """Results of the model path, with its predictions kept."""
+    preds = tmp_path_factory.mktemp("run") / "preds.h5"
+    model = load_model(f"{model_file}:GeometryModel", {"offset": "0.5"})
+    return evaluate(data_dir, model=model, write_predictions=preds, progress=False), preds
+
+
+def independent_metrics(data_dir, preds_path):
+    """Simple/Complex/Variation MSE straight from the fixture's labels and the raw HDF5 file."""
+    with h5py.File(preds_path) as f:
+        by_uid = dict(zip(f["mesh_uid"][()].tolist(), f["target_db"][()].astype(np.float64)))
+    from basic_shapes.shards import iter_objects
+    simple, complex_, variation = [], [], []
+    for _, obj, meshes in iter_objects(data_dir, split="test"):
+        with BenchmarkData(data_dir) as d:
+            grid = d.grid
+        label = analytic_label(obj["class"], obj["scale"], grid["aspect_deg"], grid["roll_deg"], grid["range_m"])
+        t = 20 * np.log10(np.maximum(np.abs(label.astype(np.complex128)), 1e-4)).astype(np.float32)
+        s = by_uid[obj["id"] * 1000]
+        cs = [by_uid[obj["id"] * 1000 + v] for v, _, _ in meshes if v > 0]
+        simple.append(np.mean((t - s) ** 2))
+        complex_.append(np.mean([np.mean((t - c) ** 2) for c in cs]))
+        variation.append(np.mean([np.mean((s - c) ** 2) for c in cs]))
+    return np.mean(simple), np.mean(complex_), np.mean(variation)
+
+
+def test_model_path_and_predictions_path_give_identical_metrics(data_dir, model_run):
+    results, preds = model_run
+    assert score_predictions(data_dir, preds) == results["metrics"]
+    from_file = evaluate(data_dir, predictions=preds, progress=False)
+    assert from_file["metrics"] == results["metrics"]
+    assert from_file["model"]["name"] == "preds" and results["model"]["name"] == "geometry"
+    assert results["speed"]["ms_per_mesh"] > 0 and results["speed"]["hardware"].startswith("cpu: ")
+    assert from_file["speed"] == {"ms_per_mesh": None, "hardware": None}
+    assert results["dataset_fingerprint"] == dataset_fingerprint(data_dir)
+
+
+def test_scores_agree_with_an_independent_computation(data_dir, model_run):
+    results, preds = model_run
+    simple, complex_, variation = independent_metrics(data_dir, preds)
+    m = results["metrics"]
+    assert m["simple_mse"] == pytest.approx(simple, rel=1e-9)
+    assert m["complex_mse"] == pytest.approx(complex_, rel=1e-9)
+    assert m["variation_mse"] == pytest.approx(variation, rel=1e-9)
+    assert m["variation_mse"] > 0 and m["n_objects"] == 6 and m["n_meshes"] == 18
+    assert set(m["per_class"]) == set(CLASSES)
+
+
+def test_third_party_file_in_any_row_order_scores_the_same(data_dir, model_run, tmp_path):
+    results, preds = model_run
+    with h5py.File(preds) as f:
+        uid, tgt = f["mesh_uid"][()], f["target_db"][()]
+    perm = np.random.default_rng(0).permutation(len(uid))
+    shuffled = tmp_path / "shuffled.h5"
+    write_predictions(shuffled, dataset_fingerprint(data_dir), uid[perm], tgt[perm])
+    assert score_predictions(data_dir, shuffled) == results["metrics"]
+    # a different prediction for one mesh changes the numbers: the check can fail
+    tgt[perm[0]] += 1.0
+    write_predictions(shuffled, dataset_fingerprint(data_dir), uid, tgt)
+    assert score_predictions(data_dir, shuffled) != results["metrics"]
+
+
+def test_models_load_from_module_and_file(data_dir, model_file):
+    m = load_model("benchmark.protocol:NearestScaleModel", {"data_dir": str(data_dir), "k": "2"})
+    assert isinstance(m, NearestScaleModel) and m.k == 2
+    assert load_model(f"{model_file}:GeometryModel").name == "geometry"
+    for spec, problem in [("nocolon", "module:Class"), ("benchmark.protocol:Nope", "has no Nope"),
+                          ("no_such_module_xyz:Model", "cannot import"), ("/no/file.py:Model", "no such file"),
+                          ("benchmark.protocol:MeanResponseModel", "constructing MeanResponseModel failed"),
+                          ("benchmark.protocol:PredictionsError", "has no predict")]:
+        with pytest.raises(ModelError, match=problem):
+            load_model(spec)
+
+
+def test_reference_models_mode_collapse_both_ways(data_dir):
+    kw = {"data_dir": str(data_dir)}
+    mean = evaluate(data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False)
+    near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw), progress=False)
+    assert mean["metrics"]["mode_collapse"] and mean["metrics"]["spread_ratio"] == 0.0
+    assert not near["metrics"]["mode_collapse"] and near["metrics"]["spread_ratio"] > 0.05
+    assert mean["metrics"]["variation_mse"] == near["metrics"]["variation_mse"] == 0.0
+
+
+class BadShape:
+    def predict(self, batch):
+        return np.zeros((len(batch["scale_m"]), 7, 5, 15))
+
+
+class Crashes:
+    def predict(self, batch):
+        raise RuntimeError("out of memory\nsecond line")
+
+
+class NaNs:
+    def predict(self, batch):
+        return np.full((len(batch["scale_m"]), 7, 5, 16), np.nan)
+
+
+@pytest.mark.parametrize("model, problem", [(BadShape(), r"float64\(16, 7, 5, 15\), expected"),
+                                            (Crashes(), "predict failed: RuntimeError"),
+                                            (NaNs(), "non-finite")])
+def test_bad_models_fail_cleanly_and_leave_no_file(data_dir, tmp_path, model, problem):
+    out = tmp_path / "p.h5"
+    with pytest.raises(ModelError, match=problem):
+        evaluate(data_dir, model=model, write_predictions=out, progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def _rewrite(src, dst, edit):
+    with h5py.File(src) as f:
+        uid, tgt = f["mesh_uid"][()], f["target_db"][()]
+        attrs = dict(f.attrs)
+    uid, tgt, attrs = edit(uid, tgt, attrs)
+    with h5py.File(dst, "w") as f:
+        f.attrs.update(attrs)
+        f["mesh_uid"], f["target_db"] = uid, tgt
+
+
+MALFORMED = {
+    "wrong grid": (lambda u, t, a: (u, t[..., :-1], a), r"/target_db is float32\(18, 7, 5, 15\), expected float32\(18, 7, 5, 16\)"),
+    "float64": (lambda u, t, a: (u, t.astype(np.float64), a), "/target_db is float64"),
+    "int32 uid": (lambda u, t, a: (u.astype(np.int32), t, a), "/mesh_uid is int32"),
+    "missing mesh": (lambda u, t, a: (u[1:], t[1:], a), "missing 1 of 18 test meshes"),
+    "extra mesh": (lambda u, t, a: (np.append(u, 999999), np.concatenate([t, t[:1]]), a), "1 rows are not test-split meshes"),
+    "duplicate": (lambda u, t, a: (np.append(u, u[0]), np.concatenate([t, t[:1]]), a), "1 duplicated mesh_uid"),
+    "fingerprint": (lambda u, t, a: (u, t, {**a, "dataset_fingerprint": "0" * 64}), "made for dataset 0000"),
+    "version": (lambda u, t, a: (u, t, {**a, "version": 7}), "version 7 is not 1"),
+    "foreign": (lambda u, t, a: (u, t, {}), "not a predictions file"),
+    "nan": (lambda u, t, a: (u, np.where(np.arange(len(u))[:, None, None, None] == 3, np.nan, t).astype(np.float32), a),
+            "non-finite prediction for mesh_uid"),
+}
+
+
+@pytest.mark.parametrize("case", list(MALFORMED))
+def test_malformed_predictions_give_one_line_errors(data_dir, model_run, tmp_path, case):
+    edit, problem = MALFORMED[case]
+    bad = tmp_path / f"{case.replace(' ', '_')}.h5"
+    _rewrite(model_run[1], bad, edit)
+    with pytest.raises(PredictionsError, match=problem) as err:
+        score_predictions(data_dir, bad)
+    assert str(err.value).startswith(str(bad)) and "\n" not in str(err.value)
+
+
+def test_non_hdf5_and_linked_datasets_are_refused(data_dir, model_run, tmp_path):
+    text = tmp_path / "preds.h5"
+    text.write_text("mesh_uid,target\n")
+    with pytest.raises(PredictionsError, match="not a readable HDF5 file"):
+        score_predictions(data_dir, text)
+    linked = tmp_path / "linked.h5"
+    _rewrite(model_run[1], linked, lambda u, t, a: (u, t, a))
+    with h5py.File(linked, "a") as f:
+        del f["target_db"]
+        f["target_db"] = h5py.ExternalLink(str(model_run[1]), "/target_db")
+    with pytest.raises(PredictionsError, match="/target_db is missing or not a plain dataset"):
+        score_predictions(data_dir, linked)
+
+
+def test_results_json_round_trip_and_validation(model_run, tmp_path):
+    results = model_run[0]
+    path = tmp_path / "r.json"
+    write_results(path, results)
+    assert load_results(path) == results
+    cases = {
+        "missing": ({k: v for k, v in results.items() if k != "speed"}, "field 'speed' missing"),
+        "fingerprint": ({**results, "dataset_fingerprint": "abc"}, "not a sha256"),
+        "bool mse": ({**results, "metrics": {**results["metrics"], "simple_mse": True}}, "simple_mse must be"),
+        "negative": ({**results, "metrics": {**results["metrics"], "variation_mse": -1.0}}, "variation_mse must be"),
+        "params": ({**results, "model": {**results["model"], "params": "many"}}, "model.params"),
+        "per class": ({**results, "metrics": {**results["metrics"], "per_class": {"cube": {}}}}, "per_class.cube.simple_mse"),
+        "created": ({**results, "created": "yesterday"}, "created is not a UTC timestamp"),
+    }
+    for name, (bad, problem) in cases.items():
+        p = tmp_path / f"{name}.json"
+        p.write_text(json.dumps(bad))
+        with pytest.raises(ResultsError, match=problem) as err:
+            load_results(p)
+        assert str(err.value).startswith(str(p)) and "\n" not in str(err.value)
+    nan = tmp_path / "nan.json"
+    nan.write_text(json.dumps(results).replace('"simple_mse": ', '"simple_mse": NaN, "x": ', 1))
+    with pytest.raises(ResultsError, match="not valid JSON"):
+        load_results(nan)
+    with pytest.raises(ResultsError, match="model.name"):
+        write_results(tmp_path / "never.json", {**results, "model": {}})
+    assert not (tmp_path / "never.json").exists()
+
+
+def test_cli_evaluate_both_paths(data_dir, model_file, tmp_path, capsys):
+    preds, r1, r2 = tmp_path / "p.h5", tmp_path / "out" / "r1.json", tmp_path / "r2.json"
+    assert main(["evaluate", "--quiet", "--data", str(data_dir), "--model", f"{model_file}:GeometryModel",
+                 "--model-arg", "offset=1", "--out", str(r1), "--write-predictions", str(preds),
+                 "--params", "12", "--regime", "basic", "--train-seed", "3"]) == 0
+    assert main(["evaluate", "--data", str(data_dir), "--predictions", str(preds), "--out", str(r2),
+                 "--name", "geometry-file"]) == 0
+    a, b = load_results(r1), load_results(r2)
+    assert a["metrics"] == b["metrics"] and "mode collapse" in capsys.readouterr().out
+    assert a["model"] == {"name": "geometry", "params": 12, "embedding": None, "regime": "basic"}
+    assert a["seeds"] == {"dataset": 0, "train": 3} and b["model"]["name"] == "geometry-file"
+
+
+def test_cli_errors_are_one_line_and_keep_existing_results(data_dir, tmp_path):
+    out = tmp_path / "r.json"
+    out.write_text("keep me")
+    bad = tmp_path / "bad.h5"
+    with h5py.File(bad, "w") as f:
+        f["x"] = np.zeros(3)
+    for argv, problem in [(["--predictions", str(bad)], "not a predictions file"),
+                          (["--predictions", str(bad), "--write-predictions", "x.h5"], "needs --model"),
+                          (["--model", "nope"], "module:Class")]:
+        with pytest.raises(SystemExit) as err:
+            main(["evaluate", "--data", str(data_dir), "--out", str(out), *argv])
+        assert problem in str(err.value.code) and "\n" not in str(err.value.code)
+    with pytest.raises(SystemExit) as err:
+        main(["evaluate", "--data", str(tmp_path / "none"), "--predictions", str(bad), "--out", str(out)])
+    assert "no such dataset directory" in str(err.value.code)
+    assert out.read_text() == "keep me"
+
+
+def test_scoring_and_evaluate_do_not_import_torch(data_dir, model_run):
+    code = textwrap.dedent(f"""
+        import sys
+        from benchmark.cli import main
+        main(["evaluate", "--quiet", "--data", {str(data_dir)!r}, "--predictions", {str(model_run[1])!r},
+              "--out", {str(model_run[1].with_suffix('.json'))!r}])
+        assert "torch" not in sys.modules, "torch was imported"
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
