@@ -1,9 +1,9 @@
 """Per-face features and ragged-batch collation shared by every baseline encoder.
 
 Features are computed once per mesh in numpy (``featurize``) and cached by the caller, so
-training epochs only pad and stack (``collate``). Meshes arrive scale-normalized (the
-harness divides by the object's extent); discretization assumes coordinates in
-``[-COORD_RANGE, COORD_RANGE]`` and clips anything outside.
+training epochs only pad and stack (``collate``). Meshes arrive scale-normalized
+(``benchmark.data.normalize_mesh``: the longest axis spans [-0.5, 0.5]); discretization
+covers ``[-COORD_RANGE, COORD_RANGE]`` and clips anything outside.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import numpy as np
 import torch
 
 N_BINS = 128  # discretization levels per quantity, as in MeshGPT
-COORD_RANGE = 1.0
+COORD_RANGE = 0.5
 DIRECT_DIM = 15  # centre (3) + corner vectors (9) + unit normal (3)
 N_TOKENS = 16  # discretized: coordinates (9) + interior angles (3) + area (1) + normal (3)
 TOKEN_GROUPS = (("coord", 9), ("angle", 3), ("area", 1), ("normal", 3))
-MAX_LOG_AREA, MIN_LOG_AREA = 1.0, -12.0  # natural log of a face area in normalized units
+MAX_LOG_AREA, MIN_LOG_AREA = 0.0, -14.0  # natural log of a face area in normalized units
 
 
 def face_adjacency(faces: np.ndarray) -> np.ndarray:
@@ -123,7 +123,7 @@ class MeshBatch:
     area: torch.Tensor  # (B, L) float
     mask: torch.Tensor  # (B, L) bool
     edge_index: torch.Tensor  # (2, E) long
-    scale_bin: torch.Tensor  # (B,) long
+    scale_bin: torch.Tensor  # (B, 3) long, per-axis discretized object scale
     target: torch.Tensor | None = None  # (B, T) float, dB
     label: torch.Tensor | None = None  # (B,) long, pretraining class
     probes: torch.Tensor | None = None  # (B, N_RAYS, PROBE_DIM) float, invariant model
@@ -154,7 +154,8 @@ def collate(items: list[MeshFeatures], scale_bin=None, target=None, label=None) 
         area[i, :n[i]] = it.area
         mask[i, :n[i]] = True
     edges = np.concatenate([it.edge_index + offsets[i] for i, it in enumerate(items)], 1)
-    scale_bin = np.zeros(b, np.int64) if scale_bin is None else np.asarray(scale_bin, np.int64)
+    scale_bin = np.zeros((b, 3), np.int64) if scale_bin is None \
+        else np.asarray(scale_bin, np.int64).reshape(b, 3)
     return MeshBatch(
         direct=torch.from_numpy(direct), tokens=torch.from_numpy(tokens),
         area=torch.from_numpy(area), mask=torch.from_numpy(mask),

@@ -1,0 +1,102 @@
+"""Checkpoints (state_dict + JSON config) and the protocol adapter that evaluates them.
+
+A checkpoint is a directory: ``model.pt`` holds only tensors (loaded with
+``torch.load(weights_only=True)``, so a foreign file cannot run code) and ``config.json``
+holds everything needed to rebuild the model and feed it: the ``build_model`` arguments,
+the target grid shape and the scale bins used in training.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from basic_shapes.shards import atomic_path
+from benchmark.models import MeshSimulator, build_model, collate, count_parameters, featurize
+
+CHECKPOINT_FORMAT = "basic-shapes-checkpoint"
+CHECKPOINT_VERSION = 1
+WEIGHTS, CONFIG = "model.pt", "config.json"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint directory is missing, foreign or inconsistent."""
+
+
+def save_checkpoint(directory: str | os.PathLike, model: MeshSimulator, config: dict) -> Path:
+    """Write ``model.pt`` and ``config.json`` atomically; ``config`` must hold "model"
+    (``build_model`` kwargs including ``name``), "target_shape" and "scale_bins"."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    missing = {"model", "target_shape", "scale_bins"} - set(config)
+    if missing:
+        raise ValueError(f"checkpoint config lacks {sorted(missing)}")
+    config = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+              "params": count_parameters(model), **config}
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    with atomic_path(directory / WEIGHTS) as tmp:
+        torch.save(state, tmp)
+    with atomic_path(directory / CONFIG) as tmp:
+        tmp.write_text(json.dumps(config, indent=1, sort_keys=True))
+    return directory
+
+
+def load_checkpoint(directory: str | os.PathLike,
+                    map_location: str | torch.device = "cpu") -> tuple[MeshSimulator, dict]:
+    """Rebuild the model of a checkpoint directory (eval mode) and return it with its config."""
+    directory = Path(directory)
+    try:
+        config = json.loads((directory / CONFIG).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise CheckpointError(f"{directory / CONFIG}: unreadable checkpoint config ({exc})") from None
+    if config.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{directory / CONFIG}: not a {CHECKPOINT_FORMAT} config")
+    kwargs = dict(config["model"])
+    model = build_model(kwargs.pop("name"), **kwargs)
+    try:
+        state = torch.load(directory / WEIGHTS, map_location=map_location, weights_only=True)
+        model.load_state_dict(state)
+    except Exception as exc:  # noqa: BLE001 - any failure means the weights are unusable
+        raise CheckpointError(f"{directory / WEIGHTS}: cannot load weights "
+                              f"({exc.__class__.__name__}: {str(exc).splitlines()[0]})") from None
+    return model.eval(), config
+
+
+class CheckpointModel:
+    """A trained checkpoint behind the benchmark's model protocol (``predict(batch)``).
+
+    ``batch`` is the protocol batch (``benchmark.data.BenchmarkData.batch``): lists of
+    normalized ``vertices`` and ``faces`` plus ``scale_m``. The scale bins are recomputed
+    from ``scale_m`` with the bins stored in the checkpoint, so the model is always fed the
+    discretization it was trained with.
+    """
+
+    def __init__(self, checkpoint: str | os.PathLike, device: str = "cpu", batch_size: int = 16):
+        from benchmark.data import ScaleBins
+
+        self.model, self.config = load_checkpoint(checkpoint, device)
+        self.device, self.batch_size = torch.device(device), batch_size
+        self.model.to(self.device)
+        self.scale_bins = ScaleBins(**self.config["scale_bins"])
+        self.target_shape = tuple(self.config["target_shape"])
+        self.probes = self.config["model"]["name"] == "invariant"
+        self.name = self.config.get("name", self.config["model"]["name"])
+        self.embedding = self.config.get("embedding", self.config["model"]["name"])
+        self.regime = self.config.get("regime")
+        self.params = count_parameters(self.model)
+
+    @torch.no_grad()
+    def predict(self, batch: dict) -> np.ndarray:
+        """(B, n_aspect, n_roll, n_range) float32 predicted dB target."""
+        bins = self.scale_bins.index(np.asarray(batch["scale_m"], np.float64)).reshape(-1, 3)
+        out = []
+        for s in range(0, len(bins), self.batch_size):
+            items = [featurize(v, f, probes=self.probes) for v, f in
+                     zip(batch["vertices"][s:s + self.batch_size], batch["faces"][s:s + self.batch_size])]
+            pred, _ = self.model(collate(items, scale_bin=bins[s:s + self.batch_size]).to(self.device))
+            out.append(pred.float().cpu().numpy())
+        return np.concatenate(out).reshape(-1, *self.target_shape)

@@ -1,0 +1,404 @@
+"""Training regimes of the paper, for one (embedding, regime) at a time.
+
+* ``basic``: from scratch on the simple meshes of the training objects.
+* ``ideal``: from scratch on all meshes of the training objects (normally unavailable).
+  Every epoch visits each training object once, through a uniformly random one of its
+  meshes, so Ideal gets the same number of steps and the same exposure to each object as
+  Basic; only the meshings differ.
+* ``classification`` / ``autoencoder``: the face embedding (and, for classification, the
+  aggregator) is first pretrained on a mesh corpus (``benchmark.corpus``: procedural, or
+  ShapeNetCore v2), by shape classification or by MeshGPT-style reconstruction of the
+  discretized face coordinates; then the whole model is fine-tuned as in ``basic``.
+
+The loss is MSE on the dB target (or the intensity-weighted MSE of ``benchmark.metrics``),
+plus the token embedding's commitment loss. The decoder predicts in units standardized by
+the training responses (``Decoder.set_output_statistics``). Runs are deterministic for a seed on one machine. Under ``torchrun``
+(``WORLD_SIZE`` > 1) the loss module is wrapped in DistributedDataParallel and every epoch's
+objects are sharded with a DistributedSampler; rank 0 writes the checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.utils.data import DistributedSampler
+from tqdm import tqdm
+
+from benchmark.data import BenchmarkData, ScaleBins
+from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, ClassificationHead, MeshSimulator,
+                              ReconstructionHead, build_model, collate, featurize)
+from benchmark.models.features import MeshFeatures
+
+REGIMES = ("basic", "ideal", "classification", "autoencoder")
+PRETRAINED = ("classification", "autoencoder")
+LOSSES = ("mse", "intensity")
+BUCKET = 8  # batches per length bucket: meshes of similar face count are batched together
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run (stored in the checkpoint)."""
+
+    embedding: str = "graph"
+    regime: str = "basic"
+    dim: int = 64
+    embed_layers: int = 3
+    agg_layers: int = 2
+    n_heads: int = 4
+    decoder_hidden: int = 256
+    codebook_size: int = 128
+    n_quantizers: int = 2
+    epochs: int = 40
+    batch_size: int = 16
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    loss: str = "mse"
+    pretrain_meshes: int = 1000
+    pretrain_epochs: int = 10
+    pretrain_max_faces: int = 800
+    pretrain_lr: float = 1e-3
+    corpus_seed: int = 0
+    shapenet: str | None = None
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.embedding not in EMBEDDINGS:
+            raise ValueError(f"unknown embedding {self.embedding!r}; choose one of {EMBEDDINGS}")
+        if self.regime not in REGIMES:
+            raise ValueError(f"unknown regime {self.regime!r}; choose one of {REGIMES}")
+        if self.regime in PRETRAINED and self.embedding not in FACE_EMBEDDINGS:
+            raise ValueError(f"the {self.embedding} model has no face embedding to pretrain; "
+                             f"use regime basic or ideal")
+        if self.loss not in LOSSES:
+            raise ValueError(f"unknown loss {self.loss!r}; choose one of {LOSSES}")
+
+    @property
+    def name(self) -> str:
+        return f"{self.embedding}-{self.regime}"
+
+    def model_kwargs(self, n_outputs: int, n_scale_bins: int) -> dict:
+        return {"name": self.embedding, "n_outputs": n_outputs, "n_scale_bins": n_scale_bins,
+                "dim": self.dim, "embed_layers": self.embed_layers, "agg_layers": self.agg_layers,
+                "n_heads": self.n_heads, "decoder_hidden": self.decoder_hidden,
+                "codebook_size": self.codebook_size, "n_quantizers": self.n_quantizers}
+
+
+# --- examples ---------------------------------------------------------------------------------
+@dataclass
+class Example:
+    """One training mesh, featurized once."""
+
+    features: MeshFeatures
+    scale_bin: np.ndarray  # (3,) int64
+    target: np.ndarray | None = None  # (n_outputs,) float32 dB
+    label: int | None = None  # pretraining class
+
+
+class FeatureCache:
+    """Featurized meshes by key, so several runs in one process featurize each mesh once."""
+
+    def __init__(self):
+        self.items: dict = {}
+
+    def get(self, key, make):
+        if key not in self.items:
+            self.items[key] = make()
+        return self.items[key]
+
+
+def benchmark_examples(data: BenchmarkData, regime: str, probes: bool, scale_bins: ScaleBins,
+                       cache: FeatureCache | None = None,
+                       progress: bool = False) -> tuple[list[Example], list[np.ndarray]]:
+    """Training-split examples of a regime and their grouping by object (one group per
+    object; Ideal groups hold all of an object's meshes, the others only the simple one)."""
+    cache = cache or FeatureCache()
+    variants = "all" if regime == "ideal" else "simple"
+    rows = data.mesh_rows("train", variants)
+    objects = data.meshes["object"][rows]
+    targets = {}
+    examples = []
+    for row, obj in zip(tqdm(rows, desc="features", unit="mesh", disable=not progress), objects):
+        if obj not in targets:
+            targets[obj] = cache.get(("target", data.directory, obj),
+                                     lambda: data.target(obj).reshape(-1))
+        b = data.batch(np.array([row]), scale_bins)
+        feats = cache.get(("mesh", data.directory, int(row), probes),
+                          lambda: featurize(b["vertices"][0], b["faces"][0], probes=probes))
+        examples.append(Example(feats, b["scale_bins"][0], targets[obj]))
+    starts = np.flatnonzero(np.r_[True, objects[1:] != objects[:-1]])
+    groups = np.split(np.arange(len(rows)), starts[1:])
+    return examples, groups
+
+
+def corpus_meshes(cfg: TrainConfig, progress: bool = False) -> tuple[list, list[str]]:
+    """The pretraining corpus: ShapeNetCore v2 if configured, else the procedural one."""
+    from benchmark import corpus
+
+    if cfg.shapenet:
+        meshes = corpus.load_shapenet(cfg.shapenet, max_faces=cfg.pretrain_max_faces,
+                                      limit=cfg.pretrain_meshes or None, seed=cfg.corpus_seed)
+        return meshes, corpus.shapenet_class_names(cfg.shapenet)
+    meshes = corpus.procedural_corpus(cfg.pretrain_meshes, cfg.corpus_seed,
+                                      max_faces=cfg.pretrain_max_faces, progress=progress)
+    return meshes, list(corpus.FAMILIES)
+
+
+def corpus_examples(meshes: list, cache: FeatureCache | None = None,
+                    key: tuple = ()) -> list[Example]:
+    cache = cache or FeatureCache()
+    zero = np.zeros(3, np.int64)
+    return [cache.get(("corpus", *key, i), lambda v=v, f=f, c=c: Example(featurize(v, f), zero, None, c))
+            for i, (v, f, c) in enumerate(meshes)]
+
+
+# --- batching ---------------------------------------------------------------------------------
+def epoch_batches(examples: list[Example], groups: list[np.ndarray], batch_size: int, epoch: int,
+                  seed: int, rank: int = 0, world_size: int = 1) -> list[list[int]]:
+    """This rank's batches of example indices for one epoch, deterministic in (seed, epoch).
+
+    Objects are shuffled and sharded by a DistributedSampler (one replica when not
+    distributed); each object contributes one of its meshes, drawn at random; batches are
+    formed within buckets of similar face count and then shuffled.
+    """
+    sampler = DistributedSampler(range(len(groups)), num_replicas=world_size, rank=rank,
+                                 shuffle=True, seed=seed, drop_last=False)
+    sampler.set_epoch(epoch)
+    g = torch.Generator().manual_seed(seed * 100_003 + epoch)
+    chosen = []
+    for k in sampler:
+        members = groups[k]
+        pick = int(torch.randint(len(members), (1,), generator=g)) if len(members) > 1 else 0
+        chosen.append(int(members[pick]))
+    batches = []
+    span = batch_size * BUCKET
+    for s in range(0, len(chosen), span):
+        bucket = sorted(chosen[s:s + span], key=lambda i: examples[i].features.n_faces)
+        batches += [bucket[j:j + batch_size] for j in range(0, len(bucket), batch_size)]
+    order = torch.randperm(len(batches), generator=g).tolist()
+    return [batches[i] for i in order]
+
+
+def make_batch(examples: list[Example], idx: list[int]):
+    items = [examples[i] for i in idx]
+    target = None if items[0].target is None else np.stack([it.target for it in items])
+    label = None if items[0].label is None else [it.label for it in items]
+    return collate([it.features for it in items], scale_bin=np.stack([it.scale_bin for it in items]),
+                   target=target, label=label)
+
+
+# --- tasks (loss modules, what DDP wraps) -----------------------------------------------------
+class RegressionTask(nn.Module):
+    """The radar regression: MSE (or intensity-weighted MSE) in dB² plus the auxiliary loss."""
+
+    def __init__(self, model: MeshSimulator, loss: str, target_shape: tuple[int, ...]):
+        super().__init__()
+        self.model, self.loss_name, self.target_shape = model, loss, tuple(target_shape)
+
+    def forward(self, batch) -> tuple[torch.Tensor, dict]:
+        pred, aux = self.model(batch)
+        if self.loss_name == "intensity":
+            from benchmark.metrics import intensity_weighted_mse
+
+            shape = (len(pred), *self.target_shape)
+            loss = intensity_weighted_mse(pred.view(shape), batch.target.view(shape))
+        else:
+            loss = F.mse_loss(pred, batch.target)
+        return loss + aux, {"mse": F.mse_loss(pred.detach(), batch.target).item()}
+
+
+class PretrainTask(nn.Module):
+    def __init__(self, model: MeshSimulator, head: nn.Module):
+        super().__init__()
+        self.model, self.head = model, head
+
+    def forward(self, batch) -> tuple[torch.Tensor, dict]:
+        return self.head.loss(self.model, batch)
+
+
+def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, epochs: int,
+        batch_size: int, lr: float, weight_decay: float, seed: int, desc: str,
+        device: torch.device, progress: bool = True) -> list[dict]:
+    """AdamW with linear warm-up and cosine decay, gradient clipping at 1; returns the mean
+    loss and statistics of every epoch."""
+    distributed = torch.distributed.is_available() and torch.distributed.is_initialized()
+    rank = torch.distributed.get_rank() if distributed else 0
+    world = torch.distributed.get_world_size() if distributed else 1
+    task.to(device).train()
+    runner = task
+    if distributed:
+        runner = nn.parallel.DistributedDataParallel(
+            task, device_ids=[device.index] if device.type == "cuda" else None,
+            find_unused_parameters=isinstance(task, PretrainTask))
+    opt = torch.optim.AdamW(task.parameters(), lr=lr, weight_decay=weight_decay)
+    steps_per_epoch = len(epoch_batches(examples, groups, batch_size, 0, seed, rank, world))
+    total = max(1, epochs * steps_per_epoch)
+    warm = max(1, total // 20)
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda s: min(1.0, (s + 1) / warm) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s, total) / total))))
+    history = []
+    bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
+    for epoch in bar:
+        sums: dict[str, float] = {}
+        batches = epoch_batches(examples, groups, batch_size, epoch, seed, rank, world)
+        for idx in batches:
+            batch = make_batch(examples, idx).to(device)
+            loss, stats = runner(batch)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            nn.utils.clip_grad_norm_(task.parameters(), 1.0)
+            opt.step()
+            sched.step()
+            for k, v in {"loss": loss.item(), **stats}.items():
+                sums[k] = sums.get(k, 0.0) + v
+        record = {k: v / max(len(batches), 1) for k, v in sums.items()}
+        history.append(record)
+        bar.set_postfix({k: f"{v:.3g}" for k, v in record.items()})
+    task.eval()
+    return history
+
+
+# --- one run ----------------------------------------------------------------------------------
+def seed_everything(seed: int) -> None:
+    torch.manual_seed(seed)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+
+
+def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = ScaleBins(),
+          cache: FeatureCache | None = None, corpus: tuple[list, list[str]] | None = None,
+          device: str | torch.device = "cpu", progress: bool = True) -> tuple[MeshSimulator, dict]:
+    """Train one (embedding, regime); return the model (eval mode) and its checkpoint config.
+
+    ``corpus`` = (meshes, class names) overrides the configured pretraining corpus (lets
+    several runs share one); ``cache`` shares featurized meshes between runs.
+    """
+    device = torch.device(device)
+    cache = cache or FeatureCache()
+    seed_everything(cfg.seed)
+    n_outputs = int(np.prod(data.target_shape))
+    kwargs = cfg.model_kwargs(n_outputs, scale_bins.n)
+    model = build_model(**kwargs)
+    history: dict[str, list] = {}
+    t0 = time.perf_counter()
+    if cfg.regime in PRETRAINED:
+        meshes, names = corpus if corpus is not None else corpus_meshes(cfg, progress)
+        key = (cfg.shapenet, cfg.pretrain_meshes, cfg.corpus_seed, cfg.pretrain_max_faces)
+        examples = corpus_examples(meshes, cache, key)
+        head = ClassificationHead(cfg.dim, len(names)) if cfg.regime == "classification" \
+            else ReconstructionHead(cfg.dim)
+        groups = [np.array([i]) for i in range(len(examples))]
+        history["pretrain"] = fit(PretrainTask(model, head), examples, groups,
+                                  epochs=cfg.pretrain_epochs, batch_size=cfg.batch_size,
+                                  lr=cfg.pretrain_lr, weight_decay=cfg.weight_decay,
+                                  seed=cfg.seed + 1, desc=f"{cfg.name} pretrain", device=device,
+                                  progress=progress)
+    examples, groups = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant",
+                                          scale_bins, cache, progress)
+    model.decoder.set_output_statistics(torch.from_numpy(np.stack([examples[g[0]].target for g in groups])))
+    task = RegressionTask(model, cfg.loss, data.target_shape)
+    history["train"] = fit(task, examples, groups, epochs=cfg.epochs, batch_size=cfg.batch_size,
+                           lr=cfg.lr, weight_decay=cfg.weight_decay, seed=cfg.seed,
+                           desc=cfg.name, device=device, progress=progress)
+    model.to("cpu").eval()
+    config = {"name": cfg.name, "embedding": cfg.embedding, "regime": cfg.regime,
+              "model": kwargs, "target_shape": list(data.target_shape),
+              "scale_bins": {"lo": scale_bins.lo, "hi": scale_bins.hi, "n": scale_bins.n},
+              "train": asdict(cfg), "history": history, "train_seconds": time.perf_counter() - t0,
+              "dataset_fingerprint": data.fingerprint}
+    return model, config
+
+
+# --- CLI --------------------------------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``benchmark train``: one per ``TrainConfig`` field, plus I/O."""
+    parser.add_argument("--data", required=True, help="directory of labelled shards")
+    parser.add_argument("--out", required=True, help="checkpoint directory to write (model.pt + config.json)")
+    parser.add_argument("--results", help="also evaluate on the test split and write this results JSON")
+    parser.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    defaults = TrainConfig()
+    choices = {"embedding": EMBEDDINGS, "regime": REGIMES, "loss": LOSSES}
+    helps = {"embedding": "face embedding, or the topology-invariant model",
+             "regime": "basic (simple meshes), ideal (all meshes), or pretraining by "
+                       "classification / autoencoder then fine-tuning on simple meshes",
+             "loss": "mse, or intensity (intensity-weighted MSE + MSE)",
+             "shapenet": "pretrain on a local ShapeNetCore v2 directory instead of the procedural corpus",
+             "pretrain_meshes": "corpus size (procedural), or a cap on ShapeNet models (0: all)"}
+    for f in fields(TrainConfig):
+        default = getattr(defaults, f.name)
+        kind = str if f.name == "shapenet" else type(default)
+        parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default,
+                            choices=choices.get(f.name),
+                            help=helps.get(f.name, "") + f" (default: {default})")
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    try:
+        return TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
+    except ValueError as exc:
+        raise SystemExit(f"benchmark train: {exc}") from None
+
+
+def init_distributed() -> tuple[torch.device, int]:
+    """Join the torchrun process group when launched by it; returns (device, rank)."""
+    if int(os.environ.get("WORLD_SIZE", "1")) <= 1:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu"), 0
+    backend = "nccl" if torch.cuda.is_available() else "gloo"
+    torch.distributed.init_process_group(backend)
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    if torch.cuda.is_available():
+        torch.cuda.set_device(local)
+        return torch.device("cuda", local), torch.distributed.get_rank()
+    return torch.device("cpu"), torch.distributed.get_rank()
+
+
+def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLike,
+                        results: str | os.PathLike | None = None, progress: bool = True) -> dict:
+    """Results record of a checkpoint on the test split (harness ``evaluate``)."""
+    from benchmark.evaluate import evaluate
+    from benchmark.models.checkpoint import CheckpointModel
+    from benchmark.protocol import write_results
+
+    model = CheckpointModel(checkpoint)
+    record = evaluate(data_dir, model=model, train_seed=model.config["train"]["seed"],
+                      progress=progress)
+    if results:
+        write_results(results, record)
+    return record
+
+
+def run(args: argparse.Namespace) -> None:
+    """``benchmark train``: train, save the checkpoint, optionally evaluate."""
+    from basic_shapes.shards import ShardError
+    from benchmark.models.checkpoint import save_checkpoint
+
+    cfg = config_from_args(args)
+    device, rank = init_distributed()
+    if args.device:
+        device = torch.device(args.device)
+    try:
+        with BenchmarkData(args.data) as data:
+            model, config = train(cfg, data, device=device, progress=not args.quiet)
+    except ShardError as exc:
+        raise SystemExit(f"benchmark train: {exc}") from None
+    if rank == 0:
+        save_checkpoint(args.out, model, config)
+        print(f"{cfg.name}: checkpoint in {args.out} "
+              f"({config['train_seconds']:.1f} s, final train loss "
+              f"{config['history']['train'][-1]['loss']:.3f})")
+        if args.results:
+            from benchmark.evaluate import format_metrics
+
+            record = evaluate_checkpoint(args.out, args.data, args.results, not args.quiet)
+            print(format_metrics(record))
+            print(f"results in {args.results}")
+    if torch.distributed.is_initialized():
+        torch.distributed.destroy_process_group()
