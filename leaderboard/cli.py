@@ -1,0 +1,117 @@
+"""`leaderboard`: verify submissions, render the board as a static site, preview it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from leaderboard.store import DEFAULT_ENTRIES
+
+EPILOG = """examples:
+  leaderboard submit out/results.json --predictions out/predictions.h5 --data data/bs \\
+      --name "my-model" --link https://example.org/paper
+  leaderboard seed --from out/reproduce --data data/bs
+  leaderboard simulator --data data/bs
+  leaderboard render --out site/
+  leaderboard serve --dir site/ --port 8000
+
+Entries are JSON files in the entries folder (default: the repository's leaderboard/entries/);
+publish a new one by pull request (docs/SUBMITTING.md)."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="leaderboard", description=__doc__, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+    entries = {"default": DEFAULT_ENTRIES, "type": Path,
+               "help": "entries folder (default: %(default)s)"}
+
+    s = sub.add_parser("submit", help="re-score a results JSON + predictions file and add an entry",
+                       description="Score the predictions file again against the dataset (nothing "
+                       "submitted is executed), refuse the results if any number differs from the "
+                       "re-score, if a fingerprint belongs to another dataset or if a file is "
+                       "malformed; otherwise write one entry file atomically.")
+    s.add_argument("results", type=Path, help="results JSON written by `benchmark evaluate`")
+    s.add_argument("--predictions", type=Path, required=True, help="predictions HDF5 file")
+    s.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
+    s.add_argument("--entries", **entries)
+    s.add_argument("--name", help="name on the board (default: the results' model.name)")
+    s.add_argument("--link", help="http(s) URL of a paper or code for this entry")
+
+    d = sub.add_parser("seed", help="submit every <row>/results.json + predictions.h5 of a directory",
+                       description="Submit each row that `benchmark reproduce` wrote "
+                       "(DIR/<row>/results.json beside DIR/<row>/predictions.h5). Rows already on "
+                       "the board are skipped; every refusal is listed, then the exit is non-zero.")
+    d.add_argument("--from", dest="from_dir", type=Path, required=True, help="reproduce output dir")
+    d.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
+    d.add_argument("--entries", **entries)
+    d.add_argument("--link", help="http(s) URL shared by the seeded entries")
+
+    m = sub.add_parser("simulator", help="record the physics simulator's point for a dataset",
+                       description="Write the dataset's simulator entry: Complex MSE = variation "
+                       "between per-mesh physics labels of one object (0 without them), speed = "
+                       "timing radar_sim on the example object's meshes, or --ms-per-mesh.")
+    m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
+    m.add_argument("--entries", **entries)
+    m.add_argument("--ms-per-mesh", type=float, help="record this speed instead of timing radar_sim")
+    m.add_argument("--hardware", help="hardware description (default: this machine's CPU)")
+
+    r = sub.add_parser("render", help="build the static site and LEADERBOARD.md",
+                       description="Render every entry into OUT/index.html (sortable tables, "
+                       "per-class breakdowns, speed-vs-error chart, example predictions) and "
+                       "OUT/LEADERBOARD.md. The site loads nothing from the network.")
+    r.add_argument("--out", type=Path, default=Path("site"), help="output folder (default: %(default)s)")
+    r.add_argument("--entries", **entries)
+
+    v = sub.add_parser("serve", help="preview the rendered site locally (http.server)")
+    v.add_argument("--dir", type=Path, default=Path("site"), help="site folder (default: %(default)s)")
+    v.add_argument("--port", type=int, default=8000, help="port (default: %(default)s; 0 = any free)")
+    v.add_argument("--host", default="127.0.0.1", help="address to bind (default: %(default)s)")
+    return p
+
+
+def run(args) -> None:
+    if args.command == "submit":
+        from leaderboard.submit import submit
+        path = submit(args.results, args.predictions, args.data, args.entries, args.name, args.link)
+        print(f"accepted: {path}")
+    elif args.command == "seed":
+        from leaderboard.submit import seed
+        accepted, skipped, refused = seed(args.from_dir, args.data, args.entries, args.link)
+        for path in accepted:
+            print(f"accepted: {path}")
+        for msg in skipped:
+            print(f"skipped: {msg}")
+        for msg in refused:
+            print(f"refused: {msg}", file=sys.stderr)
+        if refused:
+            raise SystemExit(f"leaderboard seed: {len(accepted)} accepted, {len(skipped)} skipped, "
+                             f"{len(refused)} refused (first: {refused[0]})")
+    elif args.command == "simulator":
+        from leaderboard.simulator import record
+        try:
+            path = record(args.data, args.entries, args.ms_per_mesh, args.hardware)
+        except ImportError as exc:
+            raise ValueError(f"cannot time radar_sim ({exc}); pass --ms-per-mesh") from None
+        print(f"recorded: {path}")
+    elif args.command == "render":
+        from leaderboard.render import render
+        files = render(args.out, args.entries)
+        print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
+    elif args.command == "serve":
+        from leaderboard.serve import serve
+        serve(args.dir, args.port, args.host)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    try:
+        run(args)
+    except (ValueError, OSError) as exc:
+        lines = str(exc).strip().splitlines()
+        raise SystemExit(f"leaderboard {args.command}: {lines[0] if lines else exc!r}") from None
+
+
+if __name__ == "__main__":
+    main()

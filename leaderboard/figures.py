@@ -1,0 +1,78 @@
+"""The board's two figures, as PNG bytes (matplotlib, Agg; no fonts or files fetched).
+
+Speed against error puts every model of one dataset at (ms per mesh, Complex MSE), with the
+physics simulator as the reference point: a model is only useful left of it, and only as good
+as it is low. The example shows one test object's physics response beside the best models'
+predictions for its simple mesh and for a complex mesh of exactly the same shape.
+"""
+
+from __future__ import annotations
+
+import io
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+DPI = 100
+EXAMPLE_ROWS = 4
+DB_RANGE = 60.0  # colour scale: the physics peak down to DB_RANGE dB below it
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def speed_vs_error(models: list[dict], simulator: dict | None) -> bytes:
+    """Scatter of ms per mesh (log) against Complex MSE; mode-collapsed models hollow."""
+    fig, ax = plt.subplots(figsize=(7.5, 4.6), layout="constrained")
+    for e in models:
+        x, y = e["speed"]["ms_per_mesh"], e["metrics"]["complex_mse"]
+        collapsed = e["metrics"]["mode_collapse"]
+        ax.scatter([x], [y], s=46, marker="o", facecolors="none" if collapsed else "tab:blue",
+                   edgecolors="tab:red" if collapsed else "tab:blue", zorder=3)
+        ax.annotate(e["name"] + (" (mode collapse)" if collapsed else ""), (x, y),
+                    textcoords="offset points", xytext=(5, 4), fontsize=8)
+    if simulator is not None:
+        x, y = simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"]
+        ax.scatter([x], [y], s=140, marker="*", color="tab:orange", zorder=4)
+        ax.annotate("physics simulator", (x, y), textcoords="offset points", xytext=(6, 4),
+                    fontsize=8, color="tab:orange")
+    ax.set_xscale("log")
+    ax.set_xlabel("ms per mesh (log scale; lower is faster)")
+    ax.set_ylabel("Complex MSE (dB², lower is better)")
+    ax.margins(x=0.25, y=0.1)  # room for the labels
+    ax.grid(True, which="both", alpha=0.3)
+    return _png(fig)
+
+
+def example(models: list[dict]) -> bytes:
+    """Rows: up to EXAMPLE_ROWS models; columns: physics, simple-mesh and complex-mesh prediction."""
+    rows = models[:EXAMPLE_ROWS]
+    s = rows[0]["sample"]
+    physics = np.array(s["physics_db"])
+    vmax = float(physics.max())
+    extent = [s["range_m"][0], s["range_m"][-1], s["aspect_deg"][-1], s["aspect_deg"][0]]
+    fig, axes = plt.subplots(len(rows), 3, figsize=(10, 2.6 * len(rows) + 0.6), squeeze=False,
+                             layout="constrained")
+    simple, complex_ = s["meshes"]
+    titles = ["physics response", f"simple mesh ({simple['n_faces']} faces)",
+              f"complex mesh ({complex_['n_faces']} faces)"]
+    for r, e in enumerate(rows):
+        images = [physics] + [np.array(m["predicted_db"]) for m in e["sample"]["meshes"]]
+        for c, img in enumerate(images):
+            ax = axes[r, c]
+            im = ax.imshow(img, extent=extent, aspect="auto", cmap="viridis",
+                           vmin=vmax - DB_RANGE, vmax=vmax, interpolation="nearest")
+            ax.set_title(titles[c] if c == 0 else f"{e['name']}: {titles[c]}", fontsize=9)
+            ax.set_xlabel("range (m)", fontsize=8)
+            ax.set_ylabel("aspect (deg)", fontsize=8)
+            ax.tick_params(labelsize=7)
+    fig.colorbar(im, ax=axes, shrink=0.8, label="dB")
+    fig.suptitle(f"object {s['object_id']} ({s['class']}), roll {s['roll_deg']:g}°", fontsize=10)
+    return _png(fig)

@@ -1,0 +1,246 @@
+"""`leaderboard render`: entry files -> a static site (HTML, CSS, JS, PNG) and LEADERBOARD.md.
+
+Entries are grouped by dataset fingerprint, because numbers on different datasets are not
+comparable; each dataset gets its table (sorted by Complex MSE; sortable in the browser),
+per-class breakdown, speed-vs-error chart and example figure. Every text from an entry is
+escaped; the page loads nothing but its own files (a Content-Security-Policy says so), so it
+works offline and from any static host. Everything is built in memory and validated first,
+then each file is written atomically, so a bad entry leaves a previous site untouched.
+"""
+
+from __future__ import annotations
+
+import html
+import os
+import re
+from importlib import resources
+from pathlib import Path
+from string import Template
+
+from basic_shapes.shards import atomic_path
+from leaderboard import figures
+from leaderboard.store import DEFAULT_ENTRIES, METRIC_NAMES, load_entries
+
+METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
+                 "variation_mse": "Variation MSE"}
+
+
+def fmt_mse(x: float) -> str:
+    return f"{x:.2f}"
+
+
+def fmt_params(n: int | None) -> str:
+    if n is None:
+        return "—"
+    for div, unit in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if n >= div:
+            return f"{n / div:.3g} {unit}"
+    return str(n)
+
+
+def fmt_ms(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def datasets(entries: list[dict]) -> list[dict]:
+    """Group entries by dataset: models sorted by Complex MSE, and the simulator entry if any."""
+    groups: dict[str, dict] = {}
+    for e in entries:
+        fp = e["dataset"]["fingerprint"]
+        g = groups.setdefault(fp, {"fingerprint": fp, "short": fp[:12], "dataset": e["dataset"],
+                                   "models": [], "simulator": None})
+        if e["kind"] == "simulator":
+            g["simulator"] = e
+        else:
+            g["models"].append(e)
+            g["dataset"] = e["dataset"]  # model entries describe the test split
+    for g in groups.values():
+        g["models"].sort(key=lambda e: (e["metrics"]["complex_mse"], e["name"]))
+    return sorted(groups.values(), key=lambda g: (-len(g["models"]), g["fingerprint"]))
+
+
+def describe(dataset: dict) -> str:
+    parts = []
+    if dataset.get("classes"):
+        parts.append(", ".join(dataset["classes"]))
+    if dataset.get("test_objects"):
+        parts.append(f"{dataset['test_objects']} test objects, {dataset['test_meshes']} test meshes")
+    return "; ".join(parts)
+
+
+def simulator_note(sim: dict | None) -> str:
+    """One sentence about the physics point, plain text (escaped by the caller)."""
+    if sim is None:
+        return ("No physics simulator point for this dataset yet "
+                "(run `leaderboard simulator --data DIR`).")
+    how = sim.get("complex_mse_source", "")
+    return (f"Physics simulator ({sim['name']}): {fmt_ms(sim['speed']['ms_per_mesh'])} ms per mesh "
+            f"on {sim['speed']['hardware']}; Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² "
+            f"({how}).")
+
+
+# --- HTML ------------------------------------------------------------------------------------
+
+def _e(text) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _th(title: str, kind: str, sort: str | None = None) -> str:
+    aria = f' aria-sort="{sort}"' if sort else ""
+    return f'<th data-type="{kind}"{aria}><button type="button">{_e(title)}</button></th>'
+
+
+def _num(value, text: str) -> str:
+    v = "" if value is None else repr(value)
+    return f'<td class="num" data-value="{v}">{_e(text)}</td>'
+
+
+def _link(e: dict) -> str:
+    if not e.get("link"):
+        return '<td data-value="">—</td>'
+    return (f'<td><a href="{_e(e["link"])}" rel="nofollow noopener noreferrer">'
+            f'{_e(re.sub(r"^https?://", "", e["link"])[:40])}</a></td>')
+
+
+def html_table(g: dict) -> str:
+    head = ([_th("#", "num"), _th("Model", "text")]
+            + [_th(METRIC_TITLES[k], "num", "ascending" if k == "complex_mse" else None)
+               for k in METRIC_NAMES]
+            + [_th("Mode collapse", "text"), _th("Params", "num"), _th("ms / mesh", "num"),
+               _th("Hardware", "text"), _th("Date", "text"), _th("Link", "text")])
+    rows = []
+    for rank, e in enumerate(g["models"], 1):
+        m = e["metrics"]
+        collapsed = m["mode_collapse"]
+        model = e.get("model", {})
+        detail = " · ".join(str(model[k]) for k in ("embedding", "regime") if model.get(k))
+        cells = ([_num(rank, str(rank)),
+                  f'<td data-value="{_e(e["name"].lower())}">{_e(e["name"])}'
+                  + (f'<br><small class="note">{_e(detail)}</small>' if detail else "") + "</td>"]
+                 + [_num(m[k], fmt_mse(m[k])) for k in METRIC_NAMES]
+                 + ['<td class="flag">yes</td>' if collapsed else "<td>no</td>",
+                    _num(e.get("params"), fmt_params(e.get("params"))),
+                    _num(e["speed"]["ms_per_mesh"], fmt_ms(e["speed"]["ms_per_mesh"])),
+                    f"<td>{_e(e['speed']['hardware'])}</td>",
+                    f"<td>{_e(e['submitted'][:10])}</td>", _link(e)])
+        cls = ' class="collapsed"' if collapsed else ""
+        rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
+    return (f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'
+            f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>")
+
+
+def html_per_class(g: dict) -> str:
+    head = [_th("Model", "text"), _th("Class", "text")] + [_th(METRIC_TITLES[k], "num")
+                                                           for k in METRIC_NAMES]
+    rows = []
+    for e in g["models"]:
+        for cls, m in sorted(e["metrics"]["per_class"].items()):
+            rows.append("<tr>" + f"<td>{_e(e['name'])}</td><td>{_e(cls)}</td>"
+                        + "".join(_num(m[k], fmt_mse(m[k])) for k in METRIC_NAMES) + "</tr>")
+    return (f'<table class="per-class sortable" id="per-class-{g["short"]}">\n<thead><tr>'
+            f'{"".join(head)}</tr></thead>\n<tbody>\n' + "\n".join(rows) + "\n</tbody>\n</table>")
+
+
+def _img(name: str, size: tuple[int, int], alt: str) -> str:
+    return f'<figure><img src="{name}" width="{size[0]}" height="{size[1]}" alt="{_e(alt)}"></figure>'
+
+
+def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
+    short = g["short"]
+    parts = [f'<section id="dataset-{short}">',
+             f"<h2>Dataset <code>{short}</code></h2>",
+             f'<p class="note">{_e(describe(g["dataset"]))}</p>']
+    if g["models"]:
+        parts += [html_table(g)]
+    parts += ["<h3>Speed against error</h3>", f"<p>{_e(simulator_note(g['simulator']))}</p>",
+              _img(f"speed-vs-error-{short}.png", images[f"speed-vs-error-{short}.png"],
+                   "ms per mesh against Complex MSE for every model and the physics simulator")]
+    if g["models"]:
+        parts += ["<h3>Per class</h3>", html_per_class(g)]
+    if f"example-{short}.png" in images:
+        s = g["models"][0]["sample"]
+        parts += ["<h3>Example predictions</h3>",
+                  f"<p>Test object {s['object_id']} ({_e(s['class'])}): the physics response "
+                  f"(aspect against range, roll {s['roll_deg']:g}°) beside each model's prediction "
+                  f"for the simple mesh and for a complex mesh of exactly the same shape.</p>",
+                  _img(f"example-{short}.png", images[f"example-{short}.png"],
+                       "physics response beside predictions for a simple and a complex mesh")]
+    return "\n".join(parts + ["</section>"])
+
+
+# --- Markdown --------------------------------------------------------------------------------
+
+def _md(text) -> str:
+    return re.sub(r"([\\`*_\[\]<>|#])", r"\\\1", str(text))
+
+
+def markdown(groups: list[dict]) -> str:
+    out = ["# Basic Shapes leaderboard", "",
+           "Verified by re-scoring each submission's predictions against the dataset; MSE in dB², "
+           "lower is better; speeds are self-reported. Mode-collapsed models (one response for "
+           "everything) are flagged: their low Variation MSE is not an achievement.", ""]
+    for g in groups:
+        short = g["short"]
+        out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
+        if g["models"]:
+            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | Mode collapse | Params "
+                    "| ms / mesh | Hardware | Date |",
+                    "|---:|---|---:|---:|---:|---|---:|---:|---|---|"]
+            for rank, e in enumerate(g["models"], 1):
+                m = e["metrics"]
+                name = _md(e["name"])
+                if e.get("link"):
+                    name = f"[{name}]({e['link'].replace('(', '%28').replace(')', '%29')})"
+                out.append(f"| {rank} | {name} | " + " | ".join(fmt_mse(m[k]) for k in METRIC_NAMES)
+                           + f" | {'**yes**' if m['mode_collapse'] else 'no'} | "
+                           f"{fmt_params(e.get('params'))} | {fmt_ms(e['speed']['ms_per_mesh'])} | "
+                           f"{_md(e['speed']['hardware'])} | {e['submitted'][:10]} |")
+            out.append("")
+        out += [_md(simulator_note(g["simulator"])), "",
+                f"![Speed against error](speed-vs-error-{short}.png)", ""]
+        if g["models"]:
+            out += ["### Per class", "", "| Model | Class | Simple MSE | Complex MSE | Variation MSE |",
+                    "|---|---|---:|---:|---:|"]
+            out += [f"| {_md(e['name'])} | {_md(c)} | " + " | ".join(fmt_mse(m[k]) for k in METRIC_NAMES)
+                    + " |" for e in g["models"] for c, m in sorted(e["metrics"]["per_class"].items())]
+            out += ["", f"![Example predictions](example-{short}.png)", ""]
+    return "\n".join(out)
+
+
+# --- the site --------------------------------------------------------------------------------
+
+def _png_size(data: bytes) -> tuple[int, int]:
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def build(entries: list[dict]) -> dict[str, bytes]:
+    """Every file of the site, by name."""
+    groups = datasets(entries)
+    files: dict[str, bytes] = {}
+    for g in groups:
+        files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(g["models"], g["simulator"])
+        with_sample = [e for e in g["models"] if e.get("sample")]
+        if with_sample:
+            obj = with_sample[0]["sample"]["object_id"]
+            same = [e for e in with_sample if e["sample"]["object_id"] == obj]
+            files[f"example-{g['short']}.png"] = figures.example(same)
+    sizes = {name: _png_size(data) for name, data in files.items()}
+    body = "\n".join(html_section(g, sizes) for g in groups) if groups else \
+        "<p>No entries yet: see docs/SUBMITTING.md.</p>"
+    page = Template(resources.files("leaderboard").joinpath("templates/page.html").read_text("utf-8"))
+    files["index.html"] = page.substitute(body=body, n_entries=len(entries)).encode()
+    files["LEADERBOARD.md"] = markdown(groups).encode()
+    for name in ("sort.js", "style.css"):
+        files[name] = resources.files("leaderboard").joinpath("static", name).read_bytes()
+    return files
+
+
+def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES) -> dict[str, bytes]:
+    """Validate every entry, build the site in memory, then write each file atomically."""
+    files = build(load_entries(entries_dir))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, data in files.items():
+        with atomic_path(out / name) as tmp:
+            tmp.write_bytes(data)
+    return files

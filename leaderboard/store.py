@@ -1,0 +1,189 @@
+"""Entry files: one JSON file per accepted submission, the board's only source of truth.
+
+Entries reach the repository by pull request, so ``render`` validates every file again: a
+hand-edited entry with a non-http link, a missing number or a malformed sample is refused
+with a one-line error naming the file, never rendered.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+
+from basic_shapes.shards import atomic_path
+
+ENTRY_VERSION = 1
+DEFAULT_ENTRIES = Path(__file__).resolve().parent / "entries"
+KINDS = ("model", "simulator")
+METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
+MAX_NAME = 80
+MAX_TEXT = 200
+
+
+class EntryError(ValueError):
+    """An entry file (or a value bound for one) is malformed."""
+
+
+def slug(text: str) -> str:
+    """File-name-safe lower-case form of a model name."""
+    s = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
+    return s[:40] or "model"
+
+
+def check_text(value, what: str, max_len: int = MAX_TEXT) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise EntryError(f"{what} must be a non-empty string")
+    if len(value) > max_len or any(ord(c) < 32 for c in value):
+        raise EntryError(f"{what} must be one printable line of at most {max_len} characters")
+    return value
+
+
+def check_link(value) -> str | None:
+    """Only absolute http(s) URLs: a link is rendered into the page, so no javascript: etc."""
+    if value is None:
+        return None
+    check_text(value, "link", 500)
+    if not re.fullmatch(r"https?://[^\s\"'<>`]+", value):
+        raise EntryError(f"link {value!r} is not an http:// or https:// URL")
+    return value
+
+
+def check_number(value, what: str, minimum: float = 0.0, optional: bool = False) -> float | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value < minimum:
+        raise EntryError(f"{what} must be a finite number >= {minimum:g}{' or null' * optional}, "
+                         f"got {value!r}")
+    return float(value)
+
+
+def _check_block(block, what: str) -> None:
+    """Simple MSE, and Complex/Variation MSE (null when no test object has complex meshes)."""
+    if not isinstance(block, dict):
+        raise EntryError(f"{what} must be an object")
+    for k in METRIC_NAMES:
+        check_number(block.get(k), f"{what}.{k}", optional=k != "simple_mse")
+
+
+def check_metrics(m, what: str = "metrics") -> dict:
+    """The ``metrics`` structure of the results JSON (docs/ARCHITECTURE.md)."""
+    _check_block(m, what)
+    if not isinstance(m.get("mode_collapse"), bool):
+        raise EntryError(f"{what}.mode_collapse must be true or false")
+    per_class = m.get("per_class")
+    if not isinstance(per_class, dict) or not per_class:
+        raise EntryError(f"{what}.per_class must be a non-empty object")
+    for name, block in per_class.items():
+        check_text(name, f"{what}.per_class key", MAX_NAME)
+        _check_block(block, f"{what}.per_class.{name}")
+    return m
+
+
+def _check_image(img, rows: int, cols: int, what: str) -> None:
+    if not (isinstance(img, list) and len(img) == rows
+            and all(isinstance(r, list) and len(r) == cols for r in img)):
+        raise EntryError(f"{what} must be a {rows} x {cols} list of lists")
+    for r in img:
+        for v in r:
+            check_number(v, what, -1e9)
+
+
+def check_sample(s) -> dict:
+    """Downsampled dB images (aspect x range at one roll) of one test object."""
+    if not isinstance(s, dict):
+        raise EntryError("sample must be an object")
+    for k in ("aspect_deg", "range_m"):
+        if not isinstance(s.get(k), list) or not s[k]:
+            raise EntryError(f"sample.{k} must be a non-empty list")
+    shape = (len(s["aspect_deg"]), len(s["range_m"]))
+    check_number(s.get("object_id"), "sample.object_id")
+    check_text(s.get("class"), "sample.class", MAX_NAME)
+    check_number(s.get("roll_deg"), "sample.roll_deg", -360.0)
+    _check_image(s.get("physics_db"), *shape, "sample.physics_db")
+    meshes = s.get("meshes")
+    if not isinstance(meshes, list) or len(meshes) != 2:
+        raise EntryError("sample.meshes must list the simple mesh and one complex mesh")
+    for i, mesh in enumerate(meshes):
+        if not isinstance(mesh, dict):
+            raise EntryError(f"sample.meshes[{i}] must be an object")
+        for k in ("mesh_uid", "variant", "n_faces"):
+            check_number(mesh.get(k), f"sample.meshes[{i}].{k}")
+        _check_image(mesh.get("predicted_db"), *shape, f"sample.meshes[{i}].predicted_db")
+    return s
+
+
+def validate_entry(entry) -> dict:
+    """Raise EntryError unless ``entry`` is a complete, renderable entry."""
+    if not isinstance(entry, dict):
+        raise EntryError("an entry must be a JSON object")
+    if entry.get("entry_version") != ENTRY_VERSION:
+        raise EntryError(f"entry_version must be {ENTRY_VERSION}, got {entry.get('entry_version')!r}")
+    if entry.get("kind") not in KINDS:
+        raise EntryError(f"kind must be one of {', '.join(KINDS)}")
+    if not re.fullmatch(r"[a-z0-9][a-z0-9-]*", str(entry.get("id", ""))):
+        raise EntryError("id must be lower-case letters, digits and dashes")
+    check_text(entry.get("name"), "name", MAX_NAME)
+    check_link(entry.get("link"))
+    dataset = entry.get("dataset")
+    if not isinstance(dataset, dict) or not re.fullmatch(r"[0-9a-f]{64}",
+                                                         str(dataset.get("fingerprint", ""))):
+        raise EntryError("dataset.fingerprint must be a sha256 hex digest")
+    check_metrics(entry.get("metrics"))
+    speed = entry.get("speed")
+    if not isinstance(speed, dict):
+        raise EntryError("speed must be an object")
+    check_number(speed.get("ms_per_mesh"), "speed.ms_per_mesh", optional=True)
+    if speed.get("hardware") is not None:
+        check_text(speed["hardware"], "speed.hardware")
+    params = entry.get("params")
+    if params is not None and (isinstance(params, bool) or not isinstance(params, int) or params < 0):
+        raise EntryError("params must be a non-negative integer or null")
+    if not re.fullmatch(r"\d{4}-\d\d-\d\d(T[\d:.]+Z)?", str(entry.get("submitted", ""))):
+        raise EntryError("submitted must be an ISO date (YYYY-MM-DD or YYYY-MM-DDTHH:MM:SSZ)")
+    if entry.get("sample") is not None:
+        check_sample(entry["sample"])
+    return entry
+
+
+def load_entries(directory: str | os.PathLike = DEFAULT_ENTRIES) -> list[dict]:
+    """Every ``*.json`` entry of ``directory``, validated, in file-name order."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise EntryError(f"{d}: no such entries directory")
+    entries = []
+    for p in sorted(d.glob("*.json")):
+        try:
+            entry = validate_entry(json.loads(p.read_text(encoding="utf-8")))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise EntryError(f"{p}: not valid JSON ({exc})") from None
+        except EntryError as exc:
+            raise EntryError(f"{p}: {exc}") from None
+        if p.stem != entry["id"]:
+            raise EntryError(f"{p}: file name does not match the entry id {entry['id']!r}")
+        entries.append(entry)
+    return entries
+
+
+def dumps(entry: dict) -> str:
+    """Readable, diff-friendly JSON: sorted keys, arrays of numbers kept on one line."""
+    text = json.dumps(entry, indent=1, sort_keys=True, ensure_ascii=False, allow_nan=False)
+    number = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
+    return re.sub(rf"\[\s*((?:{number},\s*)*{number})\s*\]",
+                  lambda m: "[" + re.sub(r",\s*", ", ", m.group(1)) + "]", text) + "\n"
+
+
+def write_entry(directory: str | os.PathLike, entry: dict, replace: bool = False) -> Path:
+    """Validate and write ``<id>.json`` atomically; an existing id is refused unless ``replace``."""
+    validate_entry(entry)
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    path = d / f"{entry['id']}.json"
+    if path.exists() and not replace:
+        raise EntryError(f"{path}: an entry with this id is already on the board")
+    with atomic_path(path) as tmp:
+        tmp.write_text(dumps(entry), encoding="utf-8")
+    return path

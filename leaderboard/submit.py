@@ -1,0 +1,164 @@
+"""`leaderboard submit`: accept a result only if re-scoring its predictions gives its numbers.
+
+A submission is untrusted data: a results JSON and a predictions HDF5 file. Nothing in them is
+executed (no pickle, no code, no model): the benchmark reads them with json and h5py and
+validates them (``benchmark.protocol.load_results``, ``Predictions``: layout, dataset
+fingerprint, every test mesh present, finite values), the predictions are scored again by
+``benchmark.protocol.score_predictions``, and every claimed number must agree with the re-score
+within ``REL_TOL`` / ``ABS_TOL``. All checks run before anything is written, and the entry is
+written atomically, so a refused submission leaves the entries folder untouched.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from datetime import datetime, timezone
+from pathlib import Path
+
+from tqdm import tqdm
+
+from benchmark.data import BenchmarkData
+from benchmark.protocol import Predictions, load_results, score_predictions
+from leaderboard import example
+from leaderboard.store import (DEFAULT_ENTRIES, ENTRY_VERSION, METRIC_NAMES, EntryError,
+                               check_link, check_metrics, check_text, load_entries, slug,
+                               write_entry)
+
+# A claimed metric x is accepted iff |x - rescored| <= ABS_TOL + REL_TOL * |rescored|:
+# re-scoring the same predictions differs at most by summation order (~1e-12 relative), while
+# an edit at the fifth significant digit is refused.
+REL_TOL = 1e-5
+ABS_TOL = 1e-6  # dB^2
+
+
+class SubmissionError(ValueError):
+    """A submission is refused (the message is one line naming the file and the problem)."""
+
+
+class DuplicateSubmission(SubmissionError):
+    """The same predictions file is already on the board."""
+
+
+def _refuse(path, exc: BaseException) -> SubmissionError:
+    lines = str(exc).strip().splitlines()
+    msg = lines[0] if lines else exc.__class__.__name__
+    return SubmissionError(msg if str(path) in msg else f"{path}: {msg}")
+
+
+def compare(claimed: dict, rescored: dict) -> list[str]:
+    """Human-readable differences between claimed and re-scored metrics (empty if they agree)."""
+    def close(a, b) -> bool:
+        if a is None or b is None:
+            return a is b
+        return abs(a - b) <= ABS_TOL + REL_TOL * abs(b)
+
+    diffs = [f"claimed {k} {claimed.get(k)!r} differs from the re-score {rescored[k]!r}"
+             for k in METRIC_NAMES if not close(claimed.get(k), rescored[k])]
+    if claimed["mode_collapse"] != rescored["mode_collapse"]:
+        diffs.append(f"claimed mode_collapse {claimed['mode_collapse']} differs from the re-score "
+                     f"{rescored['mode_collapse']}")
+    cl, rs = claimed["per_class"], rescored["per_class"]
+    if set(cl) != set(rs):
+        diffs.append(f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}")
+    else:
+        diffs += [f"claimed per_class.{c}.{k} {cl[c].get(k)!r} differs from the re-score {rs[c][k]!r}"
+                  for c in sorted(cl) for k in METRIC_NAMES if not close(cl[c].get(k), rs[c][k])]
+    return diffs
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
+           data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
+           name: str | None = None, link: str | None = None) -> Path:
+    """Verify one submission and write its entry; raise SubmissionError (nothing written) if refused."""
+    try:
+        results = load_results(results_path)
+    except ValueError as exc:
+        raise _refuse(results_path, exc) from None
+    try:
+        link = check_link(link)
+        name = check_text(name or results["model"]["name"], "name", 80)
+    except EntryError as exc:
+        raise _refuse(results_path, exc) from None
+    try:
+        data = BenchmarkData(data_dir)
+        fingerprint = data.fingerprint
+    except (OSError, ValueError) as exc:
+        raise _refuse(data_dir, exc) from None
+    if results["dataset_fingerprint"] != fingerprint:
+        raise SubmissionError(f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
+                              f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)")
+    try:
+        rescored = score_predictions(data_dir, predictions_path)
+    except (OSError, ValueError) as exc:
+        raise _refuse(predictions_path, exc) from None
+    diffs = compare(results["metrics"], rescored)
+    if diffs:
+        more = f" (and {len(diffs) - 1} more differences)" if len(diffs) > 1 else ""
+        raise SubmissionError(f"{results_path}: {diffs[0]}{more}")
+
+    pred_sha = sha256_file(predictions_path)
+    if Path(entries_dir).is_dir():
+        for e in load_entries(entries_dir):
+            if e.get("files", {}).get("predictions_sha256") == pred_sha:
+                raise DuplicateSubmission(f"{predictions_path}: already on the board as {e['id']}")
+    with data, Predictions(predictions_path, data) as preds:
+        sample = example.sample(data, preds)
+        test_objects, test_meshes = len(data.object_rows("test")), len(data.mesh_rows("test"))
+    entry = {
+        "entry_version": ENTRY_VERSION,
+        "id": f"{slug(name)}-{pred_sha[:10]}",
+        "kind": "model",
+        "name": name,
+        "link": link,
+        "model": results["model"],
+        "params": results["model"].get("params"),
+        "benchmark_version": results["benchmark_version"],
+        "dataset": {"fingerprint": fingerprint, "classes": data.class_names,
+                    "test_objects": test_objects, "test_meshes": test_meshes},
+        "metrics": check_metrics(rescored, "re-scored metrics"),
+        "speed": {**results["speed"],
+                  "source": "self-reported by the submitter (benchmark evaluate), not re-measured"},
+        "seeds": results["seeds"],
+        "created": results["created"],
+        "submitted": _now(),
+        "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha},
+        "sample": sample,
+    }
+    return write_entry(entries_dir, entry)
+
+
+def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
+         entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None):
+    """Submit every ``<row>/results.json`` + ``<row>/predictions.h5`` of a reproduce output dir.
+
+    Returns (accepted paths, skipped duplicate messages, refused messages); every row is tried.
+    """
+    rows = sorted(Path(from_dir).glob("*/results.json"))
+    if not rows:
+        raise SubmissionError(f"{from_dir}: no <row>/results.json files (expected `benchmark reproduce` output)")
+    accepted, skipped, refused = [], [], []
+    for results in tqdm(rows, desc="submitting", unit="row"):
+        predictions = results.with_name("predictions.h5")
+        if not predictions.is_file():
+            refused.append(f"{results}: no predictions.h5 beside it")
+            continue
+        try:
+            accepted.append(submit(results, predictions, data_dir, entries_dir, link=link))
+        except DuplicateSubmission as exc:
+            skipped.append(str(exc))
+        except ValueError as exc:
+            refused.append(str(exc))
+    return accepted, skipped, refused

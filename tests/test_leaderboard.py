@@ -1,0 +1,382 @@
+"""leaderboard: submissions are re-scored by the real benchmark scorer and refused unless they agree.
+
+The test dataset is written with ``basic_shapes.shards.write_shard`` from trimesh meshes (three
+classes; each object has a simple mesh and two complex meshes of the same shape) and carries an
+analytic /radar label, so that the expected metrics are known exactly: a prediction equal to the
+label's dB target plus a per-class offset ``s`` (simple mesh) or ``c`` (complex meshes) has
+Simple MSE s^2, Complex MSE c^2 and Variation MSE (s - c)^2. The label's magnitude never drops
+below 1e-3, so the benchmark's -80 dB floor never clips it. Complex meshes also get per-mesh
+labels (/radar/variant_response) that are the object's label raised by ``VARIANT_DB`` decibels,
+so the physics simulator's own Complex MSE is exactly VARIANT_DB^2.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import struct
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import trimesh
+
+from basic_shapes.shards import (MeshRecord, ObjectRecord, dataset_fingerprint, mesh_uid,
+                                 rewrite_atomically, write_shard)
+from leaderboard import cli, store
+from leaderboard.submit import REL_TOL
+
+CLASSES = ["cube", "cylinder", "sphere"]
+ASPECT = np.linspace(0.0, 180.0, 9)
+ROLL = np.array([0.0, 90.0, 180.0, 270.0])
+RANGE = np.linspace(-1.0, 1.0, 20)
+OFFSETS = {"cube": (1.0, 3.0), "cylinder": (2.0, 5.0), "sphere": (0.5, 4.0)}  # (simple, complex) dB
+VARIANT_DB = 0.5
+TEST_OBJECTS = (1, 2, 4, 5, 7, 8)  # two per class; objects 0, 3, 6 are training objects
+
+
+def _meshes(cls: str, scale: np.ndarray) -> list[trimesh.Trimesh]:
+    if cls == "cube":
+        base = trimesh.creation.box()
+        out = [base, base.subdivide(), base.subdivide().subdivide()]
+    elif cls == "cylinder":
+        out = [trimesh.creation.cylinder(0.5, 1.0, sections=n) for n in (16, 24, 32)]
+    else:
+        out = [trimesh.creation.icosphere(n, radius=0.5) for n in (1, 2, 3)]
+    for m in out:
+        m.apply_scale(scale)
+    return out
+
+
+def response(scale: np.ndarray, object_id: int) -> np.ndarray:
+    """Analytic range profiles (aspect, roll, range): a peak at the projected half-extent."""
+    th = np.radians(ASPECT)[:, None, None]
+    ph = np.radians(ROLL)[None, :, None]
+    r = RANGE[None, None, :]
+    centre = 0.5 * (scale[0] * np.sin(th) * np.cos(ph) + scale[1] * np.sin(th) * np.sin(ph)
+                    + scale[2] * np.cos(th))
+    amp = np.linalg.norm(scale) * (1 + np.cos(th) ** 2) * np.exp(-((r + centre) / 0.15) ** 2)
+    return ((1e-3 + amp) * np.exp(2j * np.pi * r * (object_id + 1))).astype(np.complex64)
+
+
+def target_db(x: np.ndarray) -> np.ndarray:
+    return 20.0 * np.log10(np.maximum(np.abs(x.astype(np.complex128)), 1e-4))
+
+
+def _scale(object_id: int, salt: int) -> np.ndarray:
+    return np.array([0.5 + 0.1 * object_id, 0.7 + 0.05 * salt, 0.9 - 0.03 * object_id])
+
+
+def make_dataset(directory: Path, salt: int = 0) -> Path:
+    """Two labelled shards (objects 0-4 and 5-8), written by the real shard writer."""
+    directory.mkdir(parents=True)
+    ids = list(range(9))
+    for shard, chunk in enumerate((ids[:5], ids[5:])):
+        objects = []
+        for oid in chunk:
+            scale = _scale(oid, salt)
+            meshes = [MeshRecord(v, m.vertices.astype(np.float32), m.faces.astype(np.int32), 0.0,
+                                 {"variant": v}) for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))]
+            objects.append(ObjectRecord(oid, oid // 3, scale, 1000 + oid,
+                                        "test" if oid in TEST_OBJECTS else "train", meshes))
+        path = directory / f"shard-{shard:05d}.h5"
+        write_shard(path, objects, CLASSES, {"salt": salt}, "test")
+
+        def add_radar(f, objects=objects):
+            g = f.create_group("radar")
+            g.create_dataset("response", data=np.stack([response(o.scale, o.id) for o in objects]))
+            g.create_dataset("aspect_deg", data=ASPECT)
+            g.create_dataset("roll_deg", data=ROLL)
+            g.create_dataset("range_m", data=RANGE)
+            g.create_dataset("mode", data=np.array([b"convex"] * len(objects)),
+                             dtype=h5py.string_dtype())
+            rows = [(i, k) for i, (k, m) in enumerate((k, m) for k, o in enumerate(objects)
+                                                       for m in o.meshes) if m.variant > 0]
+            g.create_dataset("variant_mesh_index", data=np.array([i for i, _ in rows], np.int64))
+            gain = np.float32(10 ** (VARIANT_DB / 20))
+            g.create_dataset("variant_response", data=np.stack(
+                [response(objects[k].scale, objects[k].id) * gain for _, k in rows]))
+            g.attrs["config"] = json.dumps({"name": "analytic-test"})
+            g.attrs["version"] = "test"
+        rewrite_atomically(path, add_radar)
+    return directory
+
+
+def write_predictions(path: Path, data: Path, offsets=OFFSETS, drop: int = 0,
+                      fingerprint: str | None = None, collapse: bool = False) -> Path:
+    """Predictions = exact dB target + per-class offset; ``drop`` leaves out the last test meshes."""
+    uids, rows = [], []
+    for oid in TEST_OBJECTS:
+        t = target_db(response(_scale(oid, 0), oid))
+        s, c = offsets[CLASSES[oid // 3]]
+        for v in range(3):
+            uids.append(mesh_uid(oid, v))
+            rows.append(np.full_like(t, -30.0) if collapse else t + (s if v == 0 else c))
+    if drop:
+        uids, rows = uids[:-drop], rows[:-drop]
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "basic-shapes-predictions"
+        f.attrs["version"] = 1
+        f.attrs["dataset_fingerprint"] = fingerprint or dataset_fingerprint(data)
+        f.create_dataset("mesh_uid", data=np.array(uids, np.int64))
+        f.create_dataset("target_db", data=np.array(rows, np.float32))
+    return path
+
+
+def write_results(path: Path, data: Path, predictions: Path, name: str = "graph-ae",
+                  metrics: dict | None = None, ms_per_mesh: float = 1.25) -> Path:
+    """A results JSON as `benchmark evaluate` writes it, metrics from the real scorer."""
+    from benchmark.protocol import score_predictions
+    results = {
+        "benchmark_version": "0.1.0",
+        "dataset_fingerprint": dataset_fingerprint(data),
+        "model": {"name": name, "params": 1234567, "embedding": "graph", "regime": "autoencoder"},
+        "metrics": metrics if metrics is not None else score_predictions(data, predictions),
+        "speed": {"ms_per_mesh": ms_per_mesh, "hardware": "cpu: test (2 cores)"},
+        "seeds": {"train": 0, "dataset": 0},
+        "created": "2026-11-21T12:00:00Z",
+    }
+    path.write_text(json.dumps(results, default=float))
+    return path
+
+
+def expected_metrics(offsets=OFFSETS) -> dict:
+    """Exact metrics of ``write_predictions`` (equal mesh counts per class: pooled = class mean)."""
+    per_class = {c: {"simple_mse": s * s, "complex_mse": k * k, "variation_mse": (s - k) ** 2}
+                 for c, (s, k) in offsets.items()}
+    return {m: float(np.mean([row[m] for row in per_class.values()]))
+            for m in ("simple_mse", "complex_mse", "variation_mse")} | {"per_class": per_class}
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    return make_dataset(tmp_path_factory.mktemp("lb") / "data")
+
+
+@pytest.fixture(scope="module")
+def submission(data, tmp_path_factory):
+    d = tmp_path_factory.mktemp("sub")
+    pred = write_predictions(d / "predictions.h5", data)
+    return write_results(d / "results.json", data, pred), pred
+
+
+def run(*args) -> None:
+    cli.main([str(a) for a in args])
+
+
+def refused(*args) -> str:
+    with pytest.raises(SystemExit) as exc:
+        run(*args)
+    msg = str(exc.value.code)
+    assert exc.value.code not in (0, None) and "\n" not in msg, msg
+    return msg
+
+
+def close(a: float, b: float, rel: float = 1e-4) -> bool:
+    return abs(a - b) <= 1e-6 + rel * abs(b)
+
+
+# --- accepted submissions ---------------------------------------------------------------
+
+def test_accepted_submission_is_rescored_and_written(data, submission, tmp_path):
+    results, pred = submission
+    entries = tmp_path / "entries"
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
+        "--name", "Graph AE <b>", "--link", "https://example.org/paper?a=1&b=2")
+    (path,) = entries.glob("*.json")
+    entry = json.loads(path.read_text())
+    assert entry["name"] == "Graph AE <b>" and entry["link"] == "https://example.org/paper?a=1&b=2"
+    assert entry["params"] == 1234567 and entry["speed"]["ms_per_mesh"] == 1.25
+    assert entry["dataset"]["fingerprint"] == dataset_fingerprint(data)
+    assert entry["dataset"]["test_objects"] == 6 and entry["dataset"]["test_meshes"] == 18
+    expected = expected_metrics()
+    m = entry["metrics"]
+    assert m["mode_collapse"] is False
+    for k in ("simple_mse", "complex_mse", "variation_mse"):
+        assert close(m[k], expected[k]), (k, m[k], expected[k])
+        for c in CLASSES:
+            assert close(m["per_class"][c][k], expected["per_class"][c][k]), (c, k)
+    # the example: lowest-id test object, its simple mesh and its complex mesh with most faces
+    s = entry["sample"]
+    assert s["object_id"] == 1 and s["class"] == "cube"
+    assert [(x["variant"], x["n_faces"]) for x in s["meshes"]] == [(0, 12), (2, 192)]
+    t = target_db(response(_scale(1, 0), 1))[:, 0, :]
+    np.testing.assert_allclose(s["physics_db"], t, atol=0.051)
+    np.testing.assert_allclose(s["meshes"][1]["predicted_db"], t + OFFSETS["cube"][1], atol=0.051)
+    assert store.load_entries(entries)[0]["id"] == path.stem
+
+
+def test_tolerance_accepts_a_rounding_level_difference(data, submission, tmp_path):
+    results, pred = submission
+    claimed = json.loads(Path(results).read_text())
+    claimed["metrics"]["complex_mse"] *= 1 + REL_TOL / 10
+    tweaked = tmp_path / "results.json"
+    tweaked.write_text(json.dumps(claimed))
+    run("submit", tweaked, "--predictions", pred, "--data", data, "--entries", tmp_path / "e")
+    assert len(list((tmp_path / "e").glob("*.json"))) == 1
+
+
+# --- refused submissions: one-line error, nothing written --------------------------------
+
+def _tamper(results: Path, out: Path, edit) -> Path:
+    r = json.loads(results.read_text())
+    edit(r)
+    out.write_text(json.dumps(r))
+    return out
+
+
+TAMPERS = {
+    "simple": (lambda r: r["metrics"].__setitem__("simple_mse", r["metrics"]["simple_mse"] * 0.999),
+               "claimed simple_mse"),
+    "per-class": (lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
+                  "claimed per_class.sphere.complex_mse"),
+    "collapse": (lambda r: r["metrics"].__setitem__("mode_collapse", True), "claimed mode_collapse"),
+    "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
+    "no-metrics": (lambda r: r.pop("metrics"), "results.json"),
+    "bad-params": (lambda r: r["model"].__setitem__("params", "many"), "params"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TAMPERS))
+def test_tampered_results_are_refused(case, data, submission, tmp_path):
+    results, pred = submission
+    edit, phrase = TAMPERS[case]
+    bad = _tamper(Path(results), tmp_path / "results.json", edit)
+    entries = tmp_path / "entries"
+    msg = refused("submit", bad, "--predictions", pred, "--data", data, "--entries", entries)
+    assert phrase in msg and str(bad) in msg, msg
+    assert not entries.exists()
+
+
+def _truncated(path: Path, out: Path) -> Path:
+    out.write_bytes(path.read_bytes()[:300])
+    return out
+
+
+def test_malformed_and_mismatched_files_are_refused(data, submission, tmp_path):
+    results, pred = submission
+    entries = tmp_path / "entries"
+    entries.mkdir()
+    (entries / "keep.txt").write_text("already here")
+    other = make_dataset(tmp_path / "other", salt=1)
+    cases = [
+        # (results, predictions, data, expected phrase)
+        (_truncated(Path(results), tmp_path / "trunc.json"), pred, data, "trunc.json"),
+        (results, _truncated(Path(pred), tmp_path / "trunc.h5"), data, "trunc.h5"),
+        (results, pred, other, "another dataset"),
+        (results, write_predictions(tmp_path / "fp.h5", data, fingerprint="cd" * 32), data,
+         "fp.h5: made for dataset cdcdcd"),
+        (results, write_predictions(tmp_path / "missing.h5", data, drop=2), data,
+         "missing.h5: missing 2 of 18 test meshes"),
+        (results, tmp_path / "absent.h5", data, "absent.h5"),
+        (results, pred, tmp_path / "nowhere", "nowhere"),
+    ]
+    with h5py.File(tmp_path / "shape.h5", "w") as f:
+        with h5py.File(pred) as g:
+            for k, v in g.attrs.items():
+                f.attrs[k] = v
+            f["mesh_uid"] = g["mesh_uid"][()]
+            f["target_db"] = g["target_db"][:, :, :2]
+    cases.append((results, tmp_path / "shape.h5", data, "shape.h5: /target_db is float32"))
+    nan = write_predictions(tmp_path / "nan.h5", data)
+    with h5py.File(nan, "r+") as f:
+        f["target_db"][0, 0, 0, 0] = np.nan
+    cases.append((results, nan, data, "nan.h5: non-finite prediction"))
+    for res, p, d, phrase in cases:
+        msg = refused("submit", res, "--predictions", p, "--data", d, "--entries", entries)
+        assert phrase in msg, (phrase, msg)
+    assert sorted(x.name for x in entries.iterdir()) == ["keep.txt"]
+
+
+def test_bad_link_and_duplicate_are_refused(data, submission, tmp_path):
+    results, pred = submission
+    entries = tmp_path / "entries"
+    msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
+                  "--link", "javascript:alert(1)")
+    assert "not an http" in msg and not entries.exists()
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    before = {p: p.read_bytes() for p in entries.iterdir()}
+    msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    assert "already on the board" in msg
+    assert {p: p.read_bytes() for p in entries.iterdir()} == before
+
+
+# --- seeding from a `benchmark reproduce` output directory --------------------------------
+
+def test_seed_submits_every_row_and_reports_the_rest(data, submission, tmp_path):
+    results, pred = submission
+    rows = tmp_path / "reproduce"
+    for name in ("basic-direct", "ideal-graph"):
+        (rows / name).mkdir(parents=True)
+    shutil.copy(pred, rows / "basic-direct" / "predictions.h5")
+    write_results(rows / "basic-direct" / "results.json", data, pred, name="basic-direct")
+    collapsed = write_predictions(rows / "ideal-graph" / "predictions.h5", data, collapse=True)
+    write_results(rows / "ideal-graph" / "results.json", data, collapsed, name="ideal-graph")
+    (rows / "no-predictions").mkdir()
+    shutil.copy(results, rows / "no-predictions" / "results.json")
+    entries = tmp_path / "entries"
+    msg = refused("seed", "--from", rows, "--data", data, "--entries", entries)
+    assert "no-predictions" in msg and "1 refused" in msg, msg
+    names = sorted(e["name"] for e in store.load_entries(entries))
+    assert names == ["basic-direct", "ideal-graph"]
+    flags = {e["name"]: e["metrics"]["mode_collapse"] for e in store.load_entries(entries)}
+    assert flags == {"basic-direct": False, "ideal-graph": True}
+    shutil.rmtree(rows / "no-predictions")
+    run("seed", "--from", rows, "--data", data, "--entries", entries)  # duplicates are skipped
+    assert len(list(entries.glob("*.json"))) == 2
+
+
+# --- rendering -----------------------------------------------------------------------------
+
+def png_size(path: Path) -> tuple[int, int]:
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR", path
+    return struct.unpack(">II", head[16:24])
+
+
+def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tmp_path):
+    results, pred = submission
+    entries = tmp_path / "entries"
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
+        "--name", "Graph AE <b>", "--link", "https://example.org/paper?a=1&b=2")
+    worse = write_predictions(tmp_path / "worse.h5", data,
+                              offsets={c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()})
+    run("submit", write_results(tmp_path / "worse.json", data, worse, name="direct", ms_per_mesh=0.1),
+        "--predictions", worse, "--data", data, "--entries", entries)
+    run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250",
+        "--hardware", "cpu: test")
+    site = tmp_path / "site"
+    run("render", "--out", site, "--entries", entries)
+    html = (site / "index.html").read_text()
+    assert "Graph AE &lt;b&gt;" in html and "Graph AE <b>" not in html  # escaped, never injected
+    assert 'href="https://example.org/paper?a=1&amp;b=2"' in html
+    exp = expected_metrics()
+    worse_exp = expected_metrics({c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()})
+    body = re.search(r"<tbody>(.*?)</tbody>", html, re.S).group(1)
+    rows = re.findall(r"<tr[^>]*>(.*?)</tr>", body, re.S)
+    assert len(rows) == 2 and "Graph AE" in rows[0] and "direct" in rows[1]  # by Complex MSE
+    assert f"{exp['complex_mse']:.2f}" in rows[0] and f"{worse_exp['complex_mse']:.2f}" in rows[1]
+    for img in re.findall(r'<img src="([^"]+)"', html):
+        assert png_size(site / img)[0] > 100
+    assert not re.search(r'(src|href)="(?!https://example.org/|data:,")[a-z]+:', html)  # all local
+    md = (site / "LEADERBOARD.md").read_text()
+    table = [line for line in md.splitlines() if line.startswith("| 1 ")]
+    assert table and "[Graph AE \\<b\\>](https://example.org/paper?a=1&b=2)" in table[0], md
+    assert f"{exp['complex_mse']:.2f}" in table[0]
+    assert "physics simulator" in md.lower() and f"{VARIANT_DB ** 2:.2f}" in md
+
+
+def test_render_refuses_a_bad_entry_file(data, submission, tmp_path):
+    results, pred = submission
+    entries = tmp_path / "entries"
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    (path,) = entries.glob("*.json")
+    entry = json.loads(path.read_text())
+    entry["link"] = "javascript:alert(1)"
+    path.write_text(json.dumps(entry))
+    site = tmp_path / "site"
+    msg = refused("render", "--out", site, "--entries", entries)
+    assert path.name in msg and "link" in msg
+    assert not site.exists()
