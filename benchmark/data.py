@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -174,8 +175,9 @@ class BenchmarkData:
             raise ShardError(f"{self.directory}: object {oid} has no simple mesh (variant 0)")
 
     # --- metadata -------------------------------------------------------------------------
-    @property
+    @cached_property
     def fingerprint(self) -> str:
+        """sha256 of the shards' mesh content (``basic_shapes.shards.dataset_fingerprint``)."""
         return dataset_fingerprint(self.directory)
 
     def object_rows(self, split: str | None = None) -> np.ndarray:
