@@ -92,12 +92,13 @@ def featurize(vertices: np.ndarray, faces: np.ndarray, probes: bool = False) -> 
     from benchmark.models.invariant import ray_probes
 
     g = face_geometry(vertices, faces)
-    corners = g["triangles"] - g["centre"][:, None]
-    direct = np.concatenate([g["centre"], corners.reshape(-1, 9), g["normal"]], 1)
-    # MeshGPT orders each face's corners canonically; sort by (z, y, x) of the corner.
+    # Corners in a canonical order, sorted by (z, y, x) as MeshGPT does, so that neither
+    # embedding depends on which corner a file lists first (the normal keeps the winding).
     tri = g["triangles"]
     order = np.lexsort((tri[:, :, 0], tri[:, :, 1], tri[:, :, 2]), axis=1)
     canon = np.take_along_axis(tri, order[:, :, None], 1)
+    corners = canon - g["centre"][:, None]
+    direct = np.concatenate([g["centre"], corners.reshape(-1, 9), g["normal"]], 1)
     log_area = np.log(np.maximum(g["area"], np.exp(MIN_LOG_AREA)))
     tokens = np.concatenate([
         _discretize(canon.reshape(-1, 9), -COORD_RANGE, COORD_RANGE),
