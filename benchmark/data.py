@@ -232,7 +232,11 @@ class BenchmarkData:
         scale = self.objects["scale"][self.meshes["object"][rows]].astype(np.float64)
         for r, s in zip(rows, scale):
             v, f = self.mesh(int(r))
-            verts.append(normalize_mesh(v, s))
+            try:
+                verts.append(normalize_mesh(v, s))
+            except ValueError as exc:
+                raise ShardError(f"{self.paths[self.meshes['shard'][r]]}: mesh_uid "
+                                 f"{self.meshes['uid'][r]}: {exc}") from None
             faces.append(np.asarray(f, np.int64))
         return {"vertices": verts, "faces": faces,
                 "scale_bins": scale_bins.index(scale).reshape(-1, 3), "scale_m": scale}

@@ -18,7 +18,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from benchmark.data import BenchmarkData
-from benchmark.protocol import Model, ModelError, Predictions, PredictionsWriter, check_prediction, make_results, score
+from benchmark.protocol import Model, ModelError, Predictions, PredictionsWriter, check_prediction, make_results, score, why
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 
@@ -55,7 +55,7 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
                 try:
                     out = model.predict(batch)
                 except Exception as exc:
-                    raise ModelError(f"{who}: predict failed: {exc.__class__.__name__}: {exc}") from exc
+                    raise ModelError(f"{who}: predict failed: {why(exc)}") from exc
                 elapsed += time.perf_counter() - t0
                 writer.write(data.meshes["uid"][chunk],
                              check_prediction(out, len(chunk), data.target_shape, who))

@@ -17,6 +17,7 @@ import json
 import math
 import os
 import re
+import sys
 from pathlib import Path
 from typing import Protocol
 
@@ -54,6 +55,12 @@ class Model(Protocol):
     def predict(self, batch: dict) -> np.ndarray: ...
 
 
+def why(exc: BaseException) -> str:
+    """An exception as one line: its class and the first line of its message."""
+    lines = str(exc).strip().splitlines()
+    return f"{exc.__class__.__name__}: {lines[0]}" if lines else exc.__class__.__name__
+
+
 # --- models -----------------------------------------------------------------------------------
 def load_model(spec: str, kwargs: dict | None = None) -> Model:
     """Instantiate ``module:Class`` or ``path/to/file.py:Class`` with ``kwargs``.
@@ -70,22 +77,24 @@ def load_model(spec: str, kwargs: dict | None = None) -> Model:
         mod_name = "benchmark_user_model_" + re.sub(r"\W", "_", str(path.resolve()))
         module_spec = importlib.util.spec_from_file_location(mod_name, path)
         module = importlib.util.module_from_spec(module_spec)
+        sys.modules[mod_name] = module  # dataclasses and typing look their module up there
         try:
             module_spec.loader.exec_module(module)
         except Exception as exc:
-            raise ModelError(f"{spec}: importing {path} failed: {exc.__class__.__name__}: {exc}") from None
+            sys.modules.pop(mod_name, None)
+            raise ModelError(f"{spec}: importing {path} failed: {why(exc)}") from None
     else:
         try:
             module = importlib.import_module(target)
         except ImportError as exc:
-            raise ModelError(f"{spec}: cannot import module {target} ({exc})") from None
+            raise ModelError(f"{spec}: cannot import module {target} ({why(exc)})") from None
     cls = getattr(module, cls_name, None)
     if cls is None:
         raise ModelError(f"{spec}: module {target} has no {cls_name}")
     try:
         model = cls(**(kwargs or {}))
     except Exception as exc:
-        raise ModelError(f"{spec}: constructing {cls_name} failed: {exc.__class__.__name__}: {exc}") from None
+        raise ModelError(f"{spec}: constructing {cls_name} failed: {why(exc)}") from None
     if not callable(getattr(model, "predict", None)):
         raise ModelError(f"{spec}: {cls_name} has no predict(batch) method")
     return model
@@ -96,7 +105,7 @@ def check_prediction(out, n: int, target_shape: tuple[int, ...], who: str) -> np
     try:
         arr = np.asarray(out)
     except Exception as exc:
-        raise ModelError(f"{who}: predict returned {type(out).__name__}, not an array ({exc})") from None
+        raise ModelError(f"{who}: predict returned {type(out).__name__}, not an array ({why(exc)})") from None
     if arr.shape != (n, *target_shape) or arr.dtype.kind not in "fiu":
         raise ModelError(f"{who}: predict returned {arr.dtype}{arr.shape}, expected a real "
                          f"array of shape {(n, *target_shape)}")

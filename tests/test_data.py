@@ -166,3 +166,10 @@ def test_wrong_label_shape_is_refused(tmp_path):
     rewrite_atomically(src / shard_name(0), shrink)
     with pytest.raises(ShardError, match=r"/radar/response is complex64\(6, 7, 5, 3\), expected"):
         BenchmarkData(src)
+
+
+def test_broken_mesh_is_named(tmp_path):
+    src = make_dataset(tmp_path, objects_per_class=1, n_test_per_class=1, n_shards=1)
+    rewrite_atomically(src / shard_name(0), lambda f: f["meshes/vertices"].__setitem__(0, [np.nan] * 3))
+    with BenchmarkData(src) as d, pytest.raises(ShardError, match=r"shard-00000.h5: mesh_uid 0: .*non-finite"):
+        d.batch(d.mesh_rows("test"))
