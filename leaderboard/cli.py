@@ -109,8 +109,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         run(args)
     except (ValueError, OSError) as exc:
-        lines = str(exc).strip().splitlines()
-        raise SystemExit(f"leaderboard {args.command}: {lines[0] if lines else exc!r}") from None
+        lines = str(exc).strip().splitlines() or [repr(exc)]
+        raise SystemExit(f"leaderboard {args.command}: {lines[0]}") from None
 
 
 if __name__ == "__main__":

@@ -28,10 +28,15 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
+def plottable(models: list[dict]) -> list[dict]:
+    """Models with both a speed and a Complex MSE (either may be null in a results JSON)."""
+    return [e for e in models if e["speed"]["ms_per_mesh"] and e["metrics"]["complex_mse"] is not None]
+
+
 def speed_vs_error(models: list[dict], simulator: dict | None) -> bytes:
     """Scatter of ms per mesh (log) against Complex MSE; mode-collapsed models hollow."""
     fig, ax = plt.subplots(figsize=(7.5, 4.6), layout="constrained")
-    for e in models:
+    for e in plottable(models):
         x, y = e["speed"]["ms_per_mesh"], e["metrics"]["complex_mse"]
         collapsed = e["metrics"]["mode_collapse"]
         ax.scatter([x], [y], s=46, marker="o", facecolors="none" if collapsed else "tab:blue",

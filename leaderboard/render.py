@@ -25,8 +25,8 @@ METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
                  "variation_mse": "Variation MSE"}
 
 
-def fmt_mse(x: float) -> str:
-    return f"{x:.2f}"
+def fmt_mse(x: float | None) -> str:
+    return "—" if x is None else f"{x:.2f}"
 
 
 def fmt_params(n: int | None) -> str:
@@ -38,8 +38,8 @@ def fmt_params(n: int | None) -> str:
     return str(n)
 
 
-def fmt_ms(x: float) -> str:
-    return f"{x:.3g}"
+def fmt_ms(x: float | None) -> str:
+    return "—" if x is None else f"{x:.3g}"
 
 
 def datasets(entries: list[dict]) -> list[dict]:
@@ -55,7 +55,8 @@ def datasets(entries: list[dict]) -> list[dict]:
             g["models"].append(e)
             g["dataset"] = e["dataset"]  # model entries describe the test split
     for g in groups.values():
-        g["models"].sort(key=lambda e: (e["metrics"]["complex_mse"], e["name"]))
+        g["models"].sort(key=lambda e: (e["metrics"]["complex_mse"] is None,
+                                        e["metrics"]["complex_mse"] or 0.0, e["name"]))
     return sorted(groups.values(), key=lambda g: (-len(g["models"]), g["fingerprint"]))
 
 
@@ -75,8 +76,15 @@ def simulator_note(sim: dict | None) -> str:
                 "(run `leaderboard simulator --data DIR`).")
     how = sim.get("complex_mse_source", "")
     return (f"Physics simulator ({sim['name']}): {fmt_ms(sim['speed']['ms_per_mesh'])} ms per mesh "
-            f"on {sim['speed']['hardware']}; Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² "
+            f"on {sim['speed']['hardware'] or 'unknown hardware'}; Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² "
             f"({how}).")
+
+
+def chart_note(g: dict) -> str:
+    """Plain-text sentence naming the models missing from the chart ('' if none)."""
+    missing = [e["name"] for e in g["models"] if e not in figures.plottable(g["models"])]
+    return (f"Not on the chart (no speed or no Complex MSE reported): {', '.join(missing)}."
+            if missing else "")
 
 
 # --- HTML ------------------------------------------------------------------------------------
@@ -121,7 +129,7 @@ def html_table(g: dict) -> str:
                  + ['<td class="flag">yes</td>' if collapsed else "<td>no</td>",
                     _num(e.get("params"), fmt_params(e.get("params"))),
                     _num(e["speed"]["ms_per_mesh"], fmt_ms(e["speed"]["ms_per_mesh"])),
-                    f"<td>{_e(e['speed']['hardware'])}</td>",
+                    f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
                     f"<td>{_e(e['submitted'][:10])}</td>", _link(e)])
         cls = ' class="collapsed"' if collapsed else ""
         rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
@@ -152,7 +160,8 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
              f'<p class="note">{_e(describe(g["dataset"]))}</p>']
     if g["models"]:
         parts += [html_table(g)]
-    parts += ["<h3>Speed against error</h3>", f"<p>{_e(simulator_note(g['simulator']))}</p>",
+    notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
+    parts += ["<h3>Speed against error</h3>", f"<p>{_e(notes)}</p>",
               _img(f"speed-vs-error-{short}.png", images[f"speed-vs-error-{short}.png"],
                    "ms per mesh against Complex MSE for every model and the physics simulator")]
     if g["models"]:
@@ -179,6 +188,8 @@ def markdown(groups: list[dict]) -> str:
            "Verified by re-scoring each submission's predictions against the dataset; MSE in dB², "
            "lower is better; speeds are self-reported. Mode-collapsed models (one response for "
            "everything) are flagged: their low Variation MSE is not an achievement.", ""]
+    if not groups:
+        out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
         short = g["short"]
         out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
@@ -194,9 +205,10 @@ def markdown(groups: list[dict]) -> str:
                 out.append(f"| {rank} | {name} | " + " | ".join(fmt_mse(m[k]) for k in METRIC_NAMES)
                            + f" | {'**yes**' if m['mode_collapse'] else 'no'} | "
                            f"{fmt_params(e.get('params'))} | {fmt_ms(e['speed']['ms_per_mesh'])} | "
-                           f"{_md(e['speed']['hardware'])} | {e['submitted'][:10]} |")
+                           f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |")
             out.append("")
-        out += [_md(simulator_note(g["simulator"])), "",
+        notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
+        out += [_md(notes), "",
                 f"![Speed against error](speed-vs-error-{short}.png)", ""]
         if g["models"]:
             out += ["### Per class", "", "| Model | Class | Simple MSE | Complex MSE | Variation MSE |",

@@ -380,3 +380,17 @@ def test_render_refuses_a_bad_entry_file(data, submission, tmp_path):
     msg = refused("render", "--out", site, "--entries", entries)
     assert path.name in msg and "link" in msg
     assert not site.exists()
+
+
+def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_path):
+    pred = write_predictions(tmp_path / "p.h5", data)
+    results = write_results(tmp_path / "r.json", data, pred, name="no-speed")
+    r = json.loads(results.read_text())
+    r["speed"] = {"ms_per_mesh": None, "hardware": None}
+    results.write_text(json.dumps(r))
+    entries, site = tmp_path / "entries", tmp_path / "site"
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    run("render", "--out", site, "--entries", entries)
+    html = (site / "index.html").read_text()
+    assert "no-speed" in html and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
+    assert png_size(site / f"speed-vs-error-{dataset_fingerprint(data)[:12]}.png")[0] > 100
