@@ -188,6 +188,13 @@ class BenchmarkData:
             raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
         return np.flatnonzero(self.objects["split"] == split)
 
+    def test_objects(self) -> np.ndarray:
+        """Global object rows of the test split; ``ShardError`` if there are none to score."""
+        rows = self.object_rows("test")
+        if not len(rows):
+            raise ShardError(f"{self.directory}: the dataset has no test-split objects")
+        return rows
+
     def mesh_rows(self, split: str | None = None, variants: str = "all") -> np.ndarray:
         """Global mesh rows of a split, object by object, simple mesh first."""
         if variants not in VARIANTS:

@@ -44,6 +44,7 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
 
     The time counted is the wall time inside ``predict`` only (not reading meshes).
     """
+    data.test_objects()  # refuses a dataset without a test split
     rows = data.mesh_rows("test")
     elapsed = 0.0
     with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape) as writer:

@@ -176,7 +176,10 @@ class PredictionsWriter:
         return self
 
     def write(self, uids: np.ndarray, target_db: np.ndarray) -> None:
-        k = len(uids)
+        k, target_db = len(uids), np.asarray(target_db)
+        if target_db.shape != (k, *self.shape):
+            raise PredictionsError(f"{self.path}: {k} mesh uids but predictions of shape "
+                                   f"{target_db.shape}, expected {(k, *self.shape)}")
         if self.filled + k > self.n:
             raise PredictionsError(f"{self.path}: more than the declared {self.n} rows written")
         self.uid[self.filled:self.filled + k] = np.asarray(uids, np.int64)
@@ -287,7 +290,7 @@ def _attr(f: h5py.File, name: str) -> str | None:
 def score(data: BenchmarkData, predictions: Predictions) -> dict:
     """Metrics of a validated predictions file, streamed object by object."""
     scorer = Scorer(data.class_names)
-    for obj in data.object_rows("test"):
+    for obj in data.test_objects():
         rows = data.meshes_of(obj)
         pred = predictions.read(data.meshes["uid"][rows])
         scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0], pred[1:])

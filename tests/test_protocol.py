@@ -276,3 +276,17 @@ def test_scoring_and_evaluate_do_not_import_torch(data_dir, model_run):
     """)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_dataset_without_test_split_is_refused(tmp_path):
+    d = make_dataset(tmp_path / "d", objects_per_class=1, n_test_per_class=0, n_shards=1)
+    with pytest.raises(SystemExit) as err:
+        main(["evaluate", "--data", str(d), "--model", "benchmark.protocol:MeanResponseModel",
+              "--model-arg", f"data_dir={d}", "--out", str(tmp_path / "r.json")])
+    assert "has no test-split objects" in str(err.value.code)
+
+
+def test_writer_refuses_mismatched_blocks(tmp_path):
+    with pytest.raises(PredictionsError, match=r"2 mesh uids but predictions of shape \(3, 4\)"):
+        write_predictions(tmp_path / "p.h5", "0" * 64, np.arange(2), np.zeros((3, 4), np.float32))
+    assert list(tmp_path.iterdir()) == []
