@@ -21,6 +21,7 @@ from basic_shapes.shards import atomic_path
 from leaderboard import figures
 from leaderboard.store import DEFAULT_ENTRIES, METRIC_NAMES, load_entries
 
+FIGURES = ("speed-vs-error-*.png", "example-*.png")
 METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
                  "variation_mse": "Variation MSE"}
 
@@ -255,4 +256,8 @@ def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_
     for name, data in files.items():
         with atomic_path(out / name) as tmp:
             tmp.write_bytes(data)
+    for pattern in FIGURES:  # figures of datasets no longer on the board
+        for stale in out.glob(pattern):
+            if stale.name not in files:
+                stale.unlink()
     return files

@@ -137,13 +137,17 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha},
         "sample": sample,
     }
-    return write_entry(entries_dir, entry)
+    try:
+        return write_entry(entries_dir, entry)
+    except EntryError as exc:  # e.g. a hardware text too long to show
+        raise _refuse(results_path, exc) from None
 
 
 def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
          entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None):
     """Submit every ``<row>/results.json`` + ``<row>/predictions.h5`` of a reproduce output dir.
 
+    Each entry is named after its row directory (unique per table row, unlike model names).
     Returns (accepted paths, skipped duplicate messages, refused messages); every row is tried.
     """
     rows = sorted(Path(from_dir).glob("*/results.json"))
@@ -156,7 +160,8 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
             refused.append(f"{results}: no predictions.h5 beside it")
             continue
         try:
-            accepted.append(submit(results, predictions, data_dir, entries_dir, link=link))
+            accepted.append(submit(results, predictions, data_dir, entries_dir,
+                                   name=results.parent.name, link=link))
         except DuplicateSubmission as exc:
             skipped.append(str(exc))
         except ValueError as exc:

@@ -236,6 +236,7 @@ TAMPERS = {
     "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
     "no-metrics": (lambda r: r.pop("metrics"), "results.json"),
     "bad-params": (lambda r: r["model"].__setitem__("params", "many"), "params"),
+    "long-hardware": (lambda r: r["speed"].__setitem__("hardware", "x" * 500), "speed.hardware"),
 }
 
 
@@ -311,9 +312,9 @@ def test_seed_submits_every_row_and_reports_the_rest(data, submission, tmp_path)
     for name in ("basic-direct", "ideal-graph"):
         (rows / name).mkdir(parents=True)
     shutil.copy(pred, rows / "basic-direct" / "predictions.h5")
-    write_results(rows / "basic-direct" / "results.json", data, pred, name="basic-direct")
+    write_results(rows / "basic-direct" / "results.json", data, pred, name="direct")
     collapsed = write_predictions(rows / "ideal-graph" / "predictions.h5", data, collapse=True)
-    write_results(rows / "ideal-graph" / "results.json", data, collapsed, name="ideal-graph")
+    write_results(rows / "ideal-graph" / "results.json", data, collapsed, name="graph")
     (rows / "no-predictions").mkdir()
     shutil.copy(results, rows / "no-predictions" / "results.json")
     entries = tmp_path / "entries"
@@ -324,8 +325,9 @@ def test_seed_submits_every_row_and_reports_the_rest(data, submission, tmp_path)
     flags = {e["name"]: e["metrics"]["mode_collapse"] for e in store.load_entries(entries)}
     assert flags == {"basic-direct": False, "ideal-graph": True}
     shutil.rmtree(rows / "no-predictions")
+    before = {p: p.read_bytes() for p in entries.iterdir()}
     run("seed", "--from", rows, "--data", data, "--entries", entries)  # duplicates are skipped
-    assert len(list(entries.glob("*.json"))) == 2
+    assert {p: p.read_bytes() for p in entries.iterdir()} == before
 
 
 # --- rendering -----------------------------------------------------------------------------
@@ -348,7 +350,10 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250",
         "--hardware", "cpu: test")
     site = tmp_path / "site"
+    site.mkdir()
+    (site / "example-000000000000.png").write_bytes(b"stale figure of a dataset no longer shown")
     run("render", "--out", site, "--entries", entries)
+    assert not (site / "example-000000000000.png").exists()
     html = (site / "index.html").read_text()
     assert "Graph AE &lt;b&gt;" in html and "Graph AE <b>" not in html  # escaped, never injected
     assert 'href="https://example.org/paper?a=1&amp;b=2"' in html
