@@ -1,8 +1,10 @@
 """The third-party model protocol, predictions files and results JSON (docs/BENCHMARK.md).
 
 A model is any object with ``predict(batch) -> np.ndarray``; ``batch`` is a dict of numpy
-data for B meshes (``BATCH_KEYS``) and the result is (B, n_aspect, n_roll, n_range) dB
-targets. Optional attributes ``name``, ``params``, ``embedding``, ``regime`` fill the results.
+data for B meshes (``BenchmarkData.batch``: lists of normalized ``vertices`` and ``faces``,
+``scale_bins`` (B,3) int64, ``scale_m`` (B,3) float64) and the result is
+(B, n_aspect, n_roll, n_range) dB targets. Optional attributes ``name``, ``params``,
+``embedding`` and ``regime`` fill the results.
 
 Predictions files and results JSON are untrusted input: they are read with h5py and json
 only (never unpickled) and validated, with one-line errors naming the file.
@@ -29,12 +31,6 @@ from benchmark import __version__
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES, Scorer
 
-BATCH_KEYS = {
-    "vertices": "list of B float32 (V_i, 3) scale-normalized vertices (benchmark.data.normalize_mesh)",
-    "faces": "list of B int64 (F_i, 3) 0-based triangle indices",
-    "scale_bins": "int64 (B, 3) per-axis scale bin (the dataset's benchmark.data.ScaleBins)",
-    "scale_m": "float64 (B, 3) object bounding-box extents in metres",
-}
 PREDICTIONS_FORMAT = "basic-shapes-predictions"
 PREDICTIONS_VERSION = 1
 

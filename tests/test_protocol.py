@@ -11,11 +11,10 @@ import pytest
 
 from basic_shapes.shards import dataset_fingerprint
 from benchmark.cli import main
-from benchmark.data import BenchmarkData
 from benchmark.evaluate import evaluate
 from benchmark.protocol import (ModelError, NearestScaleModel, PredictionsError, ResultsError, load_model,
                                 load_results, score_predictions, write_predictions, write_results)
-from benchmark_fixture import CLASSES, analytic_label, make_dataset
+from benchmark_fixture import CLASSES, make_dataset
 
 GEOMETRY_MODEL = '''
 import numpy as np
@@ -57,21 +56,21 @@ def model_run(data_dir, model_file, tmp_path_factory):
 
 
 def independent_metrics(data_dir, preds_path):
-    """Simple/Complex/Variation MSE straight from the fixture's labels and the raw HDF5 file."""
+    """Simple/Complex/Variation MSE straight from the raw shard and predictions HDF5 files."""
     with h5py.File(preds_path) as f:
         by_uid = dict(zip(f["mesh_uid"][()].tolist(), f["target_db"][()].astype(np.float64)))
-    from basic_shapes.shards import iter_objects
     simple, complex_, variation = [], [], []
-    for _, obj, meshes in iter_objects(data_dir, split="test"):
-        with BenchmarkData(data_dir) as d:
-            grid = d.grid
-        label = analytic_label(obj["class"], obj["scale"], grid["aspect_deg"], grid["roll_deg"], grid["range_m"])
-        t = 20 * np.log10(np.maximum(np.abs(label.astype(np.complex128)), 1e-4)).astype(np.float32)
-        s = by_uid[obj["id"] * 1000]
-        cs = [by_uid[obj["id"] * 1000 + v] for v, _, _ in meshes if v > 0]
-        simple.append(np.mean((t - s) ** 2))
-        complex_.append(np.mean([np.mean((t - c) ** 2) for c in cs]))
-        variation.append(np.mean([np.mean((s - c) ** 2) for c in cs]))
+    for path in sorted(data_dir.glob("shard-*.h5")):
+        with h5py.File(path) as f:
+            ids, split, resp = f["objects/id"][()], f["objects/split"][()], f["radar/response"][()]
+            owner, variant = f["meshes/object_index"][()], f["meshes/variant"][()]
+        for k in np.flatnonzero(split == b"test"):
+            t = 20 * np.log10(np.maximum(np.abs(resp[k].astype(np.complex128)), 1e-4)).astype(np.float32)
+            s = by_uid[ids[k] * 1000]
+            cs = [by_uid[ids[k] * 1000 + v] for v in variant[owner == k] if v > 0]
+            simple.append(np.mean((t - s) ** 2))
+            complex_.append(np.mean([np.mean((t - c) ** 2) for c in cs]))
+            variation.append(np.mean([np.mean((s - c) ** 2) for c in cs]))
     return np.mean(simple), np.mean(complex_), np.mean(variation)
 
 
