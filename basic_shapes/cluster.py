@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 
 
@@ -17,14 +18,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     import dask
     from distributed import Client, LocalCluster
 
-    with dask.config.set({"distributed.worker.daemon": False,
-                          "distributed.logging.distributed": "error"}):
+    with dask.config.set({"distributed.worker.daemon": False}):
         if scheduler:
             with Client(scheduler) as client:
                 yield client
             return
         n = workers or os.cpu_count() or 1
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                          dashboard_address=None, silence_logs="error") as cluster, \
+                          dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
                 Client(cluster) as client:
             yield client
