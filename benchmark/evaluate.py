@@ -18,7 +18,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from benchmark.data import BenchmarkData
-from benchmark.protocol import Model, ModelError, Predictions, PredictionsWriter, check_prediction, make_results, score, why
+from benchmark.protocol import (Model, ModelError, Predictions, PredictionsWriter, check_prediction,
+                                make_results, score, why)
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 

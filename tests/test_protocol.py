@@ -166,18 +166,25 @@ def _rewrite(src, dst, edit):
         f["mesh_uid"], f["target_db"] = uid, tgt
 
 
+def _with_nan(t):
+    t = t.copy()
+    t[3, 0, 0, 0] = np.nan
+    return t
+
+
 MALFORMED = {
-    "wrong grid": (lambda u, t, a: (u, t[..., :-1], a), r"/target_db is float32\(18, 7, 5, 15\), expected float32\(18, 7, 5, 16\)"),
+    "wrong grid": (lambda u, t, a: (u, t[..., :-1], a),
+                   r"/target_db is float32\(18, 7, 5, 15\), expected float32\(18, 7, 5, 16\)"),
     "float64": (lambda u, t, a: (u, t.astype(np.float64), a), "/target_db is float64"),
     "int32 uid": (lambda u, t, a: (u.astype(np.int32), t, a), "/mesh_uid is int32"),
     "missing mesh": (lambda u, t, a: (u[1:], t[1:], a), "missing 1 of 18 test meshes"),
-    "extra mesh": (lambda u, t, a: (np.append(u, 999999), np.concatenate([t, t[:1]]), a), "1 rows are not test-split meshes"),
+    "extra mesh": (lambda u, t, a: (np.append(u, 999999), np.concatenate([t, t[:1]]), a),
+                   "1 rows are not test-split meshes"),
     "duplicate": (lambda u, t, a: (np.append(u, u[0]), np.concatenate([t, t[:1]]), a), "1 duplicated mesh_uid"),
     "fingerprint": (lambda u, t, a: (u, t, {**a, "dataset_fingerprint": "0" * 64}), "made for dataset 0000"),
     "version": (lambda u, t, a: (u, t, {**a, "version": 7}), "version 7 is not 1"),
     "foreign": (lambda u, t, a: (u, t, {}), "not a predictions file"),
-    "nan": (lambda u, t, a: (u, np.where(np.arange(len(u))[:, None, None, None] == 3, np.nan, t).astype(np.float32), a),
-            "non-finite prediction for mesh_uid"),
+    "nan": (lambda u, t, a: (u, _with_nan(t), a), "non-finite prediction for mesh_uid"),
 }
 
 
