@@ -21,6 +21,11 @@ EXAMPLE_ROWS = 4
 DB_RANGE = 60.0  # colour scale: the physics peak down to DB_RANGE dB below it
 
 
+def _text(label: str) -> str:
+    """Entry text shown literally: matplotlib would parse $...$ as math (and fail on some)."""
+    return label.replace("$", r"\$")
+
+
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
@@ -41,7 +46,7 @@ def speed_vs_error(models: list[dict], simulator: dict | None) -> bytes:
         collapsed = e["metrics"]["mode_collapse"]
         ax.scatter([x], [y], s=46, marker="o", facecolors="none" if collapsed else "tab:blue",
                    edgecolors="tab:red" if collapsed else "tab:blue", zorder=3)
-        ax.annotate(e["name"] + (" (mode collapse)" if collapsed else ""), (x, y),
+        ax.annotate(_text(e["name"]) + (" (mode collapse)" if collapsed else ""), (x, y),
                     textcoords="offset points", xytext=(5, 4), fontsize=8)
     if simulator is not None:
         x, y = simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"]
@@ -74,10 +79,10 @@ def example(models: list[dict]) -> bytes:
             ax = axes[r, c]
             im = ax.imshow(img, extent=extent, aspect="auto", cmap="viridis",
                            vmin=vmax - DB_RANGE, vmax=vmax, interpolation="nearest")
-            ax.set_title(titles[c] if c == 0 else f"{e['name']}: {titles[c]}", fontsize=9)
+            ax.set_title(titles[c] if c == 0 else f"{_text(e['name'])}: {titles[c]}", fontsize=9)
             ax.set_xlabel("range (m)", fontsize=8)
             ax.set_ylabel("aspect (deg)", fontsize=8)
             ax.tick_params(labelsize=7)
     fig.colorbar(im, ax=axes, shrink=0.8, label="dB")
-    fig.suptitle(f"object {s['object_id']} ({s['class']}), roll {s['roll_deg']:g}°", fontsize=10)
+    fig.suptitle(f"object {s['object_id']} ({_text(s['class'])}), roll {s['roll_deg']:g}°", fontsize=10)
     return _png(fig)

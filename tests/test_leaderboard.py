@@ -345,7 +345,8 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
         "--name", "Graph AE <b>", "--link", "https://example.org/paper?a=1&b=2")
     worse = write_predictions(tmp_path / "worse.h5", data,
                               offsets={c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()})
-    run("submit", write_results(tmp_path / "worse.json", data, worse, name="direct", ms_per_mesh=0.1),
+    run("submit", write_results(tmp_path / "worse.json", data, worse, name="direct $\\frac{$",
+                      ms_per_mesh=0.1),
         "--predictions", worse, "--data", data, "--entries", entries)
     run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250",
         "--hardware", "cpu: test")
