@@ -61,12 +61,17 @@ def is_watertight(faces: np.ndarray) -> bool:
     return bool(np.isin(directed[:, 1] * n + directed[:, 0], key).all())
 
 
-def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Drop degenerate faces, coincident face pairs (the fins a collapse can leave) and
-    unreferenced vertices."""
+def _compact(vertices: np.ndarray, faces: np.ndarray, drop_fins: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Drop degenerate faces, repeated faces and unreferenced vertices.
+
+    Faces on the same three vertices are either double-sided geometry (ShapeNet has plenty:
+    keep one) or the back-to-back fin an edge collapse leaves on a closed surface
+    (``drop_fins``: remove both, which closes the surface again).
+    """
     f = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
-    _, inverse, counts = np.unique(np.sort(f, axis=1), axis=0, return_inverse=True, return_counts=True)
-    f = f[counts[inverse.reshape(-1)] == 1]
+    _, first, inverse, counts = np.unique(np.sort(f, axis=1), axis=0, return_index=True,
+                                          return_inverse=True, return_counts=True)
+    f = f[counts[inverse.reshape(-1)] == 1] if drop_fins else f[np.sort(first)]
     used, inverse = np.unique(f, return_inverse=True)
     return vertices[used], inverse.reshape(-1, 3).astype(np.int32)
 
@@ -83,21 +88,16 @@ def simplify_to(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
     triangles), so the target is tightened a few times. It has no link-condition check and can
     pinch a closed surface; with ``keep_watertight`` such a result is an error, not an output.
     """
-    v = np.array(vertices, dtype=np.float64)  # writable copies: fast-simplification needs them
-    f = np.array(faces, dtype=np.int32)
-    if len(f) <= max_faces:
-        v, f = _compact(v, f)
-    else:
-        target = max_faces
-        for _ in range(3):
-            sv, sf = fast_simplification.simplify(v, f, target_count=target)
-            sv, sf = _compact(sv, np.asarray(sf, dtype=np.int32))
-            if len(sf) <= max_faces:
-                break
-            target = int(target * max_faces / len(sf) * 0.9)
-            if target < MIN_FACES:
-                break
-        v, f = sv, sf
+    v, f = _compact(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int32), keep_watertight)
+    target = max_faces
+    for _ in range(3):
+        if len(f) <= max_faces or target < MIN_FACES:
+            break
+        sv, sf = fast_simplification.simplify(v, f, target_count=target)
+        sv, sf = _compact(sv, np.asarray(sf, dtype=np.int32), keep_watertight)
+        target = int(target * max_faces / max(len(sf), 1) * 0.9)
+        if len(sf) <= max_faces:
+            v, f = sv, sf
     if not MIN_FACES <= len(f) <= max_faces:
         raise SimplifyError(f"cannot simplify a {len(faces)}-face mesh to {MIN_FACES}..{max_faces} faces")
     if keep_watertight and not is_watertight(f):

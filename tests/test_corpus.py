@@ -365,3 +365,16 @@ def test_shapenet_with_only_broken_models_is_an_error(tmp_path):
     model_path(root, "02691156", "x").write_text("v 0 0 0\nf 1 2 3\n")
     with pytest.warns(UserWarning, match="1 unreadable"), pytest.raises(C.CorpusError, match="no usable"):
         C.load_shapenet(root)
+
+
+def test_shapenet_double_sided_faces_keep_one_copy(tmp_path):
+    root = tmp_path / "sn"
+    grid = np.array([[x, y, 0.0] for y in (0, 1) for x in (0, 1, 2)])  # a 2 x 1 plate, 4 triangles
+    up = [[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]]
+    lines = [f"v {x} {y} {z}" for x, y, z in grid]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in up + [t[::-1] for t in up]]  # both sides
+    model_path(root, "04379243", "t").write_text("\n".join(lines) + "\n")
+    (v, f, c), = C.load_shapenet(root)
+    assert c == 0 and len(v) == 6 and len(f) == 4
+    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    assert np.all(normals[:, 2] > 0)  # the first-listed side is kept
