@@ -371,7 +371,7 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     table = [line for line in md.splitlines() if line.startswith("| 1 ")]
     assert table and "[Graph AE \\<b\\>](https://example.org/paper?a=1&b=2)" in table[0], md
     assert f"{exp['complex_mse']:.2f}" in table[0]
-    assert "physics simulator" in md.lower() and f"{VARIANT_DB ** 2:.2f}" in md
+    assert f"250 ms per mesh on cpu: test; Complex MSE {VARIANT_DB ** 2:.2f} dB²" in md
 
 
 def test_render_refuses_a_bad_entry_file(data, submission, tmp_path):
@@ -400,3 +400,27 @@ def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_pat
     html = (site / "index.html").read_text()
     assert "no-speed" in html and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
     assert png_size(site / f"speed-vs-error-{dataset_fingerprint(data)[:12]}.png")[0] > 100
+
+
+def test_simulator_point_is_the_physics_variation_between_meshes(data, tmp_path):
+    from leaderboard.simulator import ASSUMED_ZERO, MEASURED
+    entries = tmp_path / "entries"
+    run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250")
+    (path,) = entries.glob("physics-*.json")
+    e = json.loads(path.read_text())
+    assert e["kind"] == "simulator" and e["complex_mse_source"] == MEASURED
+    assert e["metrics"]["simple_mse"] == 0.0 and e["speed"]["ms_per_mesh"] == 250.0
+    for block in [e["metrics"], *e["metrics"]["per_class"].values()]:
+        assert close(block["complex_mse"], VARIANT_DB ** 2) and block["variation_mse"] == block["complex_mse"]
+    bare = tmp_path / "bare"
+    shutil.copytree(data, bare)
+
+    def drop_variant_labels(f):
+        del f["radar/variant_mesh_index"], f["radar/variant_response"]
+    for shard in sorted(bare.glob("shard-*.h5")):
+        rewrite_atomically(shard, drop_variant_labels)
+    run("simulator", "--data", bare, "--entries", entries, "--ms-per-mesh", "300")  # replaces
+    (path,) = entries.glob("physics-*.json")
+    e = json.loads(path.read_text())
+    assert e["complex_mse_source"] == ASSUMED_ZERO and e["metrics"]["complex_mse"] == 0.0
+    assert e["speed"]["ms_per_mesh"] == 300.0
