@@ -24,22 +24,24 @@ def show_object(directory: str | Path, object_id: int, out: str | Path, count: i
         others = [others[i] for i in np.unique(np.linspace(0, len(others) - 1, count).round().astype(int))]
     shown = simple + others
     rng = np.random.default_rng(object_id)
-    fig = plt.figure(figsize=(3.2 * len(shown), 3.6))
-    half = 0.55 * float(np.max(obj["scale"]))
+    ncols = min(3, len(shown))
+    nrows = -(-len(shown) // ncols)
+    fig = plt.figure(figsize=(3.6 * ncols, 3.6 * nrows + 0.4))
+    half = 0.5 * float(np.max(obj["scale"]))
     for k, (variant, v, f) in enumerate(shown):
-        ax = fig.add_subplot(1, len(shown), k + 1, projection="3d")
+        ax = fig.add_subplot(nrows, ncols, k + 1, projection="3d")
         ax.add_collection3d(Poly3DCollection(v[f], facecolors=rng.uniform(0.15, 1, (len(f), 3)),
                                              edgecolors="k", linewidths=0.15))
         for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
             setter(-half, half)
-        ax.set_box_aspect((1, 1, 1))
+        ax.set_box_aspect((1, 1, 1), zoom=1.25)
         ax.view_init(elev=22, azim=35)
         ax.set_axis_off()
         label = "simple" if variant == 0 else f"variant {variant}"
         ax.set_title(f"{label}\n{len(f)} faces", fontsize=10)
     sx, sy, sz = obj["scale"]
     fig.suptitle(f"object {obj['id']} ({obj['class']}, {sx:.2f} x {sy:.2f} x {sz:.2f} m)", fontsize=11)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.9, wspace=0, hspace=0.08)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     plt.close(fig)
