@@ -54,20 +54,18 @@ def datasets(entries: list[dict]) -> list[dict]:
             g["simulator"] = e
         else:
             g["models"].append(e)
-            g["dataset"] = e["dataset"]  # model entries describe the test split
     for g in groups.values():
         g["models"].sort(key=lambda e: (e["metrics"]["complex_mse"] is None,
                                         e["metrics"]["complex_mse"] or 0.0, e["name"]))
+        with_sample = [e for e in g["models"] if e.get("sample")]
+        g["example"] = [e for e in with_sample  # the best model's object, in case entries differ
+                        if e["sample"]["object_id"] == with_sample[0]["sample"]["object_id"]]
     return sorted(groups.values(), key=lambda g: (-len(g["models"]), g["fingerprint"]))
 
 
 def describe(dataset: dict) -> str:
-    parts = []
-    if dataset.get("classes"):
-        parts.append(", ".join(dataset["classes"]))
-    if dataset.get("test_objects"):
-        parts.append(f"{dataset['test_objects']} test objects, {dataset['test_meshes']} test meshes")
-    return "; ".join(parts)
+    return (f"{', '.join(dataset['classes'])}; {dataset['test_objects']} test objects, "
+            f"{dataset['test_meshes']} test meshes")
 
 
 def simulator_note(sim: dict | None) -> str:
@@ -77,8 +75,8 @@ def simulator_note(sim: dict | None) -> str:
                 "(run `leaderboard simulator --data DIR`).")
     how = sim.get("complex_mse_source", "")
     return (f"Physics simulator ({sim['name']}): {fmt_ms(sim['speed']['ms_per_mesh'])} ms per mesh "
-            f"on {sim['speed']['hardware'] or 'unknown hardware'}; Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² "
-            f"({how}).")
+            f"on {sim['speed']['hardware'] or 'unknown hardware'}; "
+            f"Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² ({how}).")
 
 
 def chart_note(g: dict) -> str:
@@ -167,8 +165,8 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
                    "ms per mesh against Complex MSE for every model and the physics simulator")]
     if g["models"]:
         parts += ["<h3>Per class</h3>", html_per_class(g)]
-    if f"example-{short}.png" in images:
-        s = g["models"][0]["sample"]
+    if g["example"]:
+        s = g["example"][0]["sample"]
         parts += ["<h3>Example predictions</h3>",
                   f"<p>Test object {s['object_id']} ({_e(s['class'])}): the physics response "
                   f"(aspect against range, roll {s['roll_deg']:g}°) beside each model's prediction "
@@ -216,7 +214,9 @@ def markdown(groups: list[dict]) -> str:
                     "|---|---|---:|---:|---:|"]
             out += [f"| {_md(e['name'])} | {_md(c)} | " + " | ".join(fmt_mse(m[k]) for k in METRIC_NAMES)
                     + " |" for e in g["models"] for c, m in sorted(e["metrics"]["per_class"].items())]
-            out += ["", f"![Example predictions](example-{short}.png)", ""]
+            out += [""]
+        if g["example"]:
+            out += [f"![Example predictions](example-{short}.png)", ""]
     return "\n".join(out)
 
 
@@ -232,11 +232,8 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     files: dict[str, bytes] = {}
     for g in groups:
         files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(g["models"], g["simulator"])
-        with_sample = [e for e in g["models"] if e.get("sample")]
-        if with_sample:
-            obj = with_sample[0]["sample"]["object_id"]
-            same = [e for e in with_sample if e["sample"]["object_id"] == obj]
-            files[f"example-{g['short']}.png"] = figures.example(same)
+        if g["example"]:
+            files[f"example-{g['short']}.png"] = figures.example(g["example"])
     sizes = {name: _png_size(data) for name, data in files.items()}
     body = "\n".join(html_section(g, sizes) for g in groups) if groups else \
         "<p>No entries yet: see docs/SUBMITTING.md.</p>"

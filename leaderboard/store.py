@@ -132,6 +132,14 @@ def validate_entry(entry) -> dict:
     if not isinstance(dataset, dict) or not re.fullmatch(r"[0-9a-f]{64}",
                                                          str(dataset.get("fingerprint", ""))):
         raise EntryError("dataset.fingerprint must be a sha256 hex digest")
+    classes = dataset.get("classes")
+    if not isinstance(classes, list) or not all(isinstance(c, str) for c in classes):
+        raise EntryError("dataset.classes must be a list of class names")
+    for k in ("test_objects", "test_meshes"):
+        if isinstance(dataset.get(k), bool) or not isinstance(dataset.get(k), int) or dataset[k] < 0:
+            raise EntryError(f"dataset.{k} must be a non-negative integer")
+    if not isinstance(entry.get("model", {}), dict):
+        raise EntryError("model must be an object")
     check_metrics(entry.get("metrics"))
     speed = entry.get("speed")
     if not isinstance(speed, dict):
