@@ -308,13 +308,19 @@ WATERTIGHT: tuple[bool, ...] = tuple(True for _ in FAMILIES)  # every builder re
 MAX_ATTEMPTS = 16
 
 
+def _check_max_faces(max_faces: int, least: int) -> None:
+    if max_faces < least:
+        raise ValueError(f"max_faces must be at least {least}, got {max_faces}")
+
+
 def build_family_mesh(family: int, rng: np.random.Generator, max_faces: int = 800) -> tuple[np.ndarray, np.ndarray]:
     """One random member of ``FAMILIES[family]``: unit-bbox float32 vertices, int32 faces.
 
-    A random face budget in [max(MIN_BUDGET, max_faces/4), max_faces] varies triangle density within a family.
-    Draws that the decimator cannot bring under budget as a closed surface are rejected and
+    A random face budget in [max(MIN_BUDGET, max_faces/4), max_faces] varies triangle density
+    within a family. Draws that the decimator cannot bring under budget as a closed surface are rejected and
     redrawn from the same generator (so the result stays a function of the seed).
     """
+    _check_max_faces(max_faces, MIN_BUDGET)
     name = FAMILIES[family]
     for _ in range(MAX_ATTEMPTS):
         budget = int(rng.integers(max(MIN_BUDGET, max_faces // 4), max_faces + 1))
@@ -332,11 +338,6 @@ def build_family_mesh(family: int, rng: np.random.Generator, max_faces: int = 80
         return normalize_unit_bbox(v), f
     raise RuntimeError(f"family {name}: no valid mesh of at most {max_faces} faces in {MAX_ATTEMPTS} draws; "
                        "raise max_faces")
-
-
-def _check_max_faces(max_faces: int, least: int) -> None:
-    if max_faces < least:
-        raise ValueError(f"max_faces must be at least {least}, got {max_faces}")
 
 
 def procedural_corpus(n_meshes: int, seed: int, max_faces: int = 800, progress: bool = False) -> list[Mesh]:
@@ -410,9 +411,12 @@ def write_corpus_file(path: str | Path, meshes: list[Mesh], class_names: list[st
 def _corpus_header(h5: h5py.File, path: Path) -> tuple[list[str], dict]:
     if h5.attrs.get("format") != CORPUS_FORMAT:
         raise CorpusError(f"{path}: not a {CORPUS_FORMAT} file")
-    if int(h5.attrs["version"]) != CORPUS_VERSION:
-        raise CorpusError(f"{path}: corpus version {h5.attrs['version']} unsupported (need {CORPUS_VERSION})")
-    return json.loads(h5.attrs["class_names"]), json.loads(h5.attrs["meta"])
+    if h5.attrs.get("version") != CORPUS_VERSION:
+        raise CorpusError(f"{path}: corpus version {h5.attrs.get('version')} unsupported (need {CORPUS_VERSION})")
+    try:
+        return json.loads(h5.attrs["class_names"]), json.loads(h5.attrs["meta"])
+    except (KeyError, ValueError) as exc:
+        raise CorpusError(f"{path}: damaged corpus header ({exc})") from None
 
 
 def _open(path: Path) -> h5py.File:
@@ -548,6 +552,8 @@ def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = No
     unused). Unreadable models are skipped and counted in one warning.
     """
     _check_max_faces(max_faces, MIN_FACES)
+    if limit is not None and limit < 1:
+        raise ValueError(f"limit must be positive or None, got {limit}")
     root = Path(path)
     synsets = _shapenet_synsets(root)
     models = [(c, obj) for c, s in enumerate(synsets) for obj in sorted(s.glob(f"*/{SHAPENET_MODEL.as_posix()}"))]
