@@ -1,7 +1,7 @@
 """Build speed of the procedural pretraining corpus on one core, per family and overall, and
 the cost of the HDF5 cache (cold build, cached rerun, load).
 
-    python benchmarks/corpus_speed.py [--meshes 3000] [--max-faces 800] [--seed 0]
+    python benchmarks/corpus_speed.py [--meshes 5000] [--max-faces 800] [--seed 0]
 
 Pins itself to one CPU core. The goal: a few thousand meshes in under about 90 s.
 Writes benchmarks/results/corpus_speed.json and prints two tables.
@@ -26,7 +26,7 @@ GOAL_SECONDS = 90.0
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", type=int, default=3000)
+    ap.add_argument("--meshes", type=int, default=5000)
     ap.add_argument("--max-faces", type=int, default=800)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "corpus_speed.json"))
