@@ -75,11 +75,13 @@ class CheckpointModel:
     discretization it was trained with.
     """
 
-    def __init__(self, checkpoint: str | os.PathLike, device: str = "cpu", batch_size: int = 16):
+    def __init__(self, checkpoint: str | os.PathLike, device: str = "cpu",
+                 batch_size: int | str = 16):
+        """Arguments may be strings (``benchmark evaluate --model-arg KEY=VALUE``)."""
         from benchmark.data import ScaleBins
 
         self.model, self.config = load_checkpoint(checkpoint, device)
-        self.device, self.batch_size = torch.device(device), batch_size
+        self.device, self.batch_size = torch.device(device), int(batch_size)
         self.model.to(self.device)
         self.scale_bins = ScaleBins(**self.config["scale_bins"])
         self.target_shape = tuple(self.config["target_shape"])
