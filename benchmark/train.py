@@ -371,6 +371,7 @@ def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLi
     record = evaluate(data_dir, model=model, train_seed=model.config["train"]["seed"],
                       progress=progress)
     if results:
+        Path(results).parent.mkdir(parents=True, exist_ok=True)
         write_results(results, record)
     return record
 
