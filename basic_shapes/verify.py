@@ -1,0 +1,206 @@
+"""Shape checks for generated meshes: two-sided Hausdorff (pymeshlab), tolerances, topology.
+
+Hausdorff distances are measured by pymeshlab from an explicit, deterministic point sample
+of each surface to the other mesh. MeshLab's own face sampling (Montecarlo) draws from a
+process-wide random generator that is never reseeded, so it would make the stored distance
+depend on what was measured before in the process; our samples are every vertex plus the
+centroids of a k x k subdivision of every face (k grows with the face area). For a convex
+polytope such as the cube this is exact, not just an estimate: a triangle whose vertices
+and centroid lie on the polytope's surface lies in one of its faces (docs/GENERATOR.md).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import functools
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+from basic_shapes import primitives
+
+PLANAR_TOLERANCE = 1e-6
+"""Bound for planar-faced shapes: float32 vertex rounding is ~6e-8 of the diagonal."""
+
+SAMPLE_SPACING = 1.0 / 8
+"""Target distance between face samples, as a fraction of the bbox diagonal."""
+
+MAX_FACE_SUBDIVISION = 8
+"""Cap on k: at most k*k samples per face."""
+
+SEARCH_RADIUS = 0.5
+"""MeshLab's maxdist, relative to the reference diagonal. MeshLab silently drops samples
+farther than maxdist, so when any is dropped the measurement is redone without a limit."""
+UNLIMITED = 1e30
+
+
+@functools.cache
+def _pymeshlab():
+    """Import pymeshlab, first loading Blender's Embree when bpy is installed.
+
+    Both ship a ``libembree4.so.4``; whichever loads first serves the process, and
+    pymeshlab's older copy lacks symbols bpy needs, so bpy would then fail to import.
+    Blender's copy serves pymeshlab fine. This loads the library only, not bpy.
+    """
+    spec = importlib.util.find_spec("bpy")
+    if spec is not None and spec.origin:
+        embree = Path(spec.origin).parent / "lib" / "libembree4.so.4"
+        if embree.exists():
+            ctypes.CDLL(str(embree))
+    import pymeshlab
+
+    return pymeshlab
+
+
+def bbox_diagonal(vertices: np.ndarray) -> float:
+    v = np.asarray(vertices, np.float64)
+    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+
+
+def _stratified_weights(k: int) -> np.ndarray:
+    """Barycentric centroids of the k*k sub-triangles of a k-subdivided triangle, (k*k, 3)."""
+    up = [(i + 1 / 3, j + 1 / 3) for i in range(k) for j in range(k - i)]
+    down = [(i + 2 / 3, j + 2 / 3) for i in range(k - 1) for j in range(k - 1 - i)]
+    ij = np.array(up + down, np.float64) / k
+    return np.column_stack([ij, 1.0 - ij.sum(axis=1)])
+
+
+_WEIGHTS = [None] + [_stratified_weights(k) for k in range(1, MAX_FACE_SUBDIVISION + 1)]
+
+
+def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
+    """k*k stratified points per face, k = ceil(sqrt(2 * area) / spacing) capped (k = 1: the
+    centroid). Area, not edge length, sets k: collapsed flat regions are full of long slivers."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    twice_area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    k = np.clip(np.ceil(np.sqrt(twice_area) / spacing), 1, MAX_FACE_SUBDIVISION).astype(np.int64)
+    parts = []
+    for level in np.unique(k):
+        sel = k == level
+        w = _WEIGHTS[level]
+        parts.append((w[:, 0, None, None] * a[sel] + w[:, 1, None, None] * b[sel]
+                      + w[:, 2, None, None] * c[sel]).reshape(-1, 3))
+    return np.concatenate(parts)
+
+
+def _sampled_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float):
+    """A pymeshlab mesh whose vertex list also holds its face samples, unreferenced.
+
+    MeshLab's vertex sampling visits every vertex, while its closest-point search only looks
+    at faces: one mesh serves as the sample set in one direction and the target in the other.
+    """
+    v = np.asarray(vertices, np.float64)
+    return _pymeshlab().Mesh(vertex_matrix=np.concatenate([v, face_samples(v, faces, spacing)]),
+                             face_matrix=np.asarray(faces, np.int32))
+
+
+class Reference:
+    """A mesh that many others are compared with (the simple mesh of one object).
+
+    Its sampled pymeshlab mesh is built once; ``distance`` then builds one per compared mesh.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        self.diagonal = bbox_diagonal(vertices)
+        if not self.diagonal > 0:
+            raise ValueError("reference mesh has an empty bounding box")
+        self.spacing = self.diagonal * SAMPLE_SPACING
+        self._mesh = _sampled_mesh(vertices, faces, self.spacing)
+
+    def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
+        """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
+        ms = _pymeshlab().MeshSet()
+        ms.add_mesh(self._mesh)
+        ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
+        radius = SEARCH_RADIUS * self.diagonal
+        to_ref = _one_sided(ms, sampled=1, target=0, radius=radius)
+        from_ref = _one_sided(ms, sampled=0, target=1, radius=radius)
+        return max(to_ref, from_ref) / self.diagonal
+
+
+def _one_sided(ms, sampled: int, target: int, radius: float) -> float:
+    """Largest distance from the vertices of mesh ``sampled`` to the faces of ``target``."""
+    n = ms.mesh(sampled).vertex_number()
+    r = ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=True,
+                                  sampleedge=False, sampleface=False, samplenum=n,
+                                  maxdist=_pymeshlab().PureValue(radius))
+    if r["n_samples"] < n:
+        return _one_sided(ms, sampled, target, radius=UNLIMITED)
+    return float(r["max"])
+
+
+def hausdorff(v_a: np.ndarray, f_a: np.ndarray, v_b: np.ndarray, f_b: np.ndarray) -> float:
+    """Two-sided Hausdorff distance between meshes a and b, relative to a's bbox diagonal."""
+    return Reference(v_a, f_a).distance(v_b, f_b)
+
+
+def tolerance(class_name: str, params: dict) -> float:
+    """The Hausdorff bound (relative to the bbox diagonal) a variant of ``class_name`` must meet.
+
+    Planar-faced shapes: PLANAR_TOLERANCE. Curved ones: the distance between the coarsest
+    allowed tessellation and the default one, worst case over all scales (GENERATOR.md).
+    ``params["resolution"]``, when given, must be an allowed tessellation, since the bound
+    only covers those.
+    """
+    spec = primitives.get(class_name)
+    resolution = params.get("resolution", {}) if params else {}
+    unknown = set(resolution) - set(spec.resolution)
+    if unknown:
+        raise ValueError(f"{class_name}: no tessellation parameter {sorted(unknown)}")
+    for key, value in resolution.items():
+        if not spec.resolution[key].allows(value):
+            raise ValueError(f"{class_name}: {key}={value} is outside the allowed tessellations")
+    if spec.planar:
+        return PLANAR_TOLERANCE
+    coarse = spec.gap(spec.coarsest_resolution())
+    default = spec.gap(spec.default_resolution())
+    unit_bound = max(coarse, default) if spec.convex else coarse + default
+    # A per-axis scale s maps unit-space displacements d to |diag(s / e0) d| <= max(s / e0)|d|;
+    # relative to the diagonal |s| that is at most |d| / min(e0), reached as s approaches an axis.
+    return unit_bound / min(spec.extents) + PLANAR_TOLERANCE
+
+
+def topology_key(faces: np.ndarray, n_vertices: int) -> tuple:
+    """Vertex count and vertex-degree histogram: meshes with different keys are not isomorphic."""
+    degree = np.bincount(np.asarray(faces).ravel(), minlength=n_vertices)
+    return (int(n_vertices), len(faces), tuple(np.bincount(degree).tolist()))
+
+
+MIN_RELATIVE_AREA = 1e-12
+"""Triangles smaller than this times the squared bbox diagonal count as degenerate."""
+
+
+def defect(vertices: np.ndarray, faces: np.ndarray, euler: int) -> str | None:
+    """Why a triangle mesh is not a closed, consistently oriented manifold of Euler
+    characteristic ``euler`` without degenerate triangles (None when it is)."""
+    v = np.asarray(vertices, np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+        return "vertices are not a finite (V, 3) array"
+    f = np.asarray(faces, np.int64)
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        return "not a non-empty (F, 3) triangle array"
+    n_vertices = len(v)
+    if f.min() < 0 or f.max() >= n_vertices:
+        return "face index out of range"
+    if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
+        return "degenerate face (repeated vertex)"
+    if np.bincount(f.ravel(), minlength=n_vertices).min() == 0:
+        return "unreferenced vertex"
+    a, b = f.ravel(), f[:, [1, 2, 0]].ravel()
+    half = np.sort(a * n_vertices + b)
+    if np.any(half[1:] == half[:-1]):
+        return "edge used twice in the same direction (non-manifold or flipped face)"
+    if not np.array_equal(np.sort(b * n_vertices + a), half):  # every edge has its twin
+        return "open boundary edge"
+    chi = n_vertices - len(half) // 2 + len(f)
+    if chi != euler:
+        return f"Euler characteristic {chi}, expected {euler}"
+    p = v[f[:, 0]]
+    twice_area = np.linalg.norm(np.cross(v[f[:, 1]] - p, v[f[:, 2]] - p), axis=1)
+    if twice_area.min() <= 2 * MIN_RELATIVE_AREA * bbox_diagonal(v) ** 2:
+        return "degenerate (zero-area) triangle"
+    return None
