@@ -171,7 +171,8 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
                                   device=shared["device"], progress=progress)
         save_checkpoint(ckpt, model, config)
         train_seconds = config["train_seconds"]
-    results = evaluate_checkpoint(ckpt, data_dir, out / "results" / f"{cfg.name}.json", progress)
+    results = evaluate_checkpoint(ckpt, data_dir, out / "results" / f"{cfg.name}.json", progress,
+                                  device=shared["device"])
     return {"results": results, "train_seconds": train_seconds,
             "wall_seconds": time.perf_counter() - t0}
 
@@ -297,13 +298,14 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def write_outputs(out: Path, table: dict) -> None:
+def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
     with atomic_path(out / "table.json") as tmp:
         tmp.write_text(json.dumps(table, indent=1, sort_keys=True, allow_nan=False) + "\n")
     with atomic_path(out / "table.md") as tmp:
         tmp.write_text(render_markdown(table))
-    plot(table["rows"], out / "speed_vs_error.png",
-         f"Basic Shapes, preset {table['preset']}: speed vs error")
+    if with_plot:
+        plot(table["rows"], out / "speed_vs_error.png",
+             f"Basic Shapes, preset {table['preset']}: speed vs error")
 
 
 # --- CLI --------------------------------------------------------------------------------------
@@ -374,17 +376,17 @@ def run(args: argparse.Namespace) -> None:
         timing["corpus_s"] = time.perf_counter() - t0
     records = {}
     t_rows = time.perf_counter()
-    for cfg in cfgs:
+    for k, cfg in enumerate(cfgs):
         done = None if args.force else _finished(out, cfg, fingerprint)
         if done is None:
             done = run_row(cfg, data_dir, out, preset, shared, nproc, not args.quiet)
         else:
             print(f"{cfg.name}: reusing the finished row in {out}")
         records[cfg.name] = done
-        write_outputs(out, _table(args, preset, records, fingerprint, description,
-                                  {**timing, "rows_s": time.perf_counter() - t_rows,
-                                   "total_s": time.perf_counter() - t_start}, hardware()))
-    table = json.loads((out / "table.json").read_text())
+        table = _table(args, preset, records, fingerprint, description,
+                       {**timing, "rows_s": time.perf_counter() - t_rows,
+                        "total_s": time.perf_counter() - t_start}, hardware())
+        write_outputs(out, table, with_plot=k == len(cfgs) - 1)
     print(render_markdown(table))
     print(f"table, JSON and plot in {out}")
 

@@ -361,13 +361,14 @@ def init_distributed() -> tuple[torch.device, int]:
 
 
 def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLike,
-                        results: str | os.PathLike | None = None, progress: bool = True) -> dict:
+                        results: str | os.PathLike | None = None, progress: bool = True,
+                        device: str | torch.device = "cpu") -> dict:
     """Results record of a checkpoint on the test split (harness ``evaluate``)."""
     from benchmark.evaluate import evaluate
     from benchmark.models.checkpoint import CheckpointModel
     from benchmark.protocol import write_results
 
-    model = CheckpointModel(checkpoint)
+    model = CheckpointModel(checkpoint, device=str(device))
     record = evaluate(data_dir, model=model, train_seed=model.config["train"]["seed"],
                       progress=progress)
     if results:
@@ -398,7 +399,7 @@ def run(args: argparse.Namespace) -> None:
         if args.results:
             from benchmark.evaluate import format_metrics
 
-            record = evaluate_checkpoint(args.out, args.data, args.results, not args.quiet)
+            record = evaluate_checkpoint(args.out, args.data, args.results, not args.quiet, device)
             print(format_metrics(record))
             print(f"results in {args.results}")
     if torch.distributed.is_initialized():

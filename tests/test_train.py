@@ -15,6 +15,7 @@ from benchmark.data import BenchmarkData, ScaleBins
 from benchmark.models import ReconstructionHead, build_model
 from benchmark.models.checkpoint import CheckpointError, CheckpointModel, load_checkpoint, save_checkpoint
 from benchmark.protocol import load_results
+from benchmark.reproduce import ROWS, findings
 from benchmark.train import (PretrainTask, TrainConfig, benchmark_examples, corpus_examples,
                              epoch_batches, fit, train)
 from tests.benchmark_fixture import make_dataset
@@ -142,3 +143,58 @@ def test_train_cli_bad_input(data_dir, tmp_path, argv, message):
     with pytest.raises(SystemExit, match=message):
         benchmark_main(["train", *[x for kv in base.items() for x in kv], "--quiet"])
     assert not (tmp_path / "ck").exists()
+
+
+def test_tiny_preset_end_to_end(tmp_path):
+    """The whole pipeline: `basic-shapes generate` + `radar-sim label` subprocesses, the
+    corpus, all 13 rows trained and evaluated by the harness, table + JSON + plot."""
+    out = tmp_path / "tiny"
+    benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
+    table = json.loads((out / "table.json").read_text())
+    names = [r["name"] for r in table["rows"]]
+    assert names == [f"{e}-{r}" for e, r in ROWS] and len(names) == 13
+    with BenchmarkData(out / "data") as data:
+        assert data.target_shape == (7, 3, 107)
+        assert table["dataset"]["fingerprint"] == data.fingerprint
+        n_test = len(data.object_rows("test"))
+    for row in table["rows"]:
+        results = load_results(out / "results" / f"{row['name']}.json")
+        assert results["metrics"]["n_objects"] == n_test
+        assert row["complex_mse"] == results["metrics"]["complex_mse"]
+    invariant = table["rows"][-1]
+    assert invariant["name"] == "invariant-basic"
+    md = (out / "table.md").read_text()
+    assert md.count("\n| ") == 14 and table["command"] in md
+    assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert {f["claim"] for f in table["findings"]} >= {
+        "every non-Ideal model falls short of its Ideal model on Variation MSE"}
+    # a rerun reuses every finished row instead of training again
+    benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
+    assert json.loads((out / "table.json").read_text())["rows"] == table["rows"]
+
+
+def test_findings_on_a_table_shaped_like_the_paper():
+    """The paper's pattern holds by construction here, except one planted violation."""
+    quality = {"direct": 3.0, "graph": 1.0, "token": 2.0}
+    factor = {"autoencoder": 1.0, "classification": 1.5, "basic": 2.0}
+    rows = []
+    for e, r in ROWS[:9]:
+        s = quality[e] * factor[r] * 10
+        rows.append({"name": f"{e}-{r}", "embedding": e, "regime": r, "simple_mse": s,
+                     "complex_mse": 2 * s, "variation_mse": s, "mode_collapse": False})
+    for e, r in ROWS[9:12]:
+        rows.append({"name": f"{e}-{r}", "embedding": e, "regime": r, "simple_mse": 5.0,
+                     "complex_mse": 5.0, "variation_mse": 1.0, "mode_collapse": False})
+    rows[-1]["variation_mse"] = 100.0  # token-ideal varies more than token-autoencoder
+    rows.append({"name": "invariant-basic", "embedding": "invariant", "regime": "basic",
+                 "simple_mse": 50.0, "complex_mse": 50.0, "variation_mse": 0.0, "mode_collapse": True})
+    f = {x["claim"].split(" (")[0].split(":")[0]: x for x in findings(rows)}
+    assert f["graph and token embeddings beat direct"]["holds"]
+    assert (f["graph and token embeddings beat direct"]["held"],
+            f["graph and token embeddings beat direct"]["of"]) == (18, 18)
+    assert f["autoencoder pretraining beats classification pretraining and none"]["holds"]
+    assert f["graph + autoencoder is best of the non-Ideal paper rows on all three metrics"]["of"] == 24
+    ideal = f["every non-Ideal model falls short of its Ideal model on Variation MSE"]
+    assert not ideal["holds"] and (ideal["held"], ideal["of"]) == (6, 9)
+    assert ideal["failed"] == ["token-basic", "token-classification", "token-autoencoder"]
+    assert f["no row is mode-collapsed"]["failed"] == ["invariant-basic"]
