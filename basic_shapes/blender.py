@@ -23,12 +23,15 @@ from basic_shapes.shards import MeshRecord
 MAX_ATTEMPTS = 64
 """Tries per variant before giving up (a rejected try is regenerated with a new stream)."""
 
-MAX_TRIANGLES = 5000
+MAX_TRIANGLES = 4000
 """Largest triangle count of a variant (and of a mesh before decimation)."""
 
-MAX_CUT_STEPS = 6
+MAX_CUT_STEPS = 4
 """At most this many edge rings are cut per variant. A bmesh subdivision costs time in
 proportion to the whole mesh, so the cuts reach their target in a few large steps."""
+
+MAX_CUTS_PER_RING = 32
+"""More cuts in one ring would slice a face into slivers and fan the triangles at its ends."""
 
 COLLAPSE_OVERSHOOT = 3.0
 """A collapsed variant is cut to up to this many times its final triangle count first."""
@@ -37,14 +40,15 @@ QUAD_METHODS = ("BEAUTY", "FIXED", "FIXED_ALTERNATE", "SHORTEST_DIAGONAL", "LONG
 NGON_METHODS = ("BEAUTY", "CLIP")
 
 STAGE_SECONDS: dict[str, float] = defaultdict(float)
-"""CPU seconds spent per stage in this process, rejected attempts included (read by
-benchmarks/mesh_core.py): simple, primitive, loop_cuts, decimate, extract, checks, hausdorff."""
+"""Seconds (perf_counter: cheap, unlike process_time) spent per stage in this process,
+rejected attempts included, read by benchmarks/mesh_core.py: simple, primitive, loop_cuts,
+decimate, extract, checks, hausdorff."""
 ATTEMPTS: dict[str, int] = defaultdict(int)
 """Built meshes per outcome in this process: accepted or the rejection reason."""
 
 
 def _lap(stage: str, start: float) -> float:
-    now = time.process_time()
+    now = time.perf_counter()
     STAGE_SECONDS[stage] += now - start
     return now
 
@@ -66,7 +70,7 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
     if not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be in 0..2**64-1, got {seed}")
     blender = _state()
-    start = time.process_time()
+    start = time.perf_counter()
     simple_params = {"resolution": spec.default_resolution(), "loop_cuts": [],
                      "decimate": {"kind": "none"}, "triangulate": {"quad": "BEAUTY",
                                                                    "ngon": "BEAUTY"}}
@@ -84,16 +88,16 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
 
 
 def warm_up(class_names) -> float:
-    """Build every allowed tessellation of these classes now; returns the CPU seconds spent.
+    """Build every allowed tessellation of these classes now; returns the seconds spent.
 
     Otherwise each one is built on first use (a few ms each, once per process).
     """
-    start = time.process_time()
+    start = time.perf_counter()
     for name in class_names:
         spec = primitives.get(name)
         for resolution in spec.resolutions():
             _state().primitive(name, resolution)
-    return time.process_time() - start
+    return time.perf_counter() - start
 
 
 def _variant(blender, class_name, scale, seed, variant, reference, seen) -> MeshRecord:
@@ -103,7 +107,7 @@ def _variant(blender, class_name, scale, seed, variant, reference, seen) -> Mesh
         rng = np.random.default_rng([seed, variant, attempt])
         params = _sample_params(spec, rng)
         v, f = blender.build(class_name, scale, params, rng)
-        start = time.process_time()
+        start = time.perf_counter()
         key = verify.topology_key(f, len(v))
         reason = "duplicate topology" if key in seen else verify.defect(v, f, spec.euler)
         start = _lap("checks", start)
@@ -215,7 +219,7 @@ class _Blender:
         _sample_params; what was done is added to ``params``.
         """
         spec = primitives.PRIMITIVES[class_name]
-        start = time.process_time()
+        start = time.perf_counter()
         bm = self.primitive(class_name, params["resolution"]).copy()
         try:
             factors = [s / e for s, e in zip(scale.tolist(), spec.extents)]
@@ -252,6 +256,7 @@ class _Blender:
         growth = {"collapse": decimate.get("overshoot"), "unsubdiv": 2.0 ** decimate.get(
             "iterations", 0), "none": 1.0}[decimate["kind"]]
         target = min(final * growth, MAX_TRIANGLES)
+        params["target_triangles"] = int(round(final))
         params["loop_cuts"] = cuts_done = []
         steps = params["cut_steps"]
         for step in range(steps):
@@ -264,7 +269,8 @@ class _Blender:
             if room < 1:
                 break
             wanted = (target - triangles) / (steps - step) / per_cut
-            cuts = int(np.clip(round(wanted * rng.uniform(0.5, 1.5)), 1, room))
+            cuts = int(np.clip(round(wanted * rng.uniform(0.5, 1.5)), 1,
+                               min(room, MAX_CUTS_PER_RING)))
             # use_single_edge fans out the triangles where a ring ends (no 180-degree corners)
             self.bmesh.ops.subdivide_edges(bm, edges=ring, cuts=cuts, use_grid_fill=False,
                                            use_single_edge=True, use_only_quads=False)
@@ -275,7 +281,8 @@ class _Blender:
     def _set_modifiers(self, params: dict) -> None:
         """Configure both modifiers; every field is set, so no state leaks between meshes."""
         mod, decimate = self.decimate, params["decimate"]
-        mod.show_viewport = decimate["kind"] != "none"
+        # a collapse whose cuts fell short of its target has nothing to do (ratio 1)
+        mod.show_viewport = decimate["kind"] != "none" and decimate.get("ratio", 0.0) < 1.0
         mod.decimate_type = "UNSUBDIV" if decimate["kind"] == "unsubdiv" else "COLLAPSE"
         mod.ratio = decimate.get("ratio", 1.0)
         mod.iterations = decimate.get("iterations", 0)

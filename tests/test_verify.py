@@ -1,0 +1,157 @@
+"""basic_shapes.verify against analytic references (no Blender here)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from basic_shapes import primitives, verify
+
+
+def box(extents, center=(0.0, 0.0, 0.0)):
+    """Closed, outward-oriented triangulated box."""
+    e = np.asarray(extents, float) / 2
+    v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * e
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v + np.asarray(center), f
+
+
+def prism(n, radius=1.0, height=2.0, phase=0.0):
+    """Regular n-gon prism (vertices on the circle), caps fanned from their centres."""
+    t = phase + 2 * np.pi * np.arange(n) / n
+    ring = np.column_stack([radius * np.cos(t), radius * np.sin(t)])
+    v = np.vstack([np.column_stack([ring, np.full(n, -height / 2)]),
+                   np.column_stack([ring, np.full(n, height / 2)]),
+                   [[0, 0, -height / 2], [0, 0, height / 2]]])
+    f = []
+    for i in range(n):
+        j = (i + 1) % n
+        f += [[i, j, n + j], [i, n + j, n + i], [2 * n, j, i], [2 * n + 1, n + i, n + j]]
+    return v, np.array(f)
+
+
+def test_identical_meshes_are_at_distance_zero():
+    v, f = prism(16)
+    assert verify.hausdorff(v, f, v, f) < 1e-12  # round-off of the centroid samples
+
+
+def test_nested_boxes_match_the_corner_to_corner_distance():
+    va, fa = box((1.0, 2.0, 3.0))
+    vb, fb = box((1.5, 2.2, 3.9))
+    expected = np.linalg.norm(np.array([0.5, 0.2, 0.9]) / 2) / np.linalg.norm([1.0, 2.0, 3.0])
+    assert verify.hausdorff(va, fa, vb, fb) == pytest.approx(expected, rel=1e-6)
+
+
+def test_face_interiors_are_sampled():
+    # Same vertices, top face (not flat: one corner raised) split along the other diagonal:
+    # every vertex of each mesh lies on the other, only face samples see the difference.
+    va, fa = box((2.0, 2.0, 2.0))
+    va[7, 2] += 1.0
+    fb = fa.copy()
+    top = [i for i, tri in enumerate(fa) if set(tri) <= {1, 3, 5, 7}]
+    fb[top] = [[1, 5, 3], [5, 7, 3]]
+    assert verify.defect(va, fa, euler=2) is None and verify.defect(va, fb, euler=2) is None
+    assert verify.hausdorff(va, fa, va, fb) > 0.01
+
+
+def test_polygon_sagitta_is_measured_exactly():
+    # A 2n-gon prism and an n-gon prism sharing every other vertex: the 2n-gon's extra
+    # vertices lie 1 - cos(pi/n) from the n-gon's side faces, and nothing is farther.
+    n = 12
+    va, fa = prism(2 * n)
+    vb, fb = prism(n)
+    expected = (1 - math.cos(math.pi / n)) / verify.bbox_diagonal(va)
+    assert verify.hausdorff(va, fa, vb, fb) == pytest.approx(expected, rel=1e-6)
+
+
+def test_hausdorff_does_not_depend_on_what_was_measured_before():
+    va, fa = prism(24)
+    vb, fb = prism(17, phase=0.1)
+    first = verify.hausdorff(va, fa, vb, fb)
+    verify.hausdorff(*box((1, 2, 3)), *box((2, 2, 2)))
+    assert verify.hausdorff(va, fa, vb, fb) == first
+
+
+def test_far_samples_are_not_dropped():
+    va, fa = box((1.0, 1.0, 1.0))
+    vb, fb = box((1.0, 1.0, 1.0), center=(30.0, 0.0, 0.0))
+    # every sample is ~30 m (17 diagonals) away, beyond MeshLab's default search radius
+    assert verify.hausdorff(va, fa, vb, fb) > 17
+
+
+def test_tolerance_planar_and_curved():
+    assert verify.tolerance("cube", {}) == verify.PLANAR_TOLERANCE
+    # cylinder: coarsest 24-gon vs the default 32-gon; worst case over scales halves it
+    cyl = (1 - math.cos(math.pi / 24)) / 2 + verify.PLANAR_TOLERANCE
+    assert verify.tolerance("cylinder", {"resolution": {"vertices": 40}}) == pytest.approx(cyl)
+    # UV sphere: every point lies at radius >= cos(pi/segments) cos(pi/(2 rings))
+    sph = (1 - math.cos(math.pi / 24) ** 2) / 2 + verify.PLANAR_TOLERANCE
+    assert verify.tolerance("sphere", {}) == pytest.approx(sph)
+    # torus: not convex, two tessellations' gaps add; the thin z extent (0.5) sets the scale
+    gap = 0.25 * (1 - math.cos(math.pi / 12)) + 1.25 * (1 - math.cos(math.pi / 48))
+    assert verify.tolerance("torus", {}) == pytest.approx(2 * gap / 0.5 + 1e-6)
+
+
+def test_curved_tolerance_bounds_the_measured_distance_at_extreme_scales():
+    # The bound is the worst case over scales: a 24-gon vs 32-gon prism stretched along x.
+    for scale in ([3.0, 0.01, 0.01], [1.0, 1.0, 1.0], [0.05, 2.0, 0.05]):
+        s = np.array(scale) / 2
+        va, fa = prism(32)
+        vb, fb = prism(24)
+        h = verify.hausdorff(va * s, fa, vb * s, fb)
+        assert h <= verify.tolerance("cylinder", {"resolution": {"vertices": 24}})
+
+
+def test_tolerance_rejects_tessellations_outside_the_bound():
+    with pytest.raises(ValueError, match="outside the allowed"):
+        verify.tolerance("cylinder", {"resolution": {"vertices": 8}})
+    with pytest.raises(ValueError, match="vertices=30"):
+        verify.tolerance("cylinder", {"resolution": {"vertices": 30}})
+    with pytest.raises(ValueError, match="no tessellation parameter"):
+        verify.tolerance("cube", {"resolution": {"segments": 8}})
+    with pytest.raises(ValueError, match="unknown primitive class 'dodecahedron'"):
+        verify.tolerance("dodecahedron", {})
+
+
+def test_defect_accepts_closed_meshes_and_names_each_problem():
+    v, f = box((1, 2, 3))
+    assert verify.defect(v, f, euler=2) is None
+    assert verify.defect(*prism(9), euler=2) is None
+    assert "open boundary" in verify.defect(v, f[1:], euler=2)
+    flipped = f.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert "same direction" in verify.defect(v, flipped, euler=2)
+    assert "Euler characteristic 2" in verify.defect(v, f, euler=0)
+    two = np.vstack([f, f + 8])
+    assert "Euler characteristic 4" in verify.defect(np.vstack([v, v + 5]), two, euler=2)
+    flat = v.copy()
+    flat[:, 0] = 0.0  # every face parallel to x collapses
+    assert "zero-area" in verify.defect(flat, f, euler=2)
+    assert "unreferenced" in verify.defect(np.vstack([v, [[9, 9, 9]]]), f, euler=2)
+    assert "out of range" in verify.defect(v, f + 1, euler=2)
+    assert "finite" in verify.defect(np.where(v > 0, np.nan, v), f, euler=2)
+
+
+def test_topology_key_ignores_labels_but_sees_connectivity():
+    v, f = box((1, 1, 1))
+    perm = np.random.default_rng(0).permutation(8)
+    relabelled = np.argsort(perm)[f]
+    assert verify.topology_key(relabelled, 8) == verify.topology_key(f, 8)
+    # the same cube with the diagonals of two faces flipped: other vertex degrees
+    g = f.copy()
+    g[0:2] = [[0, 1, 2], [1, 3, 2]]
+    g[2:4] = [[4, 6, 5], [6, 7, 5]]
+    assert verify.defect(v, g, euler=2) is None
+    assert verify.topology_key(g, 8) != verify.topology_key(f, 8)
+
+
+@pytest.mark.parametrize("name", sorted(primitives.PRIMITIVES))
+def test_registry_entries_are_consistent(name):
+    spec = primitives.PRIMITIVES[name]
+    assert spec.planar == (not spec.resolution)
+    assert set(spec.decimation) <= {"collapse", "unsubdiv", "none"}
+    for key, res in spec.resolution.items():
+        assert res.allows(res.default), key
+    assert spec.resolutions() and all(len(r) == len(spec.resolution) for r in spec.resolutions())
+    assert 0 < verify.tolerance(name, {}) < 0.1
