@@ -1,0 +1,14 @@
+"""radar_sim: exact physical-optics monostatic radar simulator on triangle meshes (Embree).
+
+Public API (docs/RADAR.md): ``monostatic_field``, ``detect_mode``, ``RadarConfig``, ``simulate``,
+``RadarResult``, ``MeshError``. Never imports bpy or torch.
+"""
+
+__version__ = "0.1.0"
+
+from radar_sim.config import RadarConfig, RadarResult, simulate  # noqa: E402
+from radar_sim.field import monostatic_field  # noqa: E402
+from radar_sim.geometry import MeshError, UnitsWarning, detect_mode  # noqa: E402
+
+__all__ = ["MeshError", "RadarConfig", "RadarResult", "UnitsWarning", "__version__", "detect_mode",
+           "monostatic_field", "simulate"]

@@ -1,0 +1,191 @@
+"""Radar configurations ("xband-v1") and ``simulate``: frequency response and range profiles.
+
+Conventions (docs/RADAR.md): line of sight (sin θ cos φ, sin θ sin φ, cos θ) for aspect θ and
+roll φ; field amplitude A with σ = |A|²; range profile
+    p(r_m) = Σ_n w_n A(f_n) exp(+j 2 k_n r_m) / Σ_n w_n,   r_m = m·c/(2 N Δf),
+so a point scatterer of σ = 1 m² at the origin peaks at exactly 1 (window gain divided out),
+and positive range points away from the radar (down-range): a scatterer at p appears at −r̂·p.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from radar_sim.field import C0, DEFAULT_TOL, mesh_field, resolve_mode, wavenumbers
+from radar_sim.geometry import MeshError, check_units, prepare
+
+WINDOWS = ("hann", "none")
+
+
+@dataclass(frozen=True)
+class RadarConfig:
+    """A monostatic measurement grid: aspects x rolls x frequencies, and the range window."""
+
+    name: str = "xband-v1"
+    aspect_start_deg: float = 0.0
+    aspect_stop_deg: float = 180.0
+    n_aspect: int = 61
+    n_roll: int = 21                 # rolls 0 .. 360° in n_roll equal steps, endpoint excluded
+    f_start_hz: float = 8e9
+    f_stop_hz: float = 12e9
+    n_freq: int = 128
+    window: str = "hann"             # symmetric Hann (numpy.hanning), or "none"
+    n_range: int = 107               # range bins kept, centred on the origin
+
+    def __post_init__(self):
+        problems = []
+        if not (self.n_aspect >= 1 and self.n_roll >= 1 and self.n_freq >= 2):
+            problems.append("n_aspect, n_roll >= 1 and n_freq >= 2")
+        if not (0.0 <= self.aspect_start_deg <= self.aspect_stop_deg <= 180.0):
+            problems.append("0 <= aspect_start_deg <= aspect_stop_deg <= 180")
+        if not (0.0 < self.f_start_hz < self.f_stop_hz):
+            problems.append("0 < f_start_hz < f_stop_hz")
+        if self.window not in WINDOWS:
+            problems.append(f"window in {WINDOWS}")
+        if not (1 <= self.n_range <= self.n_freq and self.n_range % 2 == 1):
+            problems.append("n_range odd and between 1 and n_freq")
+        if problems:
+            raise ValueError(f"invalid radar config {self.name!r}: need " + "; ".join(problems))
+
+    @classmethod
+    def named(cls, name: str) -> "RadarConfig":
+        if name not in NAMED:
+            raise ValueError(f"unknown radar config {name!r}; known: {sorted(NAMED)}")
+        return NAMED[name]
+
+    @classmethod
+    def from_file(cls, path) -> "RadarConfig":
+        """A JSON object with the fields of RadarConfig (missing fields take the defaults)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: cannot read radar config: {exc}") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: radar config must be a JSON object")
+        known = {f.name: f.type for f in fields(cls)}
+        unknown = sorted(set(data) - set(known))
+        if unknown:
+            raise ValueError(f"{path}: unknown radar config field(s) {unknown}")
+        try:
+            kwargs = {k: (str(v) if k in ("name", "window") else
+                          int(v) if k.startswith("n_") else float(v)) for k, v in data.items()}
+            if any(k.startswith("n_") and v != data[k] for k, v in kwargs.items()):
+                raise ValueError("counts must be integers")
+            return cls(**kwargs)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    # coordinates ------------------------------------------------------------------------
+    @property
+    def aspect_deg(self) -> np.ndarray:
+        return np.linspace(self.aspect_start_deg, self.aspect_stop_deg, self.n_aspect)
+
+    @property
+    def roll_deg(self) -> np.ndarray:
+        return np.arange(self.n_roll) * (360.0 / self.n_roll)
+
+    @property
+    def frequency_hz(self) -> np.ndarray:
+        return np.linspace(self.f_start_hz, self.f_stop_hz, self.n_freq)
+
+    @property
+    def range_resolution_m(self) -> float:
+        """Bin spacing c/(2 N Δf) of the inverse FFT."""
+        df = (self.f_stop_hz - self.f_start_hz) / (self.n_freq - 1)
+        return C0 / (2.0 * self.n_freq * df)
+
+    @property
+    def range_m(self) -> np.ndarray:
+        half = self.n_range // 2
+        return np.arange(-half, half + 1) * self.range_resolution_m
+
+    @property
+    def max_radius_m(self) -> float:
+        """Objects must lie within this distance of the origin (the last kept bin)."""
+        return (self.n_range // 2) * self.range_resolution_m
+
+    def directions(self) -> np.ndarray:
+        """(n_aspect*n_roll, 3) unit lines of sight, aspect-major (roll varies fastest)."""
+        t = self.aspect_deg[:, None]
+        p = self.roll_deg[None, :]
+        st = np.broadcast_to(_sind(t), (self.n_aspect, self.n_roll))
+        los = np.stack([st * _cosd(p), st * _sind(p),
+                        np.broadcast_to(_cosd(t), (self.n_aspect, self.n_roll))], axis=-1)
+        return los.reshape(-1, 3)
+
+    def window_weights(self) -> np.ndarray:
+        return np.hanning(self.n_freq) if self.window == "hann" else np.ones(self.n_freq)
+
+    def range_profiles(self, response: np.ndarray) -> np.ndarray:
+        """(..., n_freq) frequency response -> (..., n_range) complex range profiles."""
+        w = self.window_weights()
+        n = self.n_freq
+        spectrum = np.fft.ifft(response * w, axis=-1) * (n / w.sum())
+        half = self.n_range // 2
+        bins = np.arange(-half, half + 1)
+        carrier = np.exp(2j * wavenumbers(self.f_start_hz)[0] * self.range_m)
+        return spectrum[..., bins % n] * carrier
+
+
+def _sind(deg):
+    """sin of degrees, exact at multiples of 90° (so axis-aligned views are exactly aligned)."""
+    deg = np.asarray(deg, dtype=np.float64)
+    r = np.sin(np.radians(deg))
+    quarter = np.mod(deg, 90.0) == 0
+    return np.where(quarter, np.round(r), r)
+
+
+def _cosd(deg):
+    deg = np.asarray(deg, dtype=np.float64)
+    r = np.cos(np.radians(deg))
+    quarter = np.mod(deg, 90.0) == 0
+    return np.where(quarter, np.round(r), r)
+
+
+NAMED = {"xband-v1": RadarConfig()}
+
+
+@dataclass
+class RadarResult:
+    """Frequency response and range profiles on a config's grid, with coordinates."""
+
+    frequency_response: np.ndarray   # (n_aspect, n_roll, n_freq) complex, σ = |A|² m²
+    range_profiles: np.ndarray       # (n_aspect, n_roll, n_range) complex
+    aspect_deg: np.ndarray
+    roll_deg: np.ndarray
+    frequency_hz: np.ndarray
+    range_m: np.ndarray
+    mode: str                        # the physics used: "convex", "shadowed" or "bounce2"
+    config: RadarConfig
+
+
+def simulate(vertices, faces, config: RadarConfig | None = None, mode: str = "auto", *,
+             tol: float = DEFAULT_TOL) -> RadarResult:
+    """Simulate a mesh (metres) on the grid of ``config`` (default "xband-v1").
+
+    Raises MeshError if the mesh is invalid or extends beyond the range window (with a hint
+    when it is plainly in millimetres).
+    """
+    config = config or RadarConfig.named("xband-v1")
+    mesh = prepare(vertices, faces)
+    limit = config.max_radius_m
+    if mesh.radius > limit:
+        hint = (f"; it looks like millimetres ({mesh.radius:.4g} mm = "
+                f"{mesh.radius / 1000:.4g} m): mesh units must be metres"
+                if mesh.radius / 1000.0 <= limit else "")
+        raise MeshError(f"object extends {mesh.radius:.4g} m from the origin, beyond the "
+                        f"±{limit:.4g} m range window of {config.name!r}{hint}")
+    check_units(mesh)
+    used = resolve_mode(mode, mesh)
+    response = mesh_field(mesh, wavenumbers(config.frequency_hz), config.directions(), used, tol)
+    response = response.reshape(config.n_aspect, config.n_roll, config.n_freq)
+    return RadarResult(response, config.range_profiles(response), config.aspect_deg,
+                       config.roll_deg, config.frequency_hz, config.range_m, used, config)

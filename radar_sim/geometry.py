@@ -1,0 +1,254 @@
+"""Mesh checks and the physics a mesh needs: validation, welding, closed/convex tests, rays.
+
+``prepare`` turns user arrays into a clean ``Mesh`` or raises ``MeshError`` with one line
+saying what is wrong. ``detect_mode`` picks the cheapest exact model for the mesh
+(docs/RADAR.md, "Modes"). ``RayCaster`` wraps Embree (embreex, called directly with float32
+contiguous arrays) for shadow rays and ray tracing.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+EPS = np.finfo(np.float64).eps
+CONVEX_TOL = 1e-6          # relative to the bounding radius: flat within float32 noise
+SEE_EACH_OTHER = 0.01      # probe fraction of reflected power that hits the mesh again -> bounce2
+MILLIMETRE_RADIUS = 100.0  # metres; larger meshes are probably in millimetres (warning)
+RAY_OFFSET = 2.0 ** -17    # shadow/bounce ray origins leave the surface by this x scene radius
+
+
+class MeshError(ValueError):
+    """The vertices/faces cannot be simulated (one-line message says why)."""
+
+
+class UnitsWarning(UserWarning):
+    """The mesh is probably not in metres."""
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A validated triangle mesh: welded vertices (metres, float64), non-degenerate faces.
+
+    ``closed``: every edge is shared by exactly two faces with opposite orientation (faces are
+    then outward, flipped if needed, and one-sided). Open meshes are thin two-sided sheets.
+    ``convex``: closed and convex within CONVEX_TOL, so back-face culling alone is exact.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    closed: bool
+    convex: bool
+    radius: float          # max |vertex| about the origin
+    dropped: int           # degenerate or duplicate faces removed
+
+    @property
+    def area_vectors(self) -> np.ndarray:
+        v = self.vertices
+        f = self.faces
+        return 0.5 * np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+    @property
+    def centroids(self) -> np.ndarray:
+        return self.vertices[self.faces].mean(axis=1)
+
+
+def _as_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        v = np.asarray(vertices)
+        f = np.asarray(faces)
+    except (ValueError, TypeError) as exc:
+        raise MeshError(f"vertices/faces are not arrays: {exc}") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise MeshError(f"vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise MeshError(f"faces must have shape (F, 3) (triangles), got {f.shape}")
+    if v.dtype.kind not in "iuf":
+        raise MeshError(f"vertices must be real numbers, got dtype {v.dtype}")
+    if f.dtype.kind not in "iu":
+        raise MeshError(f"faces must be integer vertex indices, got dtype {f.dtype}")
+    if len(v) == 0 or len(f) == 0:
+        raise MeshError(f"mesh is empty ({len(v)} vertices, {len(f)} faces)")
+    v = v.astype(np.float64)
+    bad = np.flatnonzero(~np.isfinite(v).all(axis=1))
+    if len(bad):
+        raise MeshError(f"vertex {bad[0]} is not finite: {v[bad[0]].tolist()} "
+                        f"({len(bad)} non-finite vertices)")
+    f = f.astype(np.int64)
+    out = np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))
+    if len(out):
+        raise MeshError(f"face {out[0]} refers to vertex {f[out[0]].tolist()}, but the mesh has "
+                        f"{len(v)} vertices (indices are 0-based)")
+    return v, f
+
+
+def prepare(vertices, faces) -> Mesh:
+    """Validate, weld identical vertices, drop zero-area and duplicate faces, analyse topology.
+
+    Zero area means a height below 16·eps·R (R the bounding radius): such a face contributes
+    less than k·16·eps·R·L to the field, below round-off. Duplicate faces (same three
+    vertices, either orientation) are kept once.
+    """
+    v, f = _as_arrays(vertices, faces)
+    v, inverse = np.unique(v, axis=0, return_inverse=True)
+    f = inverse.reshape(-1)[f]
+    radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v))))
+    e1 = v[f[:, 1]] - v[f[:, 0]]
+    e2 = v[f[:, 2]] - v[f[:, 0]]
+    e3 = v[f[:, 2]] - v[f[:, 1]]
+    twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
+    longest = np.sqrt(np.max([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)], axis=0))
+    keep = twice_area > 32.0 * EPS * max(radius, np.finfo(float).tiny) * longest
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    unique = np.zeros(len(f), dtype=bool)
+    unique[first] = True
+    keep &= unique
+    if not keep.any():
+        raise MeshError(f"mesh has no face with non-zero area ({len(f)} degenerate faces)")
+    dropped = int(len(f) - keep.sum())
+    f = f[keep]
+    used, f = np.unique(f, return_inverse=True)
+    v = v[used]
+    f = f.reshape(-1, 3)
+    closed = _is_closed(f)
+    if closed and _signed_volume(v, f) < 0:
+        f = f[:, ::-1].copy()
+    convex = closed and _is_convex(v, f, radius)
+    return Mesh(v, np.ascontiguousarray(f), closed, convex, radius, dropped)
+
+
+def _edges(f: np.ndarray) -> np.ndarray:
+    return np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+
+
+def _is_closed(f: np.ndarray) -> bool:
+    """Each directed edge once, and its reverse present: watertight and consistently wound."""
+    directed = _edges(f)
+    n = int(f.max()) + 1
+    key = directed[:, 0] * n + directed[:, 1]
+    if len(np.unique(key)) != len(key):
+        return False
+    reverse = directed[:, 1] * n + directed[:, 0]
+    return bool(np.isin(reverse, key).all())
+
+
+def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def _is_convex(v: np.ndarray, f: np.ndarray, radius: float) -> bool:
+    """Every edge convex (the far vertex of the neighbour lies behind the face's plane) and
+    the enclosed volume equals the convex hull's (rules out several bodies or windings)."""
+    directed = _edges(f)
+    n = len(v)
+    key = directed[:, 0] * n + directed[:, 1]
+    order = np.argsort(key)
+    partner = order[np.searchsorted(key[order], directed[:, 1] * n + directed[:, 0])]
+    n_faces = len(f)
+    face_of = np.arange(len(directed)) % n_faces
+    corner_of = np.arange(len(directed)) // n_faces          # edge (c, c+1) -> opposite c+2
+    opposite = f[face_of[partner], (corner_of[partner] + 2) % 3]
+    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    height = np.einsum("ij,ij->i", normals[face_of], v[opposite] - v[directed[:, 0]])
+    if np.any(height > CONVEX_TOL * radius):
+        return False
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = ConvexHull(v).volume
+    except (QhullError, ValueError):
+        return False
+    volume = _signed_volume(v, f)
+    return bool(abs(hull - volume) <= CONVEX_TOL * hull)
+
+
+def check_units(mesh: Mesh) -> None:
+    """Warn when a mesh is plainly not in metres (bounding radius above 100 m)."""
+    if mesh.radius > MILLIMETRE_RADIUS:
+        warnings.warn(f"mesh bounding radius is {mesh.radius:.4g} m: is it in millimetres? "
+                      f"radar_sim works in metres (divide by 1000)", UnitsWarning, stacklevel=3)
+
+
+class RayCaster:
+    """Embree scene of one mesh (float32), with origin offsets against self-intersection."""
+
+    def __init__(self, mesh: Mesh):
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        self.scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(self.scene, np.ascontiguousarray(mesh.vertices, dtype=np.float32),
+                     np.ascontiguousarray(mesh.faces, dtype=np.int32))
+        self.offset = RAY_OFFSET * max(mesh.radius, float(np.abs(mesh.vertices).max()))
+
+    def _arrays(self, origins, directions, normals):
+        o = origins + self.offset * normals
+        return (np.ascontiguousarray(o, dtype=np.float32),
+                np.ascontiguousarray(directions, dtype=np.float32))
+
+    def occluded(self, origins, directions, normals) -> np.ndarray:
+        """True where a ray from ``origins`` (lifted along ``normals``) hits the mesh."""
+        if len(origins) == 0:
+            return np.zeros(0, dtype=bool)
+        o, d = self._arrays(origins, directions, normals)
+        return self.scene.run(o, d, query="OCCLUDED") >= 0
+
+    def intersect(self, origins, directions, normals) -> tuple[np.ndarray, np.ndarray]:
+        """(face index or −1, distance) of the first hit of each ray."""
+        if len(origins) == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        o, d = self._arrays(origins, directions, normals)
+        hit = self.scene.run(o, d, output=1)
+        return hit["primID"].astype(np.int64), hit["tfar"].astype(np.float64)
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """n nearly uniform unit vectors (golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def reflected_fraction(mesh: Mesh, caster: RayCaster | None = None, n_probe: int = 64) -> float:
+    """Share of the lit projected area whose specular reflection hits the mesh again.
+
+    Probe: n_probe directions; each lit, unshadowed facet reflects a ray from its centroid.
+    """
+    caster = caster or RayCaster(mesh)
+    area = mesh.area_vectors
+    centroids = mesh.centroids
+    twice = np.linalg.norm(area, axis=1)
+    normals = area / twice[:, None]
+    hit_area = lit_area = 0.0
+    for r in fibonacci_directions(n_probe):
+        proj = area @ r
+        lit = proj > 0 if mesh.closed else proj != 0
+        idx = np.flatnonzero(lit)
+        n = normals[idx] * np.sign(proj[idx])[:, None]
+        p = np.abs(proj[idx])
+        shadow = caster.occluded(centroids[idx], np.broadcast_to(r, n.shape), n)
+        idx, n, p = idx[~shadow], n[~shadow], p[~shadow]
+        reflected = -r + 2.0 * (n @ r)[:, None] * n
+        face, _ = caster.intersect(centroids[idx], reflected, n)
+        lit_area += p.sum()
+        hit_area += p[face >= 0].sum()
+    return hit_area / lit_area if lit_area > 0 else 0.0
+
+
+def mode_of(mesh: Mesh) -> str:
+    """convex: closed and convex; bounce2: facets see each other (probe above 1%);
+    shadowed: anything else (open or non-convex)."""
+    if mesh.convex:
+        return "convex"
+    return "bounce2" if reflected_fraction(mesh) > SEE_EACH_OTHER else "shadowed"
+
+
+def detect_mode(vertices, faces) -> str:
+    """The physics a mesh needs: "convex", "shadowed" or "bounce2" (docs/RADAR.md)."""
+    return mode_of(prepare(vertices, faces))
