@@ -7,14 +7,16 @@ program with one line naming the file and the problem, and a non-zero exit statu
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from basic_shapes.shards import Shard, ShardError, find_object
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_variants
-from radar_sim.meshio import UNITS, MeshFileError, load_mesh, units_warning
+from radar_sim.meshio import UNITS, MeshFileError, load_mesh
 
 CONVENTION = "dB = 20 log10|A| = 10 log10 sigma (sigma in m^2, dBsm)"
 
@@ -53,8 +55,8 @@ def load_config(spec: str):
         if Path(spec).is_file():
             return RadarConfig.from_file(spec)
         return RadarConfig.named(spec)
-    except (KeyError, ValueError, TypeError, OSError) as exc:
-        raise SystemExit(f"radar-sim: config {spec}: {str(exc).strip(chr(39))}") from None
+    except ValueError as exc:
+        raise SystemExit(f"radar-sim: {exc}") from None
 
 
 def line_of_sight(aspect_deg: np.ndarray, roll_deg: float) -> np.ndarray:
@@ -63,12 +65,20 @@ def line_of_sight(aspect_deg: np.ndarray, roll_deg: float) -> np.ndarray:
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
-def _mesh(path: str, units: str) -> tuple[np.ndarray, np.ndarray]:
-    vertices, faces = load_mesh(path, units)
-    warning = units_warning(path, vertices, units)
-    if warning:
-        print(f"radar-sim: warning: {warning}", file=sys.stderr)
-    return vertices, faces
+@contextlib.contextmanager
+def units_hint(path: str):
+    """Print the simulator's units warning as one line that names the file and the fix."""
+    from radar_sim import UnitsWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnitsWarning)
+        yield
+    for w in caught:
+        if issubclass(w.category, UnitsWarning):
+            print(f"radar-sim: warning: {path}: {w.message}; if the file is in millimetres, "
+                  f"pass --units mm", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def cmd_label(args) -> None:
@@ -83,10 +93,11 @@ def cmd_label(args) -> None:
 def cmd_rcs(args) -> None:
     from radar_sim import detect_mode, monostatic_field
 
-    vertices, faces = _mesh(args.meshfile, args.units)
+    vertices, faces = load_mesh(args.meshfile, args.units)
     mode = detect_mode(vertices, faces) if args.mode == "auto" else args.mode
-    field = monostatic_field(vertices, faces, args.freq * 1e9, line_of_sight(args.aspect, args.roll),
-                             mode=mode)
+    with units_hint(args.meshfile):
+        field = monostatic_field(vertices, faces, args.freq * 1e9,
+                                 line_of_sight(args.aspect, args.roll), mode=mode)
     extent = " x ".join(f"{e:.4g}" for e in np.ptp(vertices, axis=0))
     print(f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {extent} m), "
           f"mode {mode}, roll {args.roll:g} deg")
@@ -118,9 +129,8 @@ def dataset_signature(directory, object_id: int, config: str, mode: str = "auto"
 def simulated_signature(vertices, faces, config: str, mode: str, title: str):
     from radar_sim import simulate
 
-    radar = load_config(config)
-    result = simulate(vertices, faces, radar, mode=mode)
-    coords = {n: getattr(radar, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
+    result = simulate(vertices, faces, load_config(config), mode=mode)
+    coords = {n: getattr(result, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
     return (coords, result.range_profiles, result.frequency_response,
             f"{title}, simulated ({result.mode}, config {config})")
 
@@ -135,9 +145,10 @@ def cmd_plot(args) -> None:
             raise SystemExit(f"radar-sim: {args.source} is a dataset directory: pass --object ID")
         signature = dataset_signature(args.source, args.object, args.config, args.mode)
     else:
-        vertices, faces = _mesh(args.source, args.units)
-        signature = simulated_signature(vertices, faces, args.config, args.mode,
-                                        Path(args.source).name)
+        vertices, faces = load_mesh(args.source, args.units)
+        with units_hint(args.source):
+            signature = simulated_signature(vertices, faces, args.config, args.mode,
+                                            Path(args.source).name)
     coords, profiles, response, title = signature
     plot_signature(args.out, range_profiles=profiles, frequency_response=response,
                    roll=args.roll, title=title, **coords)

@@ -2,7 +2,8 @@
 
 Mesh files carry no units, so the caller states them (``--units``) and we scale to metres,
 the simulator's unit. STL stores a triangle soup: coincident vertices are merged so that
-closure and convexity can be detected. Anything unreadable is a one-line ``MeshFileError``.
+closure and convexity can be detected. Anything unreadable is a one-line ``MeshFileError``;
+implausible units are the simulator's warning (``radar_sim.UnitsWarning``).
 """
 
 from __future__ import annotations
@@ -14,9 +15,6 @@ import numpy as np
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 FORMATS = (".obj", ".stl", ".ply")
-# Beyond this extent a mesh said to be in metres is more likely in millimetres (warn, don't fail:
-# large objects are legitimate).
-SUSPICIOUS_EXTENT_M = 100.0
 
 
 class MeshFileError(ValueError):
@@ -44,18 +42,9 @@ def load_mesh(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), np.float64)
     if len(faces) == 0:
-        raise MeshFileError(f"{path}: holds no triangles")
+        raise MeshFileError(f"{path}: holds no triangles (empty, or not a {path.suffix[1:].upper()} mesh)")
     if not np.isfinite(vertices).all():
         raise MeshFileError(f"{path}: vertices contain NaN or inf")
     merged = trimesh.Trimesh(vertices, faces, process=False)
     merged.merge_vertices()
     return np.asarray(merged.vertices) * UNITS[units], np.asarray(merged.faces, np.int32)
-
-
-def units_warning(path: str | os.PathLike, vertices: np.ndarray, units: str) -> str | None:
-    """A hint when a mesh stated in metres is implausibly large (millimetres given as metres)."""
-    extent = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
-    if units == "m" and extent > SUSPICIOUS_EXTENT_M:
-        return (f"{path}: the mesh spans {extent:.4g} m; if the file is in millimetres, "
-                f"pass --units mm")
-    return None

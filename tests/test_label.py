@@ -70,6 +70,17 @@ def digests(d):
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.glob("shard-*"))}
 
 
+def same_label(stored, computed):
+    """complex64 labels equal to a direct ``simulate`` in this process, up to complex64 rounding.
+
+    Not bit-equal: the workers run single-threaded BLAS (Dask sets OMP_NUM_THREADS=1) while this
+    process may not, and the core's matrix products round differently with the thread count.
+    """
+    assert stored.dtype == np.complex64
+    peak = np.abs(computed).max()
+    np.testing.assert_allclose(stored, computed, rtol=0, atol=2 ** -22 * peak)
+
+
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     return write_dataset(tmp_path_factory.mktemp("raw") / "data")
@@ -102,9 +113,8 @@ def test_labels_agree_with_simulate(dataset, labelled):
             for k, row in enumerate(s.simple_mesh_index()):
                 v, f = s.mesh(int(row))
                 r = radar_sim.simulate(v, f, config)
-                np.testing.assert_array_equal(g["response"][k], r.range_profiles.astype(np.complex64))
-                np.testing.assert_array_equal(g["frequency_response"][k],
-                                              r.frequency_response.astype(np.complex64))
+                same_label(g["response"][k], r.range_profiles)
+                same_label(g["frequency_response"][k], r.frequency_response)
                 assert g["mode"][k].decode() == r.mode == radar_sim.detect_mode(v, f)
             rows = g["variant_mesh_index"][()]
             assert list(s.file["meshes/object_index"][()][rows]) == list(range(s.n_objects))
@@ -112,8 +122,7 @@ def test_labels_agree_with_simulate(dataset, labelled):
             for j, row in enumerate(rows):
                 v, f = s.mesh(int(row))
                 r = radar_sim.simulate(v, f, config)
-                np.testing.assert_array_equal(g["variant_response"][j],
-                                              r.range_profiles.astype(np.complex64))
+                same_label(g["variant_response"][j], r.range_profiles)
                 assert g["variant_mode"][j].decode() == r.mode
                 n_variant_labels += 1
     assert n_variant_labels == 6
