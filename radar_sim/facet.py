@@ -96,32 +96,39 @@ def _phi1(a: np.ndarray) -> np.ndarray:
     return np.sinc(a / np.pi) + 1j * (sh * h)
 
 
-def exp_divided_difference(x1, x2, x3) -> np.ndarray:
+def exp_divided_difference(x1, x2, x3, lo=None) -> np.ndarray:
     """The second divided difference exp[j x1, j x2, j x3] of the exponential, stably.
 
-    Inputs are real phases (broadcast together). Sorting gives lo <= mid <= hi and D = hi − lo.
+    Inputs are real phases (broadcast together); ``lo`` optionally gives their low parts
+    (x_i + lo_i as double-doubles, shape (3, ...)). Sorting gives lo <= mid <= hi, D = hi − lo.
     D <= 0.5 rad: e^{j mid} Σ_n j^n h_n(lo − mid, hi − mid)/(n+2)! (h_n: complete homogeneous
     polynomials; the differences from ``mid`` are exact by Sterbenz' lemma).
     D > 0.5 rad: (exp[lo, mid] − exp[mid, hi]) / (j(lo − hi)), the first differences written as
     e^{j mid}·φ1(j·gap) with φ1 = (e^z − 1)/z evaluated without cancellation for small gaps,
     and as (e^{jx} − e^{j mid})/(j gap) from exact-input phasors for large gaps.
     """
-    x1, x2, x3 = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (x1, x2, x3)))
-    stacked = np.sort(np.stack([x1, x2, x3]), axis=0)
-    lo, mid, hi = stacked[0], stacked[1], stacked[2]
-    out = np.empty(lo.shape, dtype=np.complex128)
-    spread = hi - lo
-    series = spread <= SERIES_SPREAD
+    hi = np.stack(np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (x1, x2, x3))))
+    low = np.zeros_like(hi) if lo is None else np.broadcast_to(np.asarray(lo, np.float64), hi.shape)
+    order = np.lexsort((low, hi), axis=0)
+    hi = np.take_along_axis(hi, order, axis=0)
+    low = np.take_along_axis(low, order, axis=0)
+    out = np.empty(hi.shape[1:], dtype=np.complex128)
+    gap_lo = (hi[0] - hi[1]) + (low[0] - low[1])       # lo − mid <= 0
+    gap_hi = (hi[2] - hi[1]) + (low[2] - low[1])       # hi − mid >= 0
+    series = gap_hi - gap_lo <= SERIES_SPREAD
+    e_mid = cis(hi[1], low[1])
     if np.any(series):
-        out[series] = _series(lo[series], mid[series], hi[series])
+        out[series] = e_mid[series] * _series(gap_lo[series], gap_hi[series])
     far = ~series
     if np.any(far):
-        out[far] = _farthest_pair(lo[far], mid[far], hi[far])
+        first_lo = _first_difference(hi[0][far], low[0][far], gap_lo[far], e_mid[far])
+        first_hi = _first_difference(hi[2][far], low[2][far], gap_hi[far], e_mid[far])
+        out[far] = (first_lo - first_hi) / (1j * (gap_lo[far] - gap_hi[far]))
     return out
 
 
-def _series(lo, mid, hi):
-    a, b = lo - mid, hi - mid             # exact: |a|, |b| <= 0.5 and same-binade operands
+def _series(a, b):
+    """Σ_n j^n h_n(a, b)/(n+2)! for |a|, |b| <= 0.5."""
     h = np.ones_like(a)                   # h_0
     a_pow = np.ones_like(a)
     re = np.full_like(a, 0.5)             # j^0 h_0 / 2!
@@ -141,25 +148,96 @@ def _series(lo, mid, hi):
             re -= term
         else:
             im -= term
-    return cis(mid) * (re + 1j * im)
+    return re + 1j * im
 
 
-def _first_difference(x, mid, e_mid):
-    """exp[j x, j mid] = e^{j mid} φ1(j(x − mid)), accurate for small and large gaps."""
-    gap = x - mid
+def _first_difference(x, x_lo, gap, e_mid):
+    """exp[j x, j mid] = e^{j mid} φ1(j·gap), accurate for small and large gaps."""
     small = np.abs(gap) <= 1.0
     out = np.empty(x.shape, dtype=np.complex128)
     out[small] = e_mid[small] * _phi1(gap[small])
     big = ~small
-    out[big] = (cis(x[big]) - e_mid[big]) / (1j * gap[big])
+    out[big] = (cis(x[big], x_lo[big]) - e_mid[big]) / (1j * gap[big])
     return out
 
 
-def _farthest_pair(lo, mid, hi):
-    e_mid = cis(mid)
-    first_lo = _first_difference(lo, mid, e_mid)
-    first_hi = _first_difference(hi, mid, e_mid)
-    return (first_lo - first_hi) / (1j * (lo - hi))
+def split(a):
+    """Veltkamp splitting a = hi + lo, each with at most 26 significant bits."""
+    t = a * 134217729.0               # 2^27 + 1
+    hi = t - (t - a)
+    return hi, a - hi
+
+
+def two_product(a, b, a_parts=None):
+    """a·b = p + e exactly (Dekker); ``a_parts`` = split(a) when reused across products."""
+    p = a * b
+    a_hi, a_lo = a_parts if a_parts is not None else split(a)
+    b_hi, b_lo = split(b)
+    return p, ((a_hi * b_hi - p) + a_hi * b_lo + a_lo * b_hi) + a_lo * b_lo
+
+
+def _two_sum(a, b):
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+def _compensated_sum(terms):
+    """Σ terms with Neumaier's compensation (error ~eps·|Σ| + eps²·Σ|terms|)."""
+    total = terms[0]
+    comp = np.zeros_like(total)
+    for term in terms[1:]:
+        total, err = _two_sum(total, term)
+        comp = comp + err
+    return total + comp
+
+
+def _cross_terms(triangles):
+    """Error-free pieces of (r_1 − r_0) × (r_2 − r_0): per component a list of float arrays
+    whose exact sum is the component (edges by two-sum, products by two-product)."""
+    r0, r1, r2 = triangles[..., 0, :], triangles[..., 1, :], triangles[..., 2, :]
+    e1 = _two_sum(r1, -r0)
+    e2 = _two_sum(r2, -r0)
+    out = []
+    for b, c in ((1, 2), (2, 0), (0, 1)):          # component a = (b × c)
+        terms = []
+        for sign, (u, w) in ((1.0, (b, c)), (-1.0, (c, b))):
+            p, pe = two_product(e1[0][..., u], e2[0][..., w])
+            small = e1[0][..., u] * e2[1][..., w] + e1[1][..., u] * (e2[0][..., w] + e2[1][..., w])
+            terms += [sign * p, sign * pe, sign * small]
+        out.append(terms)
+    return out
+
+
+def area_vectors(triangles):
+    """½ (r_1 − r_0) × (r_2 − r_0), each component correctly rounded up to ~eps (slivers too)."""
+    triangles = np.asarray(triangles, dtype=np.float64)
+    return 0.5 * np.stack([_compensated_sum(t) for t in _cross_terms(triangles)], axis=-1)
+
+
+def projected_area(triangles, direction):
+    """P = ½ r̂·((r_1 − r_0) × (r_2 − r_0)) to full relative precision, slivers and grazing
+    incidence included (error-free products summed with compensation)."""
+    terms = []
+    for a, comp in enumerate(_cross_terms(triangles)):
+        for term in comp:
+            p, pe = two_product(term, direction[a])
+            terms += [p, pe]
+    return 0.5 * _compensated_sum(terms)
+
+
+def _phases(triangles, direction, k):
+    """x_i = 2k r̂·r_i as double-doubles (hi, lo), each (F, 3, n): products and sums exact
+    to ~2⁻¹⁰⁶ relative, so huge facets and far-off origins keep every digit."""
+    s_hi = s_lo = 0.0
+    for c in range(3):
+        p, e = two_product(triangles[..., c], direction[c])
+        s_hi, err = _two_sum(s_hi, p)
+        s_lo = s_lo + (err + e)
+    s_hi, s_lo = _two_sum(s_hi, s_lo)
+    two_k = 2.0 * k
+    x_hi, x_lo = two_product(s_hi[..., None], two_k)
+    return x_hi, x_lo + s_lo[..., None] * two_k
 
 
 def facet_field(triangles: np.ndarray, direction: np.ndarray, k: np.ndarray,
@@ -168,18 +246,18 @@ def facet_field(triangles: np.ndarray, direction: np.ndarray, k: np.ndarray,
 
     triangles (F, 3, 3) metres; direction (3,) unit line of sight (towards the radar);
     k (n,) rad/m. Returns (F, n) complex: zero for facets facing away (unless ``two_sided``),
-    otherwise (k/√π)·2P·exp[j 2k s_1, j 2k s_2, j 2k s_3]. This is the per-frequency stable
-    reference; ``field.monostatic_field`` adds shadowing and the frequency-independent fast path.
+    otherwise (k/√π)·2P·exp[j 2k s_1, j 2k s_2, j 2k s_3], with relative error below 1e-12
+    against the exact integral of the given floats. This is the per-frequency reference;
+    ``field.monostatic_field`` adds shadowing and the frequency-independent fast path.
     """
     triangles = np.asarray(triangles, dtype=np.float64)
     direction = np.asarray(direction, dtype=np.float64)
     k = np.atleast_1d(np.asarray(k, dtype=np.float64))
-    r0, r1, r2 = triangles[:, 0], triangles[:, 1], triangles[:, 2]
-    proj = 0.5 * np.cross(r1 - r0, r2 - r0) @ direction
+    proj = projected_area(triangles, direction)
     lit = np.abs(proj) if two_sided else np.maximum(proj, 0.0)
-    s = triangles @ direction                                   # (F, 3)
-    x = 2.0 * s[:, :, None] * k[None, None, :]                  # (F, 3, n)
-    dd = exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])
+    x_hi, x_lo = _phases(triangles, direction, k)                 # (F, 3, n)
+    dd = exp_divided_difference(x_hi[:, 0], x_hi[:, 1], x_hi[:, 2],
+                                lo=np.moveaxis(x_lo, 1, 0))
     return (2.0 / SQRT_PI) * lit[:, None] * k[None, :] * dd
 
 

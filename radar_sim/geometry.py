@@ -46,9 +46,10 @@ class Mesh:
 
     @property
     def area_vectors(self) -> np.ndarray:
-        v = self.vertices
-        f = self.faces
-        return 0.5 * np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        """½ (r_1 − r_0) × (r_2 − r_0) per face, accurate to ~eps even for slivers."""
+        from radar_sim.facet import area_vectors
+
+        return area_vectors(self.vertices[self.faces])
 
     @property
     def centroids(self) -> np.ndarray:
@@ -92,19 +93,17 @@ def prepare(vertices, faces) -> Mesh:
     vertices, either orientation) are kept once.
     """
     v, f = _as_arrays(vertices, faces)
-    v, inverse = np.unique(v, axis=0, return_inverse=True)
-    f = inverse.reshape(-1)[f]
+    v, f = _weld(v, f)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v))))
+    from radar_sim.facet import area_vectors
+
     e1 = v[f[:, 1]] - v[f[:, 0]]
     e2 = v[f[:, 2]] - v[f[:, 0]]
     e3 = v[f[:, 2]] - v[f[:, 1]]
-    twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
+    twice_area = 2.0 * np.linalg.norm(area_vectors(v[f]), axis=1)
     longest = np.sqrt(np.max([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)], axis=0))
-    keep = twice_area > 32.0 * EPS * max(radius, np.finfo(float).tiny) * longest
-    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
-    unique = np.zeros(len(f), dtype=bool)
-    unique[first] = True
-    keep &= unique
+    keep = twice_area > 16.0 * EPS * max(radius, np.finfo(float).tiny) * longest
+    keep &= _first_occurrence(np.sort(f, axis=1))
     if not keep.any():
         raise MeshError(f"mesh has no face with non-zero area ({len(f)} degenerate faces)")
     dropped = int(len(f) - keep.sum())
@@ -112,26 +111,55 @@ def prepare(vertices, faces) -> Mesh:
     used, f = np.unique(f, return_inverse=True)
     v = v[used]
     f = f.reshape(-1, 3)
-    closed = _is_closed(f)
+    partner = _partner(f)
+    closed = partner is not None
     if closed and _signed_volume(v, f) < 0:
         f = f[:, ::-1].copy()
-    convex = closed and _is_convex(v, f, radius)
+        partner = _partner(f)
+    convex = closed and _is_convex(v, f, partner, radius)
     return Mesh(v, np.ascontiguousarray(f), closed, convex, radius, dropped)
+
+
+def _weld(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices with identical coordinates (exactly equal floats)."""
+    order = np.lexsort(v.T[::-1])
+    sv = v[order]
+    new = np.r_[True, np.any(sv[1:] != sv[:-1], axis=1)]
+    group = np.cumsum(new) - 1
+    remap = np.empty(len(v), dtype=np.int64)
+    remap[order] = group
+    return sv[new], remap[f]
+
+
+def _first_occurrence(rows: np.ndarray) -> np.ndarray:
+    """True for the first occurrence of each distinct integer row."""
+    order = np.lexsort(rows.T[::-1])
+    sr = rows[order]
+    new = np.r_[True, np.any(sr[1:] != sr[:-1], axis=1)]
+    out = np.zeros(len(rows), dtype=bool)
+    out[order[new]] = True            # lexsort is stable: the first of each group comes first
+    return out
 
 
 def _edges(f: np.ndarray) -> np.ndarray:
     return np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
 
 
-def _is_closed(f: np.ndarray) -> bool:
-    """Each directed edge once, and its reverse present: watertight and consistently wound."""
+def _partner(f: np.ndarray) -> np.ndarray | None:
+    """For each directed edge (a, b) the index of the directed edge (b, a); None unless every
+    directed edge occurs once and has its reverse (watertight, consistently wound)."""
     directed = _edges(f)
     n = int(f.max()) + 1
     key = directed[:, 0] * n + directed[:, 1]
-    if len(np.unique(key)) != len(key):
-        return False
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    if np.any(sk[1:] == sk[:-1]):
+        return None
     reverse = directed[:, 1] * n + directed[:, 0]
-    return bool(np.isin(reverse, key).all())
+    pos = np.minimum(np.searchsorted(sk, reverse), len(sk) - 1)
+    if np.any(sk[pos] != reverse):
+        return None
+    return order[pos]
 
 
 def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
@@ -139,14 +167,20 @@ def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
-def _is_convex(v: np.ndarray, f: np.ndarray, radius: float) -> bool:
-    """Every edge convex (the far vertex of the neighbour lies behind the face's plane) and
-    the enclosed volume equals the convex hull's (rules out several bodies or windings)."""
+def _is_convex(v: np.ndarray, f: np.ndarray, partner: np.ndarray, radius: float) -> bool:
+    """Closed, connected and convex at every edge (the far vertex of the neighbouring face lies
+    behind the face's plane, within CONVEX_TOL·radius). A connected closed surface that is
+    locally convex everywhere bounds a convex body (Hadamard; van Heijenoort 1952), so no hull
+    is needed; connectivity rules out several separate convex bodies."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     directed = _edges(f)
     n = len(v)
-    key = directed[:, 0] * n + directed[:, 1]
-    order = np.argsort(key)
-    partner = order[np.searchsorted(key[order], directed[:, 1] * n + directed[:, 0])]
+    adjacency = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])),
+                           shape=(n, n))
+    if connected_components(adjacency, directed=False)[0] != 1:
+        return False
     n_faces = len(f)
     face_of = np.arange(len(directed)) % n_faces
     corner_of = np.arange(len(directed)) // n_faces          # edge (c, c+1) -> opposite c+2
@@ -154,16 +188,7 @@ def _is_convex(v: np.ndarray, f: np.ndarray, radius: float) -> bool:
     normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     height = np.einsum("ij,ij->i", normals[face_of], v[opposite] - v[directed[:, 0]])
-    if np.any(height > CONVEX_TOL * radius):
-        return False
-    from scipy.spatial import ConvexHull, QhullError
-
-    try:
-        hull = ConvexHull(v).volume
-    except (QhullError, ValueError):
-        return False
-    volume = _signed_volume(v, f)
-    return bool(abs(hull - volume) <= CONVEX_TOL * hull)
+    return not np.any(height > CONVEX_TOL * radius)
 
 
 def check_units(mesh: Mesh) -> None:
