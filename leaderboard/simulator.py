@@ -81,7 +81,7 @@ def measure_ms_per_mesh(data: BenchmarkData, repeats: int = 3) -> float:
     from radar_sim import RadarConfig, simulate
 
     attrs = radar_attrs(data)
-    config = RadarConfig.from_dict(json.loads(attrs["config"]))
+    config = RadarConfig(**json.loads(attrs["config"]))
     mode = json.loads(attrs.get("options", "{}")).get("mode", "auto")
     meshes = [data.mesh(int(r)) for r in data.meshes_of(example.example_object(data))]
     simulate(*meshes[0], config, mode=mode)

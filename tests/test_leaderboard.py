@@ -424,3 +424,51 @@ def test_simulator_point_is_the_physics_variation_between_meshes(data, tmp_path)
     e = json.loads(path.read_text())
     assert e["complex_mse_source"] == ASSUMED_ZERO and e["metrics"]["complex_mse"] == 0.0
     assert e["speed"]["ms_per_mesh"] == 300.0
+
+
+def test_simulator_point_measured_with_radar_sim(data, tmp_path):
+    """Real physics labels (radar-sim label, coarse grid, every mesh), then timing radar_sim."""
+    import time
+
+    import radar_sim
+    from radar_sim.cli import main as radar_sim_main
+    real = tmp_path / "real"
+    shutil.copytree(data, real)
+
+    def drop_labels(f):
+        del f["radar"]
+    for shard in sorted(real.glob("shard-*.h5")):
+        rewrite_atomically(shard, drop_labels)
+    config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
+    (tmp_path / "coarse.json").write_text(json.dumps(config))
+    radar_sim_main(["label", str(real), "--config", str(tmp_path / "coarse.json"),
+                    "--variants", "all", "--workers", "1"])
+    entries = tmp_path / "entries"
+    run("simulator", "--data", real, "--entries", entries)
+    e = json.loads(next(entries.glob("physics-*.json")).read_text())
+    assert e["name"] == "radar_sim coarse-test" and e["speed"]["source"].startswith("measured")
+
+    per_object, per_mesh_seconds = {}, []
+    cfg = radar_sim.RadarConfig(**config)
+    for shard in sorted(real.glob("shard-*.h5")):
+        with h5py.File(shard) as f:
+            ids, split = f["objects/id"][()], f["objects/split"][()]
+            owner = f["meshes/object_index"][()]
+            for j, row in enumerate(f["radar/variant_mesh_index"][()]):
+                k = owner[row]
+                if split[k] == b"test":
+                    d = target_db(f["radar/response"][k]) - target_db(f["radar/variant_response"][j])
+                    per_object.setdefault(int(ids[k]), []).append(np.mean(d ** 2))
+            if 1 in ids:  # the example object: time simulate on its complex meshes ourselves
+                k = int(np.flatnonzero(ids == 1)[0])
+                for row in np.flatnonzero(owner == k):
+                    v0, v1 = f["meshes/vertex_offset"][row:row + 2]
+                    f0, f1 = f["meshes/face_offset"][row:row + 2]
+                    t0 = time.perf_counter()
+                    radar_sim.simulate(f["meshes/vertices"][v0:v1], f["meshes/faces"][f0:f1], cfg)
+                    per_mesh_seconds.append(time.perf_counter() - t0)
+    expected = np.mean([np.mean(v) for v in per_object.values()])
+    assert len(per_object) == 6 and expected > 0
+    assert close(e["metrics"]["complex_mse"], expected, rel=1e-6)
+    ours = 1000 * np.median(per_mesh_seconds)
+    assert ours / 10 < e["speed"]["ms_per_mesh"] < ours * 10, (e["speed"]["ms_per_mesh"], ours)
