@@ -472,3 +472,18 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
     assert close(e["metrics"]["complex_mse"], expected, rel=1e-6)
     ours = 1000 * np.median(per_mesh_seconds)
     assert ours / 10 < e["speed"]["ms_per_mesh"] < ours * 10, (e["speed"]["ms_per_mesh"], ours)
+
+
+def test_what_benchmark_evaluate_writes_is_accepted(data, tmp_path):
+    """The harness's own output (a reference model run by `benchmark evaluate`) is on the board."""
+    from benchmark.cli import main as benchmark_main
+    results, pred = tmp_path / "results.json", tmp_path / "predictions.h5"
+    benchmark_main(["evaluate", "--data", str(data), "--model", "benchmark.protocol:NearestScaleModel",
+                    "--model-arg", f"data_dir={data}", "--out", str(results),
+                    "--write-predictions", str(pred)])
+    entries = tmp_path / "entries"
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    (entry,) = store.load_entries(entries)
+    claimed = json.loads(results.read_text())
+    assert entry["name"] == "nearest-scale" and entry["metrics"] == claimed["metrics"]
+    assert entry["speed"]["ms_per_mesh"] == claimed["speed"]["ms_per_mesh"] > 0
