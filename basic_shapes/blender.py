@@ -178,6 +178,7 @@ class _Blender:
         self.triangulate = self.obj.modifiers.new("triangulate", "TRIANGULATE")
         self.triangulate.min_vertices = 4
         self._primitives: dict[tuple, object] = {}
+        self._frames: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     # --- primitives ---------------------------------------------------------------------
     def primitive(self, class_name: str, resolution: dict[str, int]):
@@ -188,6 +189,21 @@ class _Blender:
             bm = self._build_primitive(primitives.PRIMITIVES[class_name], resolution)
             self._primitives[key] = bm
         return bm
+
+    def frame(self, class_name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(bbox centre, bbox extents) of the default tessellation as built by Blender.
+
+        Every mesh of an object is mapped by the same affine map, centre -> origin and
+        extents -> scale, so the simple mesh's bbox is exactly the requested one (to float32
+        rounding; a UV sphere's is 0.9999990 rather than 1) and the variants keep their shape
+        relative to it.
+        """
+        if class_name not in self._frames:
+            bm = self.primitive(class_name, primitives.PRIMITIVES[class_name].default_resolution())
+            co = np.array([v.co[:] for v in bm.verts], np.float64)
+            lo, hi = co.min(axis=0), co.max(axis=0)
+            self._frames[class_name] = ((lo + hi) / 2, hi - lo)
+        return self._frames[class_name]
 
     def _build_primitive(self, spec: primitives.Primitive, resolution: dict[str, int]):
         bpy = self.bpy
@@ -203,11 +219,19 @@ class _Blender:
                 not np.allclose(co.max(axis=0) + co.min(axis=0), 0, atol=1e-5):
             raise RuntimeError(f"{spec.operator}{resolution}: bbox extents {extents} are not "
                                f"the registered {spec.extents} around the origin")
+        # The UV sphere operator merges duplicate vertices in a way that leaves its faces in a
+        # different order (and rotation) in every process: put them in a canonical order.
+        polygons = []
+        for poly in mesh.polygons:
+            ring = list(poly.vertices)
+            first = ring.index(min(ring))
+            polygons.append(ring[first:] + ring[:first])
+        polygons.sort()
+        bpy.data.meshes.remove(mesh)
         bm = self.bmesh.new()  # geometry only: UVs, seams and sharp flags would steer decimation
         verts = [bm.verts.new(p) for p in co.tolist()]
-        for poly in mesh.polygons:
-            bm.faces.new([verts[i] for i in poly.vertices])
-        bpy.data.meshes.remove(mesh)
+        for ring in polygons:
+            bm.faces.new([verts[i] for i in ring])
         return bm
 
     # --- one mesh -------------------------------------------------------------------------
@@ -222,9 +246,11 @@ class _Blender:
         start = time.perf_counter()
         bm = self.primitive(class_name, params["resolution"]).copy()
         try:
-            factors = [s / e for s, e in zip(scale.tolist(), spec.extents)]
-            self.bmesh.ops.transform(bm, matrix=self.mathutils.Matrix.Diagonal(factors + [1.0]),
-                                     verts=bm.verts)
+            centre, extents = self.frame(class_name)
+            matrix = self.mathutils.Matrix
+            to_scale = matrix.Diagonal((scale / extents).tolist() + [1.0]) @ \
+                matrix.Translation((-centre).tolist())
+            self.bmesh.ops.transform(bm, matrix=to_scale, verts=bm.verts)
             start = _lap("primitive", start)
             if rng is not None:
                 # n-gons (caps) first, so that every cut ring ends in triangles
