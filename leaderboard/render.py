@@ -129,7 +129,7 @@ def html_table(g: dict) -> str:
                     _num(e.get("params"), fmt_params(e.get("params"))),
                     _num(e["speed"]["ms_per_mesh"], fmt_ms(e["speed"]["ms_per_mesh"])),
                     f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
-                    f"<td>{_e(e['submitted'][:10])}</td>", _link(e)])
+                    f'<td class="date">{_e(e["submitted"][:10])}</td>', _link(e)])
         cls = ' class="collapsed"' if collapsed else ""
         rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
     return (f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'

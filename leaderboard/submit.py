@@ -152,7 +152,8 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
     """
     rows = sorted(Path(from_dir).glob("*/results.json"))
     if not rows:
-        raise SubmissionError(f"{from_dir}: no <row>/results.json files (expected `benchmark reproduce` output)")
+        raise SubmissionError(f"{from_dir}: no <row>/results.json files "
+                              f"(expected `benchmark reproduce` output)")
     accepted, skipped, refused = [], [], []
     for results in tqdm(rows, desc="submitting", unit="row"):
         predictions = results.with_name("predictions.h5")
