@@ -65,30 +65,31 @@ def point_triangle_distance(p, a, b, c):
 def surface_distance(points, v, f):
     """Exact distance from each point to the surface (v, f).
 
-    A triangle with centroid c and circumscribing radius r is no closer than |p - c| - r, and
-    the nearest vertex bounds the answer from above, so only triangles whose centroid lies
-    within (nearest-vertex distance + r) are measured; the few largest triangles always are.
+    A triangle with centroid c and circumscribing radius r is no closer than |p - c| - r,
+    and the nearest vertex bounds the answer from above, so per group of triangles of similar
+    radius only those whose centroid lies within (upper bound + the group's largest r) count.
     """
     tri = v[f]
     centroid = tri.mean(axis=1)
     radius = np.sqrt(((tri - centroid[:, None]) ** 2).sum(-1)).max(axis=1)
-    r_cut = np.quantile(radius, 0.95)
-    best = cKDTree(v).query(points)[0]
-    for t in np.flatnonzero(radius > r_cut):
-        best = np.minimum(best, point_triangle_distance(points, *tri[t]))
-    small = np.flatnonzero(radius <= r_cut)
-    near = cKDTree(centroid[small]).query_ball_point(points, best + r_cut)
-    counts = np.array([len(n) for n in near])
-    which = np.repeat(np.arange(len(points)), counts)
-    cand = tri[small[np.concatenate(near).astype(np.int64)]]
-    np.minimum.at(best, which, point_triangle_distance(points[which], *cand.transpose(1, 0, 2)))
+    best = np.minimum(cKDTree(v).query(points)[0], cKDTree(centroid).query(points)[0])
+    group = np.floor(np.log2(radius / radius.max() + 1e-300)).clip(-8, 0)
+    for g in np.unique(group):
+        members = np.flatnonzero(group == g)
+        near = cKDTree(centroid[members]).query_ball_point(points, best + radius[members].max())
+        which = np.repeat(np.arange(len(points)), [len(n) for n in near])
+        if len(which):
+            cand = tri[members[np.concatenate(near).astype(np.int64)]]
+            np.minimum.at(best, which,
+                          point_triangle_distance(points[which], *cand.transpose(1, 0, 2)))
     return best
 
 
 def samples(v, f):
     """Vertices, edge midpoints and centroids (not the sampling verify.py uses)."""
-    tri = v[f]
-    return np.vstack([v, (tri + np.roll(tri, 1, axis=1)).reshape(-1, 3) / 2, tri.mean(axis=1)])
+    edges = np.unique(np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1),
+                      axis=0)
+    return np.vstack([v, v[edges].mean(axis=1), v[f].mean(axis=1)])
 
 
 def brute_hausdorff(va, fa, vb, fb):
