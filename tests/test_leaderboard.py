@@ -228,7 +228,7 @@ def _tamper(results: Path, out: Path, edit) -> Path:
 
 
 TAMPERS = {
-    "simple": (lambda r: r["metrics"].__setitem__("simple_mse", r["metrics"]["simple_mse"] * 0.999),
+    "simple": (lambda r: r["metrics"].__setitem__("simple_mse", r["metrics"]["simple_mse"] * (1 - 10 * REL_TOL)),
                "claimed simple_mse"),
     "per-class": (lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
                   "claimed per_class.sphere.complex_mse"),
