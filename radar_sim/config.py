@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from radar_sim.field import C0, DEFAULT_TOL, mesh_field, resolve_mode, wavenumbers
-from radar_sim.geometry import MeshError, check_units, prepare
+from radar_sim.geometry import MILLIMETRE_RADIUS, MeshError, check_units, prepare
 
 WINDOWS = ("hann", "none")
 
@@ -171,16 +171,16 @@ def simulate(vertices, faces, config: RadarConfig | None = None, mode: str = "au
              tol: float = DEFAULT_TOL) -> RadarResult:
     """Simulate a mesh (metres) on the grid of ``config`` (default "xband-v1").
 
-    Raises MeshError if the mesh is invalid or extends beyond the range window (with a hint
-    when it is plainly in millimetres).
+    Raises MeshError if the mesh is invalid or extends beyond the range window, saying
+    "millimetres" when its radius exceeds 100 m and a factor 1000 would make it fit.
     """
     config = config or RadarConfig.named("xband-v1")
     mesh = prepare(vertices, faces)
     limit = config.max_radius_m
     if mesh.radius > limit:
+        plainly_mm = mesh.radius > MILLIMETRE_RADIUS and mesh.radius / 1000.0 <= limit
         hint = (f"; it looks like millimetres ({mesh.radius:.4g} mm = "
-                f"{mesh.radius / 1000:.4g} m): mesh units must be metres"
-                if mesh.radius / 1000.0 <= limit else "")
+                f"{mesh.radius / 1000:.4g} m): mesh units must be metres" if plainly_mm else "")
         raise MeshError(f"object extends {mesh.radius:.4g} m from the origin, beyond the "
                         f"±{limit:.4g} m range window of {config.name!r}{hint}")
     check_units(mesh)
