@@ -199,7 +199,7 @@ def test_float32_meshes_are_not_shadowed_by_themselves():
     dirs = config.directions()
     freqs = np.linspace(8e9, 12e9, 8)
     for mesh, offset in ((sphere, 0.0), (cube, 0.0), (cube, 90.0)):
-        v = (np.asarray(mesh.vertices) + offset).astype(np.float32)
+        v = (np.asarray(mesh.vertices) + [offset, 0.0, 0.0]).astype(np.float32)
         f = np.asarray(mesh.faces)
         culled = monostatic_field(v, f, freqs, dirs, mode="convex")
         shadowed = monostatic_field(v, f, freqs, dirs, mode="shadowed")
