@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -41,6 +42,7 @@ class Preset:
     radar: dict  # changes to the "xband-v1" RadarConfig (coarser grids for CPU presets)
     train: dict  # TrainConfig fields
     workers: int | None  # Dask workers for generate/label (0: in-process, None: per core)
+    jobs: int = 1  # rows trained at once, in separate single-threaded processes (CPU)
     launcher: str = "inprocess"  # or "torchrun" (one process per GPU, DDP)
     expected: str = ""
 
@@ -56,7 +58,7 @@ PRESETS = {
         expected="under a minute on 2 CPU cores"),
     # The CPU reproduction (2 cores, at most 60 minutes; see docs/RESULTS.md for the budget).
     "small": Preset(
-        objects_per_class=60, variants=9, workers=None,
+        objects_per_class=60, variants=9, workers=None, jobs=2,
         radar={"n_aspect": 31, "n_roll": 7},
         train=dict(dim=32, embed_layers=2, agg_layers=2, n_heads=4, decoder_hidden=256,
                    codebook_size=64, epochs=30, batch_size=16, pretrain_meshes=600,
@@ -323,6 +325,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shapenet", help="pretrain on a local ShapeNetCore v2 directory")
     parser.add_argument("--nproc", type=int, default=None,
                         help="GPUs for torchrun (paper preset; default: all visible)")
+    parser.add_argument("--jobs", type=int, default=None,
+                        help="rows trained in parallel processes (default: the preset's; 1 on GPU)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads per job (default: CPU cores / jobs)")
     parser.add_argument("--force", action="store_true", help="retrain rows that are already done")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
@@ -338,18 +344,44 @@ def _rows(spec: str | None) -> list[tuple[str, str]]:
     return [known[s] for s in spec.split(",")]
 
 
+_WORKER: dict = {}
+COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
+
+
+def _start_worker(threads: int, corpus_path: str | None) -> None:
+    """Process-pool initializer: one torch thread budget and one feature cache per worker."""
+    import torch
+
+    from benchmark import corpus as corpus_mod
+    from benchmark.train import FeatureCache
+
+    torch.set_num_threads(threads)
+    _WORKER.update(cache=FeatureCache(), device=torch.device("cpu"))
+    if corpus_path:
+        _WORKER["corpus"] = (corpus_mod.load_corpus_file(corpus_path), list(corpus_mod.FAMILIES))
+
+
+def _row_job(cfg, data_dir: Path, out: Path, preset: Preset) -> tuple[str, dict]:
+    record = run_row(cfg, data_dir, out, preset, _WORKER, 1, progress=False)
+    return cfg.name, record
+
+
 def run(args: argparse.Namespace) -> None:
     """``benchmark reproduce``: dataset -> corpus -> every row -> table, JSON, plot."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
     import torch
 
     from benchmark import corpus as corpus_mod
     from benchmark.data import BenchmarkData
     from benchmark.evaluate import hardware
-    from benchmark.train import FeatureCache
 
     t_start = time.perf_counter()
     preset = PRESETS[args.preset]
     rows = _rows(args.rows)
+    jobs = args.jobs or preset.jobs
+    threads = args.threads or max(1, (os.cpu_count() or 1) // jobs)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     timing: dict = {}
@@ -364,29 +396,59 @@ def run(args: argparse.Namespace) -> None:
     except ShardError as exc:
         raise SystemExit(f"benchmark reproduce: {exc}") from None
     nproc = args.nproc or max(torch.cuda.device_count(), 1)
-    shared = {"cache": FeatureCache(),
-              "device": torch.device("cuda" if torch.cuda.is_available() else "cpu")}
     cfgs = [row_config(preset, e, r, args.seed, args.shapenet) for e, r in rows]
+    corpus_path = None
     if any(c.regime in ("classification", "autoencoder") for c in cfgs) and not args.shapenet:
         t0 = time.perf_counter()
         tc = preset.train
-        path = corpus_mod.build_corpus_file(out / "corpus.h5", tc["pretrain_meshes"], args.seed,
-                                            tc["pretrain_max_faces"], progress=not args.quiet)
-        shared["corpus"] = (corpus_mod.load_corpus_file(path), list(corpus_mod.FAMILIES))
+        corpus_path = str(corpus_mod.build_corpus_file(
+            out / "corpus.h5", tc["pretrain_meshes"], args.seed, tc["pretrain_max_faces"],
+            progress=not args.quiet))
         timing["corpus_s"] = time.perf_counter() - t0
-    records = {}
-    t_rows = time.perf_counter()
-    for k, cfg in enumerate(cfgs):
+    records, todo = {}, []
+    for cfg in cfgs:
         done = None if args.force else _finished(out, cfg, fingerprint)
         if done is None:
-            done = run_row(cfg, data_dir, out, preset, shared, nproc, not args.quiet)
+            todo.append(cfg)
         else:
             print(f"{cfg.name}: reusing the finished row in {out}")
-        records[cfg.name] = done
+            records[cfg.name] = done
+    t_rows = time.perf_counter()
+
+    def record(name: str, result: dict, last: bool) -> None:
+        records[name] = result
         table = _table(args, preset, records, fingerprint, description,
                        {**timing, "rows_s": time.perf_counter() - t_rows,
-                        "total_s": time.perf_counter() - t_start}, hardware())
-        write_outputs(out, table, with_plot=k == len(cfgs) - 1)
+                        "total_s": time.perf_counter() - t_start, "jobs": jobs,
+                        "threads_per_job": threads}, hardware())
+        write_outputs(out, table, with_plot=last)
+
+    if jobs > 1 and len(todo) > 1:
+        # Rows are independent: a pool of single-threaded workers keeps both cores busy
+        # without OpenMP threads of one process waiting on each other; costly rows first.
+        todo.sort(key=lambda c: -COST[c.regime] * (0.5 if c.embedding == "invariant" else 1))
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_start_worker, initargs=(threads, corpus_path)) as pool:
+            futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
+            for k, fut in enumerate(as_completed(futures)):
+                name, result = fut.result()
+                print(f"{name}: done ({result['wall_seconds']:.0f} s), {k + 1}/{len(todo)} rows")
+                record(name, result, k == len(todo) - 1)
+    else:
+        previous = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            _start_worker(threads, corpus_path)
+            _WORKER["device"] = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+            for k, cfg in enumerate(todo):
+                result = run_row(cfg, data_dir, out, preset, _WORKER, nproc, not args.quiet)
+                record(cfg.name, result, k == len(todo) - 1)
+        finally:
+            torch.set_num_threads(previous)
+            _WORKER.clear()
+    if not todo:
+        record(cfgs[-1].name, records[cfgs[-1].name], True)
+    table = json.loads((out / "table.json").read_text())
     print(render_markdown(table))
     print(f"table, JSON and plot in {out}")
 

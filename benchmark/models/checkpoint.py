@@ -76,12 +76,16 @@ class CheckpointModel:
     """
 
     def __init__(self, checkpoint: str | os.PathLike, device: str = "cpu",
-                 batch_size: int | str = 16):
-        """Arguments may be strings (``benchmark evaluate --model-arg KEY=VALUE``)."""
+                 batch_size: int | str = 16, max_tokens: int | str = 16384):
+        """Arguments may be strings (``benchmark evaluate --model-arg KEY=VALUE``).
+        Meshes are run in sub-batches of similar face count, at most ``batch_size`` meshes
+        and ``max_tokens`` padded faces each (padding a 12-face cube to a 6000-face sphere
+        costs as much as the sphere)."""
         from benchmark.data import ScaleBins
 
         self.model, self.config = load_checkpoint(checkpoint, device)
         self.device, self.batch_size = torch.device(device), int(batch_size)
+        self.max_tokens = int(max_tokens)
         self.model.to(self.device)
         self.scale_bins = ScaleBins(**self.config["scale_bins"])
         self.target_shape = tuple(self.config["target_shape"])
@@ -91,14 +95,24 @@ class CheckpointModel:
         self.regime = self.config.get("regime")
         self.params = count_parameters(self.model)
 
+    def _chunks(self, n_faces: list[int]) -> list[list[int]]:
+        order = sorted(range(len(n_faces)), key=lambda i: n_faces[i])
+        chunks: list[list[int]] = []
+        for i in order:
+            if chunks and len(chunks[-1]) < self.batch_size \
+                    and (len(chunks[-1]) + 1) * n_faces[i] <= self.max_tokens:
+                chunks[-1].append(i)
+            else:
+                chunks.append([i])
+        return chunks
+
     @torch.no_grad()
     def predict(self, batch: dict) -> np.ndarray:
         """(B, n_aspect, n_roll, n_range) float32 predicted dB target."""
         bins = self.scale_bins.index(np.asarray(batch["scale_m"], np.float64)).reshape(-1, 3)
-        out = []
-        for s in range(0, len(bins), self.batch_size):
-            items = [featurize(v, f, probes=self.probes) for v, f in
-                     zip(batch["vertices"][s:s + self.batch_size], batch["faces"][s:s + self.batch_size])]
-            pred, _ = self.model(collate(items, scale_bin=bins[s:s + self.batch_size]).to(self.device))
-            out.append(pred.float().cpu().numpy())
-        return np.concatenate(out).reshape(-1, *self.target_shape)
+        items = [featurize(v, f, probes=self.probes) for v, f in zip(batch["vertices"], batch["faces"])]
+        out = np.empty((len(items), int(np.prod(self.target_shape))), np.float32)
+        for chunk in self._chunks([it.n_faces for it in items]):
+            pred, _ = self.model(collate([items[i] for i in chunk], scale_bin=bins[chunk]).to(self.device))
+            out[chunk] = pred.float().cpu().numpy()
+        return out.reshape(-1, *self.target_shape)
