@@ -96,24 +96,31 @@ def mesh_field(mesh: Mesh, k: np.ndarray, directions: np.ndarray, mode: str,
                tol: float = DEFAULT_TOL) -> np.ndarray:
     """``monostatic_field`` on a prepared mesh, wavenumbers and unit directions."""
     _keep_heap()
-    unique, first, inverse = np.unique(directions, axis=0, return_index=True,
-                                       return_inverse=True)
-    order = _locality_order(unique)
+    unique, inverse = np.unique(directions, axis=0, return_inverse=True)
     caster = RayCaster(mesh) if mode in ("shadowed", "bounce2") else None
-    field = _po_field(mesh, k, unique[order], caster, tol)
+    field = _po_field(mesh, k, unique, caster, tol)
     if mode == "bounce2":
-        field += sbr_field(mesh, k, unique[order], caster)
-    out = np.empty_like(field)
-    out[order] = field
-    return out[inverse.reshape(-1)]
+        field += sbr_field(mesh, k, unique, caster)
+    return field[inverse.reshape(-1)]
 
 
-def _locality_order(d: np.ndarray) -> np.ndarray:
-    """Directions sorted into 15° longitude strips, by colatitude within each: neighbours in a
-    batch light nearly the same vertices."""
-    theta = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
-    strip = np.floor((np.arctan2(d[:, 1], d[:, 0]) % (2 * np.pi)) / np.radians(15.0))
-    return np.lexsort((theta, strip))
+def _batches(d: np.ndarray, size: int) -> list[np.ndarray]:
+    """Groups of at most ``size`` nearby directions (recursive bisection along the widest
+    coordinate): the directions of a group light nearly the same vertices, so the union of
+    their lit vertices, over which the group's frequency sums run, stays small."""
+    out = []
+    stack = [np.arange(len(d))]
+    while stack:
+        idx = stack.pop()
+        if len(idx) <= size:
+            out.append(idx)
+            continue
+        pts = d[idx]
+        axis = int(np.argmax(pts.max(axis=0) - pts.min(axis=0)))
+        idx = idx[np.argsort(pts[:, axis], kind="stable")]
+        cut = int(np.ceil(len(idx) / size / 2)) * size
+        stack += [idx[cut:], idx[:cut]]
+    return out
 
 
 class _Scatter:
@@ -137,16 +144,20 @@ class _Scatter:
 
 def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | None,
               tol: float) -> np.ndarray:
+    """First-bounce PO: regular facets through batched vertex sums, the rest afterwards."""
     geo = _Scatter(mesh)
     sums = _PhaseSums(k)
-    k_lo, k_hi = float(k.min()), float(k.max())
-    phase_error = sums.phase_error
-    quick = geo.longest[:, None] * phase_error
+    k_lo = float(k.min())
+    quick = geo.longest[:, None] * sums.phase_error
     scale = tol * k_lo * k_lo
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
+    n_f = len(geo.f)
     f0, f1, f2 = geo.f[:, 0], geo.f[:, 1], geo.f[:, 2]
-    for start in range(0, len(dirs), BATCH):
-        r = dirs[start:start + BATCH]
+    stacked = np.empty((3 * n_f, BATCH))
+    special_faces, special_dirs, special_proj = [], [], []
+    for batch in _batches(dirs, BATCH):
+        r = dirs[batch]
+        nb = len(r)
         s = geo.v @ r.T                                   # (V, B) phase positions r̂·r_v
         signed = geo.area @ r.T                           # (F, B) projected areas
         proj = np.abs(signed) if geo.two_sided else np.maximum(signed, 0.0)
@@ -158,15 +169,29 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
         c = s2 - s0
         abc = a * b * c
         lit = proj > 0
-        regular = np.abs(abc) * scale >= quick
+        regular = np.abs(abc) * scale >= quick            # Σ|weights|·phasor error small
         special = lit & ~regular
         regular &= lit
         q = np.zeros_like(abc)
         np.divide(proj, (2.0 * facet.SQRT_PI) * abc, out=q, where=regular)
-        w = geo.incidence @ np.concatenate([q * b, q * c, q * a])     # (V, B) k⁻¹ weights
+        x = stacked[:, :nb]
+        np.multiply(q, b, out=x[:n_f])
+        np.multiply(q, c, out=x[n_f:2 * n_f])
+        np.multiply(q, a, out=x[2 * n_f:])
+        w = geo.incidence @ x                             # (V, B) k⁻¹ vertex weights
         fi, bi = np.nonzero(special)
-        extra = _special(fi, bi, a, b, c, proj, s, geo, w, k_lo, k_hi, phase_error, tol)
-        out[start:start + len(r)] = _batch_sum(s, w, extra, sums, k)
+        if len(fi):
+            special_faces.append(fi)
+            special_dirs.append(batch[bi])
+            special_proj.append(proj[fi, bi])
+        active = np.flatnonzero(np.any(w != 0, axis=1))
+        if len(active):
+            st = np.ascontiguousarray(s[active].T)
+            wt = np.ascontiguousarray(w[active].T)
+            out[batch] = sums.weighted(sums.phasors(st), wt) / k
+    if special_faces:
+        _special_field(out, np.concatenate(special_faces), np.concatenate(special_dirs),
+                       np.concatenate(special_proj), geo, dirs, sums, tol)
     return out
 
 
@@ -180,89 +205,64 @@ def _shadow(proj, signed, r, geo: _Scatter, caster: RayCaster) -> None:
     proj[fi[blocked], bi[blocked]] = 0.0
 
 
-class _Extra:
-    """Special facets of one batch: polynomial-in-k vertex scatterers and stable facets."""
-
-    def __init__(self):
-        self.rows, self.verts, self.coefs = [], [], []
-        self.stable = None
-
-    def add(self, rows, verts, coefs):
-        self.rows.append(rows)
-        self.verts.append(verts)
-        self.coefs.append(coefs)
-
-
-def _special(fi, bi, a, b, c, proj, s, geo, w, k_lo, k_hi, phase_error, tol) -> _Extra:
-    """Facets the quick test did not pass: exact classification, then their forms."""
-    extra = _Extra()
-    if not len(fi):
-        return extra
-    aa, bb, cc, p = a[fi, bi], b[fi, bi], c[fi, bi], proj[fi, bi]
-    kind = facet.classify(aa, bb, cc, k_lo, k_hi, phase_error, tol)
+def _special_field(out, fi, di, proj, geo: _Scatter, dirs, sums: "_PhaseSums", tol) -> None:
+    """Facets that failed the quick test, all directions at once: exact classification, then
+    regular weights, the near-pair or near-specular series (polynomials in k on vertices), or
+    the stable per-frequency integral. Positions are recomputed here so that each facet's
+    weights and phasors use the very same r̂·r values."""
+    k = sums.k
     corners = geo.f[fi]                                              # (n, 3)
-    sel = kind == facet.REGULAR
-    if sel.any():
-        wr = facet.regular_weights(p[sel], aa[sel], bb[sel], cc[sel])
-        for corner in range(3):
-            np.add.at(w, (corners[sel, corner], bi[sel]), wr[corner])
+    s = np.einsum("nij,nj->ni", geo.v[corners], dirs[di])            # (n, 3)
+    a, b, c = s[:, 0] - s[:, 1], s[:, 1] - s[:, 2], s[:, 2] - s[:, 0]
+    kind = facet.classify(a, b, c, float(k.min()), float(k.max()), sums.phase_error, tol)
+    entries = []                       # (facets, which corner, coefficients per channel)
+    sel = np.flatnonzero(kind == facet.REGULAR)
+    if len(sel):
+        for corner, wv in enumerate(facet.regular_weights(proj[sel], a[sel], b[sel], c[sel])):
+            coef = np.zeros((len(sel), len(facet.CHANNELS)), dtype=np.complex128)
+            coef[:, 0] = wv                                          # channel k⁻¹
+            entries.append((sel, corner, coef))
     sel = np.flatnonzero(kind == facet.SERIES)
     if len(sel):
-        sv = s[corners[sel], bi[sel, None]]                          # (n, 3) phases
-        order = np.argsort(sv, axis=1)
-        rows = np.arange(len(sel))[:, None]
-        ordered = sv[rows, order]
-        mid = order[:, 1]
-        coefs = facet.series_coefficients(p[sel], ordered[:, 0] - ordered[:, 1],
-                                          ordered[:, 2] - ordered[:, 1])
-        extra.add(bi[sel], corners[sel, mid], coefs)
+        order = np.argsort(s[sel], axis=1)
+        ordered = np.take_along_axis(s[sel], order, axis=1)
+        coef = facet.series_coefficients(proj[sel], ordered[:, 0] - ordered[:, 1],
+                                         ordered[:, 2] - ordered[:, 1])
+        entries.append((sel, order[:, 1], coef))
     sel = np.flatnonzero(kind == facet.PAIR)
     if len(sel):
-        gaps = np.abs(np.stack([aa[sel], bb[sel], cc[sel]], axis=1))
-        pair = np.argmin(gaps, axis=1)           # 0: (0,1) | 1: (1,2) | 2: (2,0); third = +2
-        i = corners[sel, pair]
-        j = corners[sel, (pair + 1) % 3]
-        m = corners[sel, (pair + 2) % 3]
-        col = bi[sel]
-        g = s[i, col] - s[j, col]
-        e = 0.5 * (s[i, col] + s[j, col]) - s[m, col]
-        pair_coef, third_coef = facet.pair_coefficients(p[sel], e, g)
-        extra.add(np.concatenate([col, col, col]), np.concatenate([i, j, m]),
-                  np.concatenate([pair_coef, pair_coef, third_coef]))
-    sel = kind == facet.STABLE
-    if sel.any():
-        extra.stable = (corners[sel], bi[sel], p[sel])
-    return extra
-
-
-def _batch_sum(s, w, extra: _Extra, sums: "_PhaseSums", k) -> np.ndarray:
-    """Σ_v e^{j2ks_v}(w_v/k + special polynomials) + stable facets, for one batch."""
-    active = np.any(w != 0, axis=1)
-    if extra.verts:
-        verts = np.concatenate(extra.verts)
-        active[verts] = True
-    idx = np.flatnonzero(active)
-    st = np.ascontiguousarray(s[idx].T)                              # (B, Va)
-    ph = sums.phasors(st)
-    out = sums.weighted(ph, np.ascontiguousarray(w[idx].T)) / k
-    if extra.verts:
-        rows = np.concatenate(extra.rows)
-        local = np.searchsorted(idx, verts)
-        key = rows * len(idx) + local
-        keys, inverse = np.unique(key, return_inverse=True)
+        gaps = np.abs(np.stack([a[sel], b[sel], c[sel]], axis=1))
+        i = np.argmin(gaps, axis=1)              # pair (i, i+1), third i+2 (mod 3)
+        j, m = (i + 1) % 3, (i + 2) % 3
+        si, sj, sm = s[sel, i], s[sel, j], s[sel, m]
+        pair_coef, third_coef = facet.pair_coefficients(proj[sel], 0.5 * (si + sj) - sm, si - sj)
+        entries += [(sel, i, pair_coef), (sel, j, pair_coef), (sel, m, third_coef)]
+    if entries:
+        rows = np.concatenate([di[sel] for sel, _, _ in entries])
+        verts = np.concatenate([corners[sel, x] for sel, x, _ in entries])
+        pos = np.concatenate([s[sel, x] for sel, x, _ in entries])
+        key = rows * len(geo.v) + verts
+        keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
         merge = sp.csr_matrix((np.ones(len(key)), (inverse, np.arange(len(key)))),
                               shape=(len(keys), len(key)))
-        coefs = merge @ np.concatenate(extra.coefs)
-        urows, ulocal = keys // len(idx), keys % len(idx)
-        terms = (coefs @ sums.powers) * sums.select(ph, urows, ulocal)
-        starts = np.flatnonzero(np.r_[True, urows[1:] != urows[:-1]])
-        out[urows[starts]] += np.add.reduceat(terms, starts, axis=0)
-    if extra.stable is not None:
-        corners, sb, p = extra.stable
-        x = 2.0 * s[corners, sb[:, None]][:, :, None] * k
+        merged = merge @ np.concatenate([coef for _, _, coef in entries])   # (entries, channels)
+        used = np.flatnonzero(np.any(merged != 0, axis=0))
+        phasors = sums.select(sums.phasors(pos[first][None, :]), np.zeros(len(keys), dtype=int),
+                              np.arange(len(keys)))
+        _add_rows(out, rows[first], (merged[:, used] @ sums.powers[used]) * phasors)
+    sel = np.flatnonzero(kind == facet.STABLE)
+    if len(sel):
+        x = 2.0 * s[sel][:, :, None] * k
         dd = facet.exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])
-        np.add.at(out, sb, (2.0 / facet.SQRT_PI) * p[:, None] * k * dd)
-    return out
+        _add_rows(out, di[sel], (2.0 / facet.SQRT_PI) * proj[sel, None] * k * dd)
+
+
+def _add_rows(out, rows, values) -> None:
+    """out[rows] += values, with repeated rows summed."""
+    order = np.argsort(rows, kind="stable")
+    rows, values = rows[order], values[order]
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+    out[rows[starts]] += np.add.reduceat(values, starts, axis=0)
 
 
 class _PhaseSums:
