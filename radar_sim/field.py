@@ -34,11 +34,12 @@ C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
 DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular magnitude P k/√π
 BATCH = 16              # directions per geometric batch (keeps the working set in L2)
+SPECIAL_CHUNK = 1024    # special-facet scatterers per frequency-sum chunk
 PHASOR_ULPS = 64.0      # absolute phase error of a fast-path phasor, in units of eps (bound)
 
-def _cis_of_product(s, s_parts, c: float) -> np.ndarray:
+def _cis_of_product(s, s_parts, c) -> np.ndarray:
     """exp(j·s·c) with s·c formed exactly (two-product), so the phase is exact before cis."""
-    return facet.cis(*facet.two_product(s, np.float64(c), s_parts))
+    return facet.cis(*facet.two_product(s, np.asarray(c, dtype=np.float64), s_parts))
 
 
 def wavenumbers(frequencies_hz) -> np.ndarray:
@@ -179,8 +180,8 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
         np.multiply(q, c, out=x[n_f:2 * n_f])
         np.multiply(q, a, out=x[2 * n_f:])
         w = geo.incidence @ x                             # (V, B) k⁻¹ vertex weights
-        fi, bi = np.nonzero(special)
-        if len(fi):
+        if special.any():
+            fi, bi = np.nonzero(special)
             special_faces.append(fi)
             special_dirs.append(batch[bi])
             special_proj.append(proj[fi, bi])
@@ -247,9 +248,14 @@ def _special_field(out, fi, di, proj, geo: _Scatter, dirs, sums: "_PhaseSums", t
                               shape=(len(keys), len(key)))
         merged = merge @ np.concatenate([coef for _, _, coef in entries])   # (entries, channels)
         used = np.flatnonzero(np.any(merged != 0, axis=0))
-        phasors = sums.select(sums.phasors(pos[first][None, :]), np.zeros(len(keys), dtype=int),
-                              np.arange(len(keys)))
-        _add_rows(out, rows[first], (merged[:, used] @ sums.powers[used]) * phasors)
+        merged, powers = merged[:, used], sums.powers[used]
+        ph = sums.phasors(pos[first][None, :])
+        rows = rows[first]                                           # sorted (keys are)
+        for lo in range(0, len(keys), SPECIAL_CHUNK):               # (chunk, n_k) in cache
+            sl = slice(lo, lo + SPECIAL_CHUNK)
+            cols = np.arange(lo, min(lo + SPECIAL_CHUNK, len(keys)))
+            terms = (merged[sl] @ powers) * sums.select(ph, np.zeros(len(cols), dtype=int), cols)
+            _add_rows(out, rows[sl], terms)
     sel = np.flatnonzero(kind == facet.STABLE)
     if len(sel):
         x = 2.0 * s[sel][:, :, None] * k
@@ -259,8 +265,9 @@ def _special_field(out, fi, di, proj, geo: _Scatter, dirs, sums: "_PhaseSums", t
 
 def _add_rows(out, rows, values) -> None:
     """out[rows] += values, with repeated rows summed."""
-    order = np.argsort(rows, kind="stable")
-    rows, values = rows[order], values[order]
+    if np.any(rows[1:] < rows[:-1]):
+        order = np.argsort(rows, kind="stable")
+        rows, values = rows[order], values[order]
     starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
     out[rows[starts]] += np.add.reduceat(values, starts, axis=0)
 
@@ -280,20 +287,20 @@ class _PhaseSums:
             grid = k[0] + dk * np.arange(n)
             self.uniform = dk > 0 and bool(np.all(np.abs(grid - k) <= 1e-9 * dk))
             self.dk = dk
+        if self.uniform:
+            self._steps = np.array([2.0 * k[0], 2.0 * self.dk, 2.0 * self.dk * self.q])[:, None, None]
         extra = self.p + self.q if self.uniform else 0
         # absolute phase error of each computed phasor (radians): cis and the recurrences
         self.phase_error = facet.EPS * (PHASOR_ULPS + 2.0 * extra)
 
     def phasors(self, s: np.ndarray):
         parts = facet.split(s)
-        two_k = 2.0 * self.k
         if not self.uniform:
-            return np.stack([_cis_of_product(s, parts, t) for t in two_k], axis=-1)
+            return np.stack([_cis_of_product(s, parts, t) for t in 2.0 * self.k], axis=-1)
         nb, nv = s.shape
         q, p = self.q, self.p
-        base = _cis_of_product(s, parts, two_k[0])
-        rho = _cis_of_product(s, parts, 2.0 * self.dk)
-        rho_q = _cis_of_product(s, parts, 2.0 * self.dk * q)
+        # e^{j2k_0 s}, e^{j2Δk s}, e^{j2qΔk s} in one pass (fewer numpy calls on small arrays)
+        base, rho, rho_q = _cis_of_product(s[None], tuple(x[None] for x in parts), self._steps)
         qm = np.empty((nb, q, nv), dtype=np.complex128)   # e^{j2rΔk s}, r < q
         qm[:, 0] = 1.0
         if q > 1:
