@@ -40,15 +40,15 @@ QUAD_METHODS = ("BEAUTY", "FIXED", "FIXED_ALTERNATE", "SHORTEST_DIAGONAL", "LONG
 NGON_METHODS = ("BEAUTY", "CLIP")
 
 STAGE_SECONDS: dict[str, float] = defaultdict(float)
-"""Seconds (perf_counter: cheap, unlike process_time) spent per stage in this process,
-rejected attempts included, read by benchmarks/mesh_core.py: simple, primitive, loop_cuts,
-decimate, extract, checks, hausdorff."""
+"""CPU seconds (all threads) spent per stage in this process, rejected attempts included,
+read by benchmarks/mesh_core.py: simple, primitive, loop_cuts, decimate, extract, checks,
+hausdorff."""
 ATTEMPTS: dict[str, int] = defaultdict(int)
 """Built meshes per outcome in this process: accepted or the rejection reason."""
 
 
 def _lap(stage: str, start: float) -> float:
-    now = time.perf_counter()
+    now = time.process_time()
     STAGE_SECONDS[stage] += now - start
     return now
 
@@ -70,7 +70,7 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
     if not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be in 0..2**64-1, got {seed}")
     blender = _state()
-    start = time.perf_counter()
+    start = time.process_time()
     simple_params = {"resolution": spec.default_resolution(), "loop_cuts": [],
                      "decimate": {"kind": "none"}, "triangulate": {"quad": "BEAUTY",
                                                                    "ngon": "BEAUTY"}}
@@ -88,16 +88,16 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
 
 
 def warm_up(class_names) -> float:
-    """Build every allowed tessellation of these classes now; returns the seconds spent.
+    """Build every allowed tessellation of these classes now; returns the CPU seconds spent.
 
     Otherwise each one is built on first use (a few ms each, once per process).
     """
-    start = time.perf_counter()
+    start = time.process_time()
     for name in class_names:
         spec = primitives.get(name)
         for resolution in spec.resolutions():
             _state().primitive(name, resolution)
-    return time.perf_counter() - start
+    return time.process_time() - start
 
 
 def _variant(blender, class_name, scale, seed, variant, reference, seen) -> MeshRecord:
@@ -107,7 +107,7 @@ def _variant(blender, class_name, scale, seed, variant, reference, seen) -> Mesh
         rng = np.random.default_rng([seed, variant, attempt])
         params = _sample_params(spec, rng)
         v, f = blender.build(class_name, scale, params, rng)
-        start = time.perf_counter()
+        start = time.process_time()
         key = verify.topology_key(f, len(v))
         reason = "duplicate topology" if key in seen else verify.defect(v, f, spec.euler)
         start = _lap("checks", start)
@@ -243,7 +243,7 @@ class _Blender:
         _sample_params; what was done is added to ``params``.
         """
         spec = primitives.PRIMITIVES[class_name]
-        start = time.perf_counter()
+        start = time.process_time()
         bm = self.primitive(class_name, params["resolution"]).copy()
         try:
             centre, extents = self.frame(class_name)
@@ -315,6 +315,9 @@ class _Blender:
         mod.use_collapse_triangulate = decimate.get("triangulate", False)
         mod.use_symmetry = False
         mod.vertex_group = ""
+        # a collapse that triangulates leaves nothing for the Triangulate modifier to do
+        self.triangulate.show_viewport = not (mod.show_viewport and mod.use_collapse_triangulate
+                                              and decimate["kind"] == "collapse")
         self.triangulate.quad_method = params["triangulate"]["quad"]
         self.triangulate.ngon_method = params["triangulate"]["ngon"]
 

@@ -70,13 +70,20 @@ def _stratified_weights(k: int) -> np.ndarray:
 _WEIGHTS = [None] + [_stratified_weights(k) for k in range(1, MAX_FACE_SUBDIVISION + 1)]
 
 
+def _twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """|(b - a) x (c - a)|^2 per triangle (np.cross is several times slower)."""
+    u, w = b - a, c - a
+    return ((u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2 + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
+            + (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) ** 2)
+
+
 def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
     """k*k stratified points per face, k = ceil(sqrt(2 * area) / spacing) capped (k = 1: the
     centroid). Area, not edge length, sets k: collapsed flat regions are full of long slivers."""
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    twice_area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    twice_area = np.sqrt(_twice_area_squared(a, b, c))
     k = np.clip(np.ceil(np.sqrt(twice_area) / spacing), 1, MAX_FACE_SUBDIVISION).astype(np.int64)
     parts = []
     for level in np.unique(k):
@@ -199,8 +206,7 @@ def defect(vertices: np.ndarray, faces: np.ndarray, euler: int) -> str | None:
     chi = n_vertices - len(half) // 2 + len(f)
     if chi != euler:
         return f"Euler characteristic {chi}, expected {euler}"
-    p = v[f[:, 0]]
-    twice_area = np.linalg.norm(np.cross(v[f[:, 1]] - p, v[f[:, 2]] - p), axis=1)
-    if twice_area.min() <= 2 * MIN_RELATIVE_AREA * bbox_diagonal(v) ** 2:
+    twice_area_sq = _twice_area_squared(v[f[:, 0]], v[f[:, 1]], v[f[:, 2]])
+    if twice_area_sq.min() <= (2 * MIN_RELATIVE_AREA * bbox_diagonal(v) ** 2) ** 2:
         return "degenerate (zero-area) triangle"
     return None

@@ -1,8 +1,8 @@
 """Per-stage cost of the Blender mesh core (basic_shapes.blender.object_meshes), one process.
 
 Generates N objects x V variants per class and reports, per class, milliseconds per accepted
-mesh for each stage (wall clock, rejected attempts included), total CPU ms per mesh, meshes
-per second, attempts per mesh, rejection reasons, face-count quantiles and Hausdorff
+mesh for each stage (CPU time, rejected attempts included; the rest of the total is numpy
+bookkeeping and the Python loop), total CPU ms per mesh, meshes per second, attempts per mesh, rejection reasons, face-count quantiles and Hausdorff
 statistics. Writes JSON and prints
 a table; ``--figure`` also draws the face-count histogram used in docs/GENERATOR.md.
 
@@ -67,7 +67,7 @@ def table(results: list[dict]) -> str:
                      + f"{r['ms_per_mesh_total_cpu']:11.3f}{r['meshes_per_s_cpu']:8.0f}"
                      f"{r['attempts_per_variant']:7.2f}{r['faces']['median']:10.0f}"
                      f"{r['faces']['max']:6d}")
-    return "\n".join(lines) + "\n(stages: wall ms per accepted mesh; cpu total: CPU ms per mesh; mesh/s: 1 process, CPU)"
+    return "\n".join(lines) + "\n(CPU ms per accepted mesh, rejected attempts included; mesh/s: 1 process, CPU time)"
 
 
 def figure(results: list[dict], path: Path) -> None:
