@@ -3,8 +3,9 @@
 One geometric pass per direction serves every frequency: each lit facet becomes three vertex
 scatterers with frequency-independent weights (``facet.regular_weights``), summed onto the
 mesh's unique vertices, so the frequency sum runs over V scatterers instead of 3F. Facets
-where those weights would lose digits get exact confluent forms (coincident pair, exact
-specular) or, rarely, the stable per-frequency evaluation (``facet.classify``).
+where those weights would lose digits (phases nearly coincident) get exact series forms that
+are polynomials in k on their vertices, or, rarely, the stable per-frequency evaluation
+(``facet.classify``, docs/RADAR.md "Numerics").
 
 The frequency sum Σ_v W_v e^{j2k_n s_v} for uniformly spaced k_n = k_0 + nΔk is a batched
 complex matrix product: with n = qP + r, e^{j2k_n s} = [e^{j2k_0 s} e^{j2qPΔk s}]·e^{j2rΔk s},
@@ -28,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from radar_sim import facet
-from radar_sim.geometry import Mesh, MeshError, RayCaster, check_units, mode_of, prepare
+from radar_sim.geometry import Mesh, RayCaster, check_units, mode_of, prepare
 
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
@@ -36,6 +37,7 @@ DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular m
 BATCH = 16              # directions per geometric batch (keeps the working set in L2)
 SPECIAL_CHUNK = 1024    # special-facet scatterers per frequency-sum chunk
 PHASOR_ULPS = 64.0      # absolute phase error of a fast-path phasor, in units of eps (bound)
+
 
 def _cis_of_product(s, s_parts, c) -> np.ndarray:
     """exp(j·s·c) with s·c formed exactly (two-product), so the phase is exact before cis."""
