@@ -74,8 +74,11 @@ def test_radar_config_files(tmp_path):
     assert RadarConfig.from_file(good) == config
     assert RadarConfig.from_file(good).directions().shape == (20, 3)
     cases = {"notjson": "{", "list": "[1, 2]", "unknown": json.dumps({"colour": "red"}),
-             "bad": json.dumps({"n_freq": 1}), "even": json.dumps({"n_range": 100}),
-             "fraction": json.dumps({"n_roll": 2.5})}
+             "bad": json.dumps({"name": "x", "n_freq": 1}),
+             "even": json.dumps({"name": "x", "n_range": 100}),
+             "fraction": json.dumps({"name": "x", "n_roll": 2.5}),
+             "nameless": json.dumps({"n_roll": 4}),
+             "reserved": json.dumps({"name": "xband-v1", "n_roll": 4})}
     for name, text in cases.items():
         path = tmp_path / f"{name}.json"
         path.write_text(text)
