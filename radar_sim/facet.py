@@ -13,13 +13,14 @@ Expanded, exp[...] = Σ_i e^{j x_i} / Π_{l≠i} j(x_i − x_l): three vertex po
 weights do not depend on frequency once the 1/k² is taken out (``regular_weights``). That form
 loses digits when two phases nearly coincide; this module provides
 
-* ``exp_divided_difference``: the stable evaluation, per frequency (farthest-pair first
-  differences through sinc-type functions, or a short series when the three phases lie within
-  0.5 rad), with relative error near 1e-15 in every case;
+* ``exp_divided_difference`` / ``facet_field``: the stable evaluation, per frequency
+  (farthest-pair first differences through sinc-type functions, or a short series when the
+  three phases lie within 0.5 rad), with double-double phases and areas: relative error about
+  1e-15 against the exact integral of the given floats in every hard case (absolute, about
+  eps/D, at the integral's own zeros);
 * the frequency-independent forms used by the fast path (``field.py``): regular weights, and
-  the exact confluent forms for coincident pairs (scatterers with weight ∝ k⁰) and exact
-  specular facets (∝ k¹), with the rule (``classify``) that sends everything else to the
-  stable per-frequency evaluation.
+  exact series for nearly coincident pairs and nearly specular facets (polynomials in k on the
+  vertices), with the rule (``classify``) that sends what is left to the stable evaluation.
 """
 
 from __future__ import annotations
