@@ -83,14 +83,19 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    twice_area = np.sqrt(_twice_area_squared(a, b, c))
-    k = np.clip(np.ceil(np.sqrt(twice_area) / spacing), 1, MAX_FACE_SUBDIVISION).astype(np.int64)
-    parts = []
-    for level in np.unique(k):
-        sel = k == level
-        w = _WEIGHTS[level]
-        parts.append((w[:, 0, None, None] * a[sel] + w[:, 1, None, None] * b[sel]
-                      + w[:, 2, None, None] * c[sel]).reshape(-1, 3))
+    limit = (spacing ** 2) ** 2  # k = 1 exactly when 2 * area <= spacing^2
+    large = np.flatnonzero(_twice_area_squared(a, b, c) > limit)
+    parts = [(a + b + c) / 3.0]
+    if len(large):
+        parts[0] = np.delete(parts[0], large, axis=0)
+        a, b, c = a[large], b[large], c[large]
+        twice_area = np.sqrt(_twice_area_squared(a, b, c))
+        k = np.minimum(np.ceil(np.sqrt(twice_area) / spacing), MAX_FACE_SUBDIVISION).astype(int)
+        for level in np.unique(k):
+            sel = k == level
+            w = _WEIGHTS[level]
+            parts.append((w[:, 0, None, None] * a[sel] + w[:, 1, None, None] * b[sel]
+                          + w[:, 2, None, None] * c[sel]).reshape(-1, 3))
     return np.concatenate(parts)
 
 
@@ -108,7 +113,8 @@ def _sampled_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float):
 class Reference:
     """A mesh that many others are compared with (the simple mesh of one object).
 
-    Its sampled pymeshlab mesh is built once; ``distance`` then builds one per compared mesh.
+    It is sampled and loaded into pymeshlab once; ``distance`` then loads each compared
+    mesh next to it and removes it again.
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
@@ -116,16 +122,22 @@ class Reference:
         if not self.diagonal > 0:
             raise ValueError("reference mesh has an empty bounding box")
         self.spacing = self.diagonal * SAMPLE_SPACING
-        self._mesh = _sampled_mesh(vertices, faces, self.spacing)
+        self._ms = _pymeshlab().MeshSet()
+        self._ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
+        self._id = self._ms.current_mesh_id()
 
     def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
-        ms = _pymeshlab().MeshSet()
-        ms.add_mesh(self._mesh)
+        ms = self._ms
         ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
-        radius = SEARCH_RADIUS * self.diagonal
-        to_ref = _one_sided(ms, sampled=1, target=0, radius=radius)
-        from_ref = _one_sided(ms, sampled=0, target=1, radius=radius)
+        other = ms.current_mesh_id()
+        try:
+            radius = SEARCH_RADIUS * self.diagonal
+            to_ref = _one_sided(ms, sampled=other, target=self._id, radius=radius)
+            from_ref = _one_sided(ms, sampled=self._id, target=other, radius=radius)
+        finally:
+            ms.set_current_mesh(other)
+            ms.delete_current_mesh()
         return max(to_ref, from_ref) / self.diagonal
 
 
