@@ -229,3 +229,16 @@ def test_modes_are_detected_recorded_and_forced():
     assert detect_mode(dv, dimple.faces) == "shadowed"
     cone = trimesh.creation.cone(0.3, 0.6, sections=32)
     assert detect_mode(cone.vertices, cone.faces) == "convex"
+
+
+def test_radar_sim_never_imports_bpy_or_torch():
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np, radar_sim\n"
+            "v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])\n"
+            "radar_sim.simulate(v, [[0, 1, 2]], mode='bounce2')\n"
+            "print(sorted(m for m in ('bpy', 'torch') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+    assert out.stdout.strip() == "[]"
