@@ -12,6 +12,7 @@ was generated before.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections import defaultdict
 
@@ -69,6 +70,12 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
         raise ValueError(f"n_variants must be in 0..999, got {n_variants}")
     if not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be in 0..2**64-1, got {seed}")
+    with _LOCK:  # bpy is not thread-safe: threads of one process take turns
+        return _object_meshes(spec, class_name, scale, int(seed), n_variants)
+
+
+def _object_meshes(spec, class_name, scale, seed, n_variants) -> list[MeshRecord]:
+    """object_meshes after validation, under the lock."""
     blender = _state()
     start = time.process_time()
     simple_params = {"resolution": spec.default_resolution(), "loop_cuts": [],
@@ -83,7 +90,7 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
     records = [MeshRecord(0, v0, f0, 0.0, simple_params)]
     seen = {verify.topology_key(f0, len(v0))}
     for variant in range(1, n_variants + 1):
-        records.append(_variant(blender, class_name, scale, int(seed), variant, reference, seen))
+        records.append(_variant(blender, class_name, scale, seed, variant, reference, seen))
     return records
 
 
@@ -93,10 +100,10 @@ def warm_up(class_names) -> float:
     Otherwise each one is built on first use (a few ms each, once per process).
     """
     start = time.process_time()
-    for name in class_names:
-        spec = primitives.get(name)
-        for resolution in spec.resolutions():
-            _state().primitive(name, resolution)
+    with _LOCK:
+        for name in class_names:
+            for resolution in primitives.get(name).resolutions():
+                _state().primitive(name, resolution)
     return time.process_time() - start
 
 
@@ -147,6 +154,7 @@ def _sample_params(spec: primitives.Primitive, rng: np.random.Generator) -> dict
 
 
 _STATE = None
+_LOCK = threading.RLock()
 
 
 def _state() -> "_Blender":

@@ -6,10 +6,11 @@ tessellation, the values a complex variant may use, and an analytic bound on how
 tessellation lies from the smooth surface; verify.tolerance turns that into the Hausdorff
 bound a variant must meet (derivation in docs/GENERATOR.md, "Mesh generation").
 
-Adding a primitive is one entry in PRIMITIVES, for example::
+Adding a primitive is one entry in PRIMITIVES, for example a hexagonal prism (planar, so no
+tessellation to vary; Blender puts a vertex on the y axis)::
 
-    PRIMITIVES["ico_sphere"] = Primitive(
-        operator="primitive_ico_sphere_add", planar=False, extents=(2, 2, 2), ...)
+    PRIMITIVES["hex_prism"] = Primitive(operator="primitive_cylinder_add", planar=True,
+                                        extents=(3 ** 0.5, 2.0, 2.0), options={"vertices": 6})
 """
 
 from __future__ import annotations

@@ -195,6 +195,20 @@ def test_every_registered_primitive_builds_and_verifies(name):
             <= verify.tolerance(name, m.params)
 
 
+def test_a_new_primitive_takes_one_registry_entry(monkeypatch):
+    prism = primitives.Primitive(operator="primitive_cylinder_add", planar=True,
+                                 extents=(3 ** 0.5, 2.0, 2.0), options={"vertices": 6})
+    monkeypatch.setitem(primitives.PRIMITIVES, "hex_prism", prism)
+    meshes = blender.object_meshes("hex_prism", SCALE, 0, 10)
+    # a regular hexagon of circumradius 1 has area 3 sqrt(3) / 2; scaled to SCALE's x, y
+    volume = 3 * 3 ** 0.5 / 2 * (SCALE[0] / 3 ** 0.5) * (SCALE[1] / 2) * SCALE[2]
+    for m in meshes:
+        t = trimesh.Trimesh(m.vertices, m.faces, process=False)
+        assert t.is_watertight and t.volume == pytest.approx(volume, rel=1e-6)
+        assert m.hausdorff <= verify.PLANAR_TOLERANCE
+    assert len({len(m.faces) for m in meshes}) > 5
+
+
 def test_same_call_gives_the_same_arrays_whatever_came_before():
     first = blender.object_meshes("cylinder", SCALE, 11, 4)
     blender.object_meshes("sphere", SCALE * 2, 12, 6)
@@ -209,6 +223,17 @@ def digest(meshes):
         h.update(m.vertices.tobytes() + m.faces.tobytes() + repr(m.hausdorff).encode()
                  + json.dumps(m.params, sort_keys=True).encode())
     return h.hexdigest()
+
+
+def test_threads_of_one_process_get_the_same_arrays():
+    from concurrent.futures import ThreadPoolExecutor
+
+    calls = [("cube", 21), ("sphere", 22), ("cylinder", 23), ("cube", 24)]
+    alone = [digest(blender.object_meshes(name, SCALE, seed, 3)) for name, seed in calls]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda c: digest(blender.object_meshes(c[0], SCALE, c[1], 3)),
+                                 calls))
+    assert together == alone
 
 
 CHILD = """
