@@ -236,8 +236,9 @@ def test_radar_sim_never_imports_bpy_or_torch():
     import sys
 
     code = ("import sys, numpy as np, radar_sim\n"
-            "v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])\n"
-            "radar_sim.simulate(v, [[0, 1, 2]], mode='bounce2')\n"
+            "v = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0.0]])\n"
+            "config = radar_sim.RadarConfig(name='t', n_aspect=3, n_roll=2)\n"
+            "radar_sim.simulate(v, [[0, 1, 2]], config, mode='bounce2')\n"
             "print(sorted(m for m in ('bpy', 'torch') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=str(__import__("pathlib").Path(__file__).parents[1]))
