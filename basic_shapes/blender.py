@@ -185,18 +185,21 @@ class _Blender:
         self.decimate = self.obj.modifiers.new("decimate", "DECIMATE")
         self.triangulate = self.obj.modifiers.new("triangulate", "TRIANGULATE")
         self.triangulate.min_vertices = 4
-        self._primitives: dict[tuple, object] = {}
+        self._primitives: dict[tuple, tuple[object, list[int]]] = {}
         self._frames: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     # --- primitives ---------------------------------------------------------------------
     def primitive(self, class_name: str, resolution: dict[str, int]):
         """Unit-space BMesh of a primitive at a tessellation (built once, never modified)."""
+        return self._cached(class_name, resolution)[0]
+
+    def _cached(self, class_name: str, resolution: dict[str, int]) -> tuple[object, list[int]]:
+        """(BMesh, indices of its n-gons), built on first use."""
         key = (class_name, tuple(sorted(resolution.items())))
-        bm = self._primitives.get(key)
-        if bm is None:
+        if key not in self._primitives:
             bm = self._build_primitive(primitives.PRIMITIVES[class_name], resolution)
-            self._primitives[key] = bm
-        return bm
+            self._primitives[key] = bm, [i for i, f in enumerate(bm.faces) if len(f.verts) > 4]
+        return self._primitives[key]
 
     def frame(self, class_name: str) -> tuple[np.ndarray, np.ndarray]:
         """(bbox centre, bbox extents) of the default tessellation as built by Blender.
@@ -252,7 +255,8 @@ class _Blender:
         """
         spec = primitives.PRIMITIVES[class_name]
         start = time.process_time()
-        bm = self.primitive(class_name, params["resolution"]).copy()
+        cached, ngon_indices = self._cached(class_name, params["resolution"])
+        bm = cached.copy()  # same element order as the cache
         try:
             centre, extents = self.frame(class_name)
             matrix = self.mathutils.Matrix
@@ -260,11 +264,13 @@ class _Blender:
                 matrix.Translation((-centre).tolist())
             self.bmesh.ops.transform(bm, matrix=to_scale, verts=bm.verts)
             start = _lap("primitive", start)
-            if rng is not None:
+            if rng is not None and ngon_indices:
                 # n-gons (caps) first, so that every cut ring ends in triangles
-                ngons = [f for f in bm.faces if len(f.verts) > 4]
+                bm.faces.ensure_lookup_table()
                 method = {"CLIP": "EAR_CLIP"}.get(params["triangulate"]["ngon"], "BEAUTY")
-                self.bmesh.ops.triangulate(bm, faces=ngons, ngon_method=method)
+                self.bmesh.ops.triangulate(bm, faces=[bm.faces[i] for i in ngon_indices],
+                                           ngon_method=method)
+            if rng is not None:
                 self._cut(bm, spec.euler, params, rng)
             start = _lap("loop_cuts", start)
             bm.to_mesh(self.mesh)
