@@ -60,11 +60,15 @@ class LabelRequest:
         return {"config": self.config.to_json(), "options": json.dumps(options, sort_keys=True)}
 
 
-def _same_request(group: h5py.Group, attrs: dict[str, str]) -> bool:
-    try:
-        return all(json.loads(group.attrs[k]) == json.loads(v) for k, v in attrs.items())
-    except (KeyError, TypeError, ValueError):
-        return False
+def _differences(group: h5py.Group, attrs: dict[str, str]) -> list[str]:
+    """Names of the request attributes ("config", "options") that the stored labels differ in."""
+    def parsed(value):
+        try:
+            return json.loads(value)
+        except (TypeError, ValueError):
+            return None
+
+    return [k for k, v in attrs.items() if parsed(group.attrs.get(k)) != json.loads(v)]
 
 
 def select_variants(shard: Shard, variants: str) -> list[np.ndarray]:
@@ -108,11 +112,14 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
     """Validate one shard; None if it already holds labels for this very request."""
     with Shard(path) as s:
         if "radar" in s.file:
-            if _same_request(s.file["radar"], request.attrs()):
+            differ = _differences(s.file["radar"], request.attrs())
+            if not differ:
                 return None
             if not overwrite:
-                raise LabelError(f"{path}: already labelled with a different radar config or "
-                                 f"options; pass --overwrite to relabel")
+                stored = s.file["radar"].attrs.get("options", "unknown options")
+                raise LabelError(f"{path}: already labelled, with different radar "
+                                 f"{' and '.join(differ)} (stored options: {stored}); pass "
+                                 f"--overwrite to relabel")
         simple = s.simple_mesh_index()
         missing = np.flatnonzero(simple < 0)
         if len(missing):

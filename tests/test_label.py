@@ -184,8 +184,12 @@ def test_other_config_is_an_error_unless_overwrite(labelled, tmp_path):
     with pytest.raises(SystemExit) as exc:
         main(["label", str(work)])  # same config, other options (no variants)
     message = str(exc.value.code)
-    assert "already labelled with a different radar config" in message
+    assert "already labelled, with different radar options" in message
     assert str(work / shard_name(0)) in message and "\n" not in message
+    other = tmp_path / "other.json"
+    other.write_text('{"name": "coarse", "n_freq": 64, "n_range": 63}')
+    message = _one_line_error(["label", str(work), "--config", str(other), *OPTIONS])
+    assert "already labelled, with different radar config (" in message
     assert digests(work) == before
     summary = label_directory(work, LabelRequest(radar_sim.RadarConfig.named("xband-v1")),
                               workers=2, overwrite=True, progress=False)
