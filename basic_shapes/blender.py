@@ -49,6 +49,7 @@ ATTEMPTS: dict[str, int] = defaultdict(int)
 
 
 def _lap(stage: str, start: float) -> float:
+    """Charge the CPU time since ``start`` to ``stage``; returns now (the next start)."""
     now = time.process_time()
     STAGE_SECONDS[stage] += now - start
     return now
@@ -108,6 +109,7 @@ def warm_up(class_names) -> float:
 
 
 def _variant(blender, class_name, scale, seed, variant, reference, seen) -> MeshRecord:
+    """The first try of this variant that passes every check (``seen`` gets its topology)."""
     spec = primitives.PRIMITIVES[class_name]
     rejected = {}
     for attempt in range(MAX_ATTEMPTS):

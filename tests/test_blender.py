@@ -6,6 +6,7 @@ area and volume); closedness with trimesh; topology with a degree sequence compu
 """
 
 import hashlib
+import importlib.util
 import json
 import subprocess
 import sys
@@ -264,6 +265,19 @@ def test_same_arrays_in_separate_processes_whatever_ran_before(tmp_path):
             for mode in ("plain", "other-work-first", "pymeshlab-first")]
     here = digest(blender.object_meshes("sphere", SCALE, 7, 5))
     assert runs == [here] * 3
+
+
+def test_stage_benchmark_writes_json_and_refuses_unknown_classes(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location("mesh_core", ROOT / "benchmarks/mesh_core.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "core.json"
+    bench.main(["--objects", "1", "--variants", "3", "--classes", "cube", "--out", str(out)])
+    (result,) = json.loads(out.read_text())["results"]
+    assert result["meshes"] == 4 and set(result["ms_per_mesh"]) == set(bench.STAGES)
+    assert "cube" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="unknown primitive class 'prism'"):
+        bench.main(["--classes", "cube,prism", "--out", str(out)])
 
 
 @pytest.mark.parametrize("kwargs, message", [
