@@ -146,7 +146,7 @@ def _sample_params(spec: primitives.Primitive, rng: np.random.Generator) -> dict
         decimate["overshoot"] = round(float(np.exp(rng.uniform(0, math.log(COLLAPSE_OVERSHOOT)))), 4)
         decimate["triangulate"] = bool(rng.integers(2))
     elif decimate["kind"] == "unsubdiv":
-        decimate["iterations"] = int(rng.integers(1, 3))
+        decimate["iterations"] = 1  # two un-subdivide a UV sphere beyond its tolerance (88 %)
     return {"resolution": resolution,
             "size": round(float(rng.uniform()), 6),
             "cut_steps": int(rng.integers(1, MAX_CUT_STEPS + 1)),
