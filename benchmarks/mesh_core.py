@@ -1,13 +1,13 @@
 """Per-stage cost of the Blender mesh core (basic_shapes.blender.object_meshes), one process.
 
-Generates N objects x V variants per class and reports, per class, milliseconds per accepted
-mesh for each stage (CPU time, rejected attempts included; the rest of the total is numpy
-bookkeeping and the Python loop), total CPU ms per mesh, meshes per second, attempts per mesh, rejection reasons, face-count quantiles and Hausdorff
-statistics. Writes JSON and prints
-a table; ``--figure`` also draws the face-count histogram used in docs/GENERATOR.md.
+Generates N objects x V variants per class and reports, per class, CPU milliseconds per
+accepted mesh for each stage (rejected attempts included; the rest of the total is drawing
+parameters and the Python loop), meshes per second, attempts per mesh, rejection reasons,
+face-count quantiles and Hausdorff statistics. Writes JSON (every face count included) and
+prints a table; ``--figure`` also draws the face-count histogram of docs/GENERATOR.md.
 
     .venv/bin/python benchmarks/mesh_core.py --objects 20 --variants 99 \\
-        --out out/bench/mesh_core.json --figure docs/figures/face_counts.png
+        --classes cube,cylinder,sphere,cone,torus --figure docs/img/face_counts.png
 """
 
 from __future__ import annotations
@@ -96,7 +96,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--objects", type=int, default=5, help="objects per class (default: 5)")
     ap.add_argument("--variants", type=int, default=99, help="complex variants per object")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=Path("out/bench/mesh_core.json"))
+    ap.add_argument("--out", type=Path,
+                    default=Path(__file__).resolve().parent / "results" / "mesh_core.json")
     ap.add_argument("--figure", type=Path, help="also write the face-count histogram (PNG)")
     args = ap.parse_args(argv)
     classes = args.classes.split(",")
