@@ -143,7 +143,8 @@ def _sample_params(spec: primitives.Primitive, rng: np.random.Generator) -> dict
     weights = np.array([spec.decimation[k] for k in kinds])
     decimate: dict = {"kind": kinds[rng.choice(len(kinds), p=weights / weights.sum())]}
     if decimate["kind"] == "collapse":
-        decimate["overshoot"] = round(float(np.exp(rng.uniform(0, math.log(COLLAPSE_OVERSHOOT)))), 4)
+        overshoot = np.exp(rng.uniform(0, math.log(COLLAPSE_OVERSHOOT)))
+        decimate["overshoot"] = round(float(overshoot), 4)
         decimate["triangulate"] = bool(rng.integers(2))
     elif decimate["kind"] == "unsubdiv":
         decimate["iterations"] = 1  # two un-subdivide a UV sphere beyond its tolerance (88 %)

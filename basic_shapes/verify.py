@@ -12,7 +12,6 @@ and centroid lie on the polytope's surface lies in one of its faces (docs/GENERA
 from __future__ import annotations
 
 import ctypes
-import math
 import functools
 import importlib.util
 from pathlib import Path
@@ -55,6 +54,7 @@ def _pymeshlab():
 
 
 def bbox_diagonal(vertices: np.ndarray) -> float:
+    """Length of the axis-aligned bounding box's diagonal: the unit of relative distances."""
     v = np.asarray(vertices, np.float64)
     return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
 
@@ -73,7 +73,8 @@ _WEIGHTS = [None] + [_stratified_weights(k) for k in range(1, MAX_FACE_SUBDIVISI
 def _twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """|(b - a) x (c - a)|^2 per triangle (np.cross is several times slower)."""
     u, w = b - a, c - a
-    return ((u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2 + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
+    return ((u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2
+            + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
             + (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) ** 2)
 
 

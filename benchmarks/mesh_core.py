@@ -67,7 +67,8 @@ def table(results: list[dict]) -> str:
                      + f"{r['ms_per_mesh_total_cpu']:11.3f}{r['meshes_per_s_cpu']:8.0f}"
                      f"{r['attempts_per_variant']:7.2f}{r['faces']['median']:10.0f}"
                      f"{r['faces']['max']:6d}")
-    return "\n".join(lines) + "\n(CPU ms per accepted mesh, rejected attempts included; mesh/s: 1 process, CPU time)"
+    return "\n".join(lines) + ("\n(CPU ms per accepted mesh, rejected attempts included; "
+                              "mesh/s: 1 process, CPU time)")
 
 
 def figure(results: list[dict], path: Path) -> None:

@@ -40,7 +40,8 @@ def cubes():
 
 # --- independent references ------------------------------------------------------------------
 def point_triangle_distance(p, a, b, c):
-    """Distance from points p to triangles (a, b, c), broadcast (Ericson's closest-point regions)."""
+    """Distance from points p to triangles (a, b, c), broadcast (Ericson's closest-point
+    regions)."""
     ab, ac = b - a, c - a
     ap, bp, cp = p - a, p - b, p - c
     d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
