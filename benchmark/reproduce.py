@@ -355,17 +355,20 @@ _WORKER: dict = {}
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
 
 
-def _start_worker(threads: int, corpus_path: str | None) -> None:
-    """Process-pool initializer: one torch thread budget and one feature cache per worker."""
+def _start_worker(threads: int, corpus_path: str | None, pretrain_cfg=None) -> None:
+    """Process-pool initializer: a torch thread budget, a feature cache and the pretraining
+    corpus (the procedural corpus file, or ShapeNet as ``pretrain_cfg`` says), once per worker."""
     import torch
 
     from benchmark import corpus as corpus_mod
-    from benchmark.train import FeatureCache
+    from benchmark.train import FeatureCache, corpus_meshes
 
     torch.set_num_threads(threads)
     _WORKER.update(cache=FeatureCache(), device=torch.device("cpu"))
     if corpus_path:
         _WORKER["corpus"] = (corpus_mod.load_corpus_file(corpus_path), list(corpus_mod.FAMILIES))
+    elif pretrain_cfg is not None:
+        _WORKER["corpus"] = corpus_meshes(pretrain_cfg)
 
 
 def _row_job(cfg, data_dir: Path, out: Path, preset: Preset) -> tuple[str, dict]:
@@ -389,6 +392,8 @@ def run(args: argparse.Namespace) -> None:
     rows = _rows(args.rows)
     jobs = args.jobs or preset.jobs
     threads = args.threads or max(1, (os.cpu_count() or 1) // jobs)
+    if jobs < 1 or threads < 1:
+        raise SystemExit("benchmark reproduce: --jobs and --threads must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     timing: dict = {}
@@ -405,7 +410,9 @@ def run(args: argparse.Namespace) -> None:
     nproc = args.nproc or max(torch.cuda.device_count(), 1)
     cfgs = [row_config(preset, e, r, args.seed, args.shapenet) for e, r in rows]
     corpus_path = None
-    if any(c.regime in ("classification", "autoencoder") for c in cfgs) and not args.shapenet:
+    pretrained = [c for c in cfgs if c.regime in ("classification", "autoencoder")]
+    shapenet_cfg = pretrained[0] if pretrained and args.shapenet else None
+    if pretrained and not args.shapenet:
         t0 = time.perf_counter()
         tc = preset.train
         corpus_path = str(corpus_mod.build_corpus_file(
@@ -435,7 +442,8 @@ def run(args: argparse.Namespace) -> None:
         # without OpenMP threads of one process waiting on each other; costly rows first.
         todo.sort(key=lambda c: -COST[c.regime] * (0.5 if c.embedding == "invariant" else 1))
         with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_start_worker, initargs=(threads, corpus_path)) as pool:
+                                 initializer=_start_worker,
+                                 initargs=(threads, corpus_path, shapenet_cfg)) as pool:
             futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
             for k, fut in enumerate(as_completed(futures)):
                 name, result = fut.result()
@@ -445,7 +453,7 @@ def run(args: argparse.Namespace) -> None:
         previous = torch.get_num_threads()
         torch.set_num_threads(threads)
         try:
-            _start_worker(threads, corpus_path)
+            _start_worker(threads, corpus_path, shapenet_cfg)
             _WORKER["device"] = torch.device("cuda" if torch.cuda.is_available() else "cpu")
             for k, cfg in enumerate(todo):
                 result = run_row(cfg, data_dir, out, preset, _WORKER, nproc, not args.quiet)

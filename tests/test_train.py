@@ -8,6 +8,7 @@ import os
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from benchmark import corpus
 from benchmark.cli import main as benchmark_main
@@ -198,3 +199,21 @@ def test_findings_on_a_table_shaped_like_the_paper():
     assert not ideal["holds"] and (ideal["held"], ideal["of"]) == (6, 9)
     assert ideal["failed"] == ["token-basic", "token-classification", "token-autoencoder"]
     assert f["no row is mode-collapsed"]["failed"] == ["invariant-basic"]
+
+
+def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
+    root = tmp_path / "ShapeNetCore.v2"
+    shapes = {"02691156": [trimesh.creation.box(), trimesh.creation.icosphere(1)],
+              "03001627": [trimesh.creation.cylinder(0.5, 1.0, sections=8), trimesh.creation.box((1, 2, 3))]}
+    for synset, meshes in shapes.items():
+        for k, mesh in enumerate(meshes):
+            path = root / synset / f"m{k}" / "models" / "model_normalized.obj"
+            path.parent.mkdir(parents=True)
+            mesh.export(path)
+    (root / "taxonomy.json").write_text(json.dumps([
+        {"synsetId": "02691156", "name": "airplane", "children": []},
+        {"synsetId": "03001627", "name": "chair", "children": []}]))
+    model, config = run(data_dir, embedding="graph", regime="classification", shapenet=str(root),
+                        pretrain_epochs=3)
+    assert config["train"]["shapenet"] == str(root) and len(config["history"]["pretrain"]) == 3
+    assert set(config["history"]["pretrain"][0]) == {"loss", "ce", "acc"}
