@@ -12,6 +12,8 @@ was generated before.
 from __future__ import annotations
 
 import math
+import os
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -167,10 +169,24 @@ def _state() -> "_Blender":
     return _STATE
 
 
+def _drop_inherited_blender_paths() -> None:
+    """Forget Blender's script folders inherited from a parent process's sys.path.
+
+    Importing bpy appends ``.../bpy/<version>/scripts/modules`` (and siblings) to sys.path;
+    a process spawned by a parent that had bpy loaded (Dask and multiprocessing workers copy
+    sys.path) would then import the pure-Python ``bpy`` package from there instead of Blender
+    itself and fail on ``_bpy``. bpy adds these folders back when it loads.
+    """
+    if "bpy" not in sys.modules:
+        marker = f"{os.sep}bpy{os.sep}"
+        sys.path[:] = [p for p in sys.path if not (marker in p and f"{os.sep}scripts" in p)]
+
+
 class _Blender:
     """The process's Blender session: cached primitives and one reusable modifier object."""
 
     def __init__(self):
+        _drop_inherited_blender_paths()
         try:
             import bpy  # first: bmesh and mathutils are only importable once bpy is loaded
         except ImportError as exc:
