@@ -10,7 +10,6 @@ computed it, so the bytes do not depend on the number of workers.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -180,21 +179,6 @@ def write_labels(plan: ShardPlan, request: LabelRequest) -> None:
     rewrite_atomically(plan.path, edit)
 
 
-@contextlib.contextmanager
-def _client(workers: int | None, scheduler: str | None):
-    """The toolkit's Dask client, with local workers that keep glibc's adaptive mmap threshold.
-
-    Dask starts workers with MALLOC_TRIM_THRESHOLD_=65536, which freezes glibc's mmap threshold
-    at 128 KiB: every large numpy temporary of the simulator is then mmapped and page-faulted
-    afresh (measured 2.4x slower per object). Unsetting it for our local workers avoids that.
-    """
-    import dask
-
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
-            dask_client(workers, scheduler) as client:
-        yield client
-
-
 @dataclass
 class LabelSummary:
     labelled: list[Path]
@@ -233,7 +217,7 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
     if not todo:
         return summary
 
-    with _client(workers, scheduler) as client, \
+    with dask_client(workers, scheduler) as client, \
             tqdm(total=summary.objects, unit="object", desc="radar labels",
                  disable=not progress) as bar:
         window = 4 * max(1, sum(client.nthreads().values()))
