@@ -111,6 +111,7 @@ def timed(fn):
 def run_case(name, vertices, faces, mode, frequencies, directions, reference):
     ours, t_ours = timed(lambda: radar_sim.monostatic_field(vertices, faces, frequencies,
                                                             directions, mode=mode))
+    reference_name = "analytic" if reference is not None else "radar_sim"
     if reference is None:
         reference = np.abs(ours)
     per_freq, t_per_freq = timed(lambda: np.concatenate([
@@ -129,7 +130,7 @@ def run_case(name, vertices, faces, mode, frequencies, directions, reference):
             break
         m *= 2
     reached = peer_rows[-1]["error"] <= target
-    return {"faces": int(len(faces)), "mode": mode, "target": target,
+    return {"faces": int(len(faces)), "mode": mode, "target": target, "reference": reference_name,
             "radar_sim": {"seconds": t_ours, "error": error(ours, reference)},
             "per_frequency": {"seconds": t_per_freq, "error": error(per_freq, reference)},
             "peer_style": {"runs": peer_rows, "reached_target": reached,
@@ -142,6 +143,7 @@ def main() -> None:
     ap.add_argument("--aspects", type=int, default=61, help="orientations per case (default 61)")
     ap.add_argument("--out", default=str(RESULTS / "radar_peers.json"))
     args = ap.parse_args()
+    load = os.getloadavg()[0]
     config = radar_sim.RadarConfig.named("xband-v1")
     frequencies = config.frequency_hz
     roll = float(config.roll_deg[1])
@@ -165,9 +167,10 @@ def main() -> None:
           f"{'x per-freq':>10} {'x peer':>8}")
     for name, r in results.items():
         ours, pf, peer = r["radar_sim"], r["per_frequency"], r["peer_style"]
+        ours_error = "ref" if r["reference"] == "radar_sim" else f"{ours['error']:.0e}"
         peer_cell = (f"{peer['seconds']:.2f} ({peer['runs'][-1]['error']:.0e}) M={peer['m']}"
                      + ("" if peer["reached_target"] else "!"))
-        print(f"{name:>7} {r['faces']:>6} {ours['seconds']:>8.3f} ({ours['error']:.0e}) "
+        print(f"{name:>7} {r['faces']:>6} {ours['seconds']:>8.3f} ({ours_error:>5}) "
               f"{pf['seconds']:>8.3f} ({pf['error']:.0e}) {peer_cell:>24} "
               f"{pf['seconds'] / ours['seconds']:>10.1f} {peer['seconds'] / ours['seconds']:>8.1f}")
     print("('!': the peer-style rule did not reach the target within M = "
@@ -175,6 +178,7 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps({
         "machine": platform.processor() or platform.machine(), "threads": 1,
+        "load_average_at_start": load,
         "orientations": len(directions), "frequencies": len(frequencies),
         "full_grid_factor": scale, "target_peak_relative_error": TARGET, "cases": results},
         indent=2))

@@ -162,6 +162,7 @@ def main() -> None:
     args = ap.parse_args()
     config = radar_sim.RadarConfig.named("xband-v1")
     out = {"machine": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
+           "load_average_at_start": os.getloadavg()[0],
            "grid": [len(config.aspect_deg), len(config.roll_deg), len(config.frequency_hz)]}
 
     print("1. convex ~1k-face objects, full default grid, one core")
