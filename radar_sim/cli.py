@@ -39,6 +39,12 @@ def _numbers(text: str) -> np.ndarray:
     return values
 
 
+def _positive(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
+    return int(text)
+
+
 def _variants(text: str) -> str:
     try:
         parse_variants(text)
@@ -166,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "already labelled with the same config is skipped. Runs on Dask.")
     q.add_argument("directory", help="dataset directory holding shard-*.h5")
     q.add_argument("--config", default="xband-v1", help="config name or JSON file (default %(default)s)")
-    q.add_argument("--workers", type=int, default=None,
+    q.add_argument("--workers", type=_positive, default=None,
                    help="local worker processes, one thread each (default: one per core)")
     q.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler "
                    "(tcp://host:8786) instead of a local cluster")

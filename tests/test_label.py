@@ -136,6 +136,16 @@ def test_bytes_do_not_depend_on_worker_count(dataset, labelled, tmp_path):
     assert digests(one) != digests(dataset)
 
 
+def test_existing_scheduler(dataset, labelled, tmp_path):
+    from distributed import LocalCluster
+
+    work = tmp_path / "data"
+    shutil.copytree(dataset, work)
+    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
+        main(["label", str(work), "--scheduler", cluster.scheduler_address, *OPTIONS])
+    assert digests(work) == digests(labelled)
+
+
 def test_rerun_skips_labelled_shards(labelled, capsys):
     before = {p: p.stat().st_mtime_ns for p in labelled.glob("shard-*.h5")}
     main(["label", str(labelled), *OPTIONS])
