@@ -211,14 +211,15 @@ METRICS = ("simple_mse", "complex_mse", "variation_mse")
 
 
 def findings(rows: list[dict]) -> list[dict]:
-    """The paper's claims, checked on this table: each with the comparisons that hold."""
+    """The paper's claims, checked on this table: each with the comparisons that hold
+    (``holds`` is None when the rows a claim needs are missing)."""
     by = {(r["embedding"], r["regime"]): r for r in rows}
 
     def compare(pairs):
         done = [(a, b, m) for a, b in pairs for m in METRICS
                 if a in by and b in by and by[a][m] is not None and by[b][m] is not None]
         held = [(a, b, m) for a, b, m in done if by[a][m] < by[b][m]]
-        return {"holds": bool(done) and len(held) == len(done), "held": len(held), "of": len(done),
+        return {"holds": len(held) == len(done) if done else None, "held": len(held), "of": len(done),
                 "failed": [f"{'-'.join(a)} vs {'-'.join(b)} on {m}" for a, b, m in done
                            if (a, b, m) not in held]}
 
@@ -238,7 +239,7 @@ def findings(rows: list[dict]) -> list[dict]:
     done = [(a, b) for a, b in ideal if a in by and b in by and by[a]["variation_mse"] is not None]
     short = [(a, b) for a, b in done if by[a]["variation_mse"] > by[b]["variation_mse"]]
     out.append({"claim": "every non-Ideal model falls short of its Ideal model on Variation MSE",
-                "holds": bool(done) and len(short) == len(done), "held": len(short), "of": len(done),
+                "holds": len(short) == len(done) if done else None, "held": len(short), "of": len(done),
                 "failed": ["-".join(a) for a, b in done if (a, b) not in short]})
     collapsed = [r["name"] for r in rows if r["mode_collapse"]]
     out.append({"claim": "no row is mode-collapsed", "holds": not collapsed, "held": len(rows) - len(collapsed),
@@ -272,7 +273,7 @@ def render_markdown(table: dict) -> str:
                      f"{_num(r['ms_per_mesh'], 2)} | {_num(r['train_seconds'], 0)} |")
     lines += ["", "## The paper's findings on this table", ""]
     for f in table["findings"]:
-        mark = "holds" if f["holds"] else "does not hold"
+        mark = {True: "holds", False: "does not hold", None: "not tested (rows missing)"}[f["holds"]]
         detail = f" (fails: {', '.join(f['failed'])})" if f["failed"] else ""
         lines.append(f"- {f['claim']}: **{mark}**, {f['held']}/{f['of']}{detail}")
     return "\n".join(lines) + "\n"

@@ -217,3 +217,5 @@ def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
                         pretrain_epochs=3)
     assert config["train"]["shapenet"] == str(root) and len(config["history"]["pretrain"]) == 3
     assert set(config["history"]["pretrain"][0]) == {"loss", "ce", "acc"}
+    partial = findings(rows[9:])  # only the Ideal and invariant rows: nothing to compare
+    assert [x["holds"] for x in partial[:4]] == [None] * 4 and partial[4]["holds"] is False
