@@ -10,6 +10,7 @@ computed it, so the bytes do not depend on the number of workers.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -20,8 +21,7 @@ import numpy as np
 
 from basic_shapes.cluster import dask_client
 from basic_shapes.shards import Shard, list_shards, rewrite_atomically
-
-MODES = ("auto", "convex", "shadowed", "bounce2")
+from radar_sim.field import MODES
 
 
 class LabelError(ValueError):
@@ -217,9 +217,14 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
     if not todo:
         return summary
 
-    with dask_client(workers, scheduler) as client, \
-            tqdm(total=summary.objects, unit="object", desc="radar labels",
-                 disable=not progress) as bar:
+    with contextlib.ExitStack() as stack:
+        try:
+            client = stack.enter_context(dask_client(workers, scheduler))
+        except OSError as exc:
+            raise LabelError(f"{directory}: cannot use the Dask cluster "
+                             f"{scheduler or '(local)'}: {exc}") from None
+        bar = stack.enter_context(tqdm(total=summary.objects, unit="object", desc="radar labels",
+                                       disable=not progress))
         window = 4 * max(1, sum(client.nthreads().values()))
         tasks = _object_tasks(todo)
         running = as_completed()

@@ -242,6 +242,17 @@ def test_bad_datasets_fail_fast_and_change_nothing(dataset, tmp_path):
     assert "xband-v9" in _one_line_error(["label", str(truncated), "--config", "xband-v9"])
 
 
+def test_unreachable_scheduler(dataset, tmp_path):
+    import dask
+
+    work = tmp_path / "data"
+    shutil.copytree(dataset, work)
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        message = _one_line_error(["label", str(work), "--scheduler", "tcp://127.0.0.1:1"])
+    assert "cannot use the Dask cluster tcp://127.0.0.1:1" in message
+    assert digests(work) == digests(dataset)
+
+
 def test_bad_mesh_names_shard_and_object(tmp_path):
     data = write_dataset(tmp_path / "nan", n_objects=2, objects_per_shard=2, corrupt=1)
     before = digests(data)
