@@ -16,8 +16,11 @@ $(BIN)/.installed: pyproject.toml
 
 install: $(BIN)/.installed
 
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+# Debian's Chromium for the leaderboard's browser test (tests/test_site_browser.py).
 browser:
-	@command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium >/dev/null)
+	@command -v chromium >/dev/null || ($(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq chromium >/dev/null)
 
 demo: install
 	$(BIN)/basic-shapes generate --out $(OUT)/data --objects-per-class 4 --variants 9 --seed 0
