@@ -65,7 +65,7 @@ PRESETS = {
         train=dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
                    codebook_size=64, epochs=30, batch_size=8, pretrain_meshes=1500,
                    pretrain_epochs=8, pretrain_max_faces=400),
-        expected="about 25 minutes on 2 idle CPU cores"),
+        expected="about 20 minutes on 2 idle CPU cores (29 measured on the shared machine)"),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
         objects_per_class=1000, variants=99, workers=None, radar={},
