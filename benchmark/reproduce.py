@@ -286,8 +286,8 @@ def findings(rows: list[dict]) -> list[dict]:
                 "holds": len(short) == len(done) if done else None, "held": len(short), "of": len(done),
                 "failed": ["-".join(a) for a, b in done if (a, b) not in short]})
     collapsed = [r["name"] for r in rows if r["mode_collapse"]]
-    out.append({"claim": "no row is mode-collapsed", "holds": not collapsed, "held": len(rows) - len(collapsed),
-                "of": len(rows), "failed": collapsed})
+    out.append({"claim": "no row is mode-collapsed", "holds": not collapsed,
+                "held": len(rows) - len(collapsed), "of": len(rows), "failed": collapsed})
     return out
 
 

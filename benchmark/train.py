@@ -12,7 +12,8 @@
 
 The loss is MSE on the dB target (or the intensity-weighted MSE of ``benchmark.metrics``),
 plus the token embedding's commitment loss. The decoder predicts in units standardized by
-the training responses (``Decoder.set_output_statistics``). Runs are deterministic for a seed on one machine. Under ``torchrun``
+the training responses (``Decoder.set_output_statistics``). Runs are deterministic for a
+seed and a thread count on one machine. Under ``torchrun``
 (``WORLD_SIZE`` > 1) the loss module is wrapped in DistributedDataParallel and every epoch's
 objects are sharded with a DistributedSampler; rank 0 writes the checkpoint.
 """
@@ -242,8 +243,13 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
     steps_per_epoch = len(epoch_batches(examples, groups, batch_size, 0, seed, rank, world))
     total = max(1, epochs * steps_per_epoch)
     warm = max(1, total // 20)
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda s: min(1.0, (s + 1) / warm) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s, total) / total))))
+
+    def schedule(step: int) -> float:
+        """Linear warm-up, then cosine decay to 5% of the learning rate."""
+        return min(1.0, (step + 1) / warm) * (
+            0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
+
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, schedule)
     history = []
     bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
     for epoch in bar:
