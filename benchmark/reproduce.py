@@ -138,17 +138,34 @@ def row_config(preset: Preset, embedding: str, regime: str, seed: int, shapenet:
                        **preset.train)
 
 
+def row_files(out: Path, name: str) -> tuple[Path, Path]:
+    """(results JSON, predictions HDF5) of a row: ``results/<row>/``, the layout that
+    ``leaderboard seed --from <out>/results`` submits."""
+    return out / "results" / name / "results.json", out / "results" / name / "predictions.h5"
+
+
+def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
+    """The checkpoint config of a row trained earlier with this exact config on this dataset."""
+    try:
+        ck = json.loads((out / "checkpoints" / cfg.name / "config.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if ck.get("train") != asdict(cfg) or ck.get("dataset_fingerprint") != fingerprint:
+        return None
+    return ck
+
+
 def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
     """The results of a row finished earlier with this exact config on this dataset."""
     from benchmark.protocol import ResultsError, load_results
 
+    ck = _trained(out, cfg, fingerprint)
+    results_path, predictions_path = row_files(out, cfg.name)
     try:
-        ck = json.loads((out / "checkpoints" / cfg.name / "config.json").read_text())
-        results = load_results(out / "results" / f"{cfg.name}.json")
+        results = load_results(results_path)
     except (OSError, ValueError, ResultsError):
         return None
-    if ck.get("train") != asdict(cfg) or results["dataset_fingerprint"] != fingerprint \
-            or ck.get("dataset_fingerprint") != fingerprint:
+    if ck is None or results["dataset_fingerprint"] != fingerprint or not predictions_path.is_file():
         return None
     return {"results": results, "train_seconds": ck.get("train_seconds")}
 
@@ -170,7 +187,10 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
 
     ckpt = out / "checkpoints" / cfg.name
     t0 = time.perf_counter()
-    if preset.launcher == "torchrun" and nproc > 1:
+    trained = _trained(out, cfg, shared["fingerprint"])
+    if trained is not None:  # trained earlier, evaluation missing or interrupted
+        train_seconds = trained["train_seconds"]
+    elif preset.launcher == "torchrun" and nproc > 1:
         _call([sys.executable, "-m", "torch.distributed.run", f"--nproc_per_node={nproc}",
                "-m", "benchmark.cli", "train", "--data", str(data_dir), "--out", str(ckpt),
                "--quiet", *_train_flags(cfg)], f"training {cfg.name}", quiet=False)
@@ -183,8 +203,9 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
                                   device=shared["device"], progress=progress)
         save_checkpoint(ckpt, model, config)
         train_seconds = config["train_seconds"]
-    results = evaluate_checkpoint(ckpt, data_dir, out / "results" / f"{cfg.name}.json", progress,
-                                  device=shared["device"])
+    results_path, predictions_path = row_files(out, cfg.name)
+    results = evaluate_checkpoint(ckpt, data_dir, results_path, progress, device=shared["device"],
+                                  predictions=predictions_path)
     return {"results": results, "train_seconds": train_seconds,
             "wall_seconds": time.perf_counter() - t0}
 
@@ -200,7 +221,7 @@ def _mark_timed_alone(out: Path, record: dict, ms_per_mesh: float, threads: int)
     results = record["results"]
     results["speed"] = {"ms_per_mesh": ms_per_mesh,
                         "hardware": f"{hardware()}; {TIMED_ALONE}, {threads} torch thread(s)"}
-    write_results(out / "results" / f"{results['model']['name']}.json", results)
+    write_results(row_files(out, results["model"]["name"])[0], results)
 
 
 def time_alone(out: Path, data_dir: Path, records: dict, threads: int, progress: bool = True) -> None:
@@ -404,7 +425,8 @@ _WORKER: dict = {}
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
 
 
-def _start_worker(threads: int, corpus_path: str | None, pretrain_cfg=None) -> None:
+def _start_worker(threads: int, fingerprint: str, corpus_path: str | None,
+                  pretrain_cfg=None) -> None:
     """Process-pool initializer: a torch thread budget, a feature cache and the pretraining
     corpus (the procedural corpus file, or ShapeNet as ``pretrain_cfg`` says), once per worker."""
     import torch
@@ -413,7 +435,7 @@ def _start_worker(threads: int, corpus_path: str | None, pretrain_cfg=None) -> N
     from benchmark.train import FeatureCache, corpus_meshes
 
     torch.set_num_threads(threads)
-    _WORKER.update(cache=FeatureCache(), device=torch.device("cpu"))
+    _WORKER.update(cache=FeatureCache(), device=torch.device("cpu"), fingerprint=fingerprint)
     if corpus_path:
         _WORKER["corpus"] = (corpus_mod.load_corpus_file(corpus_path), list(corpus_mod.FAMILIES))
     elif pretrain_cfg is not None:
@@ -491,7 +513,7 @@ def run(args: argparse.Namespace) -> None:
         todo.sort(key=lambda c: -COST[c.regime] * (0.5 if c.embedding == "invariant" else 1))
         with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
                                  initializer=_start_worker,
-                                 initargs=(threads, corpus_path, shapenet_cfg)) as pool:
+                                 initargs=(threads, fingerprint, corpus_path, shapenet_cfg)) as pool:
             futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
             for k, fut in enumerate(as_completed(futures)):
                 name, result = fut.result()
@@ -502,7 +524,7 @@ def run(args: argparse.Namespace) -> None:
     torch.set_num_threads(threads)
     try:
         if todo and not (jobs > 1 and len(todo) > 1):
-            _start_worker(threads, corpus_path, shapenet_cfg)
+            _start_worker(threads, fingerprint, corpus_path, shapenet_cfg)
             _WORKER["device"] = torch.device("cuda" if torch.cuda.is_available() else "cpu")
             for cfg in todo:
                 result = run_row(cfg, data_dir, out, preset, _WORKER, nproc, not args.quiet)

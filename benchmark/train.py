@@ -368,15 +368,19 @@ def init_distributed() -> tuple[torch.device, int]:
 
 def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLike,
                         results: str | os.PathLike | None = None, progress: bool = True,
-                        device: str | torch.device = "cpu") -> dict:
-    """Results record of a checkpoint on the test split (harness ``evaluate``)."""
+                        device: str | torch.device = "cpu",
+                        predictions: str | os.PathLike | None = None) -> dict:
+    """Results record of a checkpoint on the test split (harness ``evaluate``); the
+    predictions file is kept at ``predictions`` when given (a leaderboard submission)."""
     from benchmark.evaluate import evaluate
     from benchmark.models.checkpoint import CheckpointModel
     from benchmark.protocol import write_results
 
     model = CheckpointModel(checkpoint, device=str(device))
+    if predictions:
+        Path(predictions).parent.mkdir(parents=True, exist_ok=True)
     record = evaluate(data_dir, model=model, train_seed=model.config["train"]["seed"],
-                      progress=progress)
+                      progress=progress, write_predictions=predictions)
     if results:
         Path(results).parent.mkdir(parents=True, exist_ok=True)
         write_results(results, record)

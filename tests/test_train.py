@@ -15,7 +15,7 @@ from benchmark.cli import main as benchmark_main
 from benchmark.data import BenchmarkData, ScaleBins
 from benchmark.models import ReconstructionHead, build_model
 from benchmark.models.checkpoint import CheckpointError, CheckpointModel, load_checkpoint, save_checkpoint
-from benchmark.protocol import load_results
+from benchmark.protocol import load_results, score_predictions
 from benchmark.reproduce import ROWS, findings
 from benchmark.train import (PretrainTask, TrainConfig, benchmark_examples, corpus_examples,
                              epoch_batches, fit, train)
@@ -159,9 +159,11 @@ def test_tiny_preset_end_to_end(tmp_path):
         assert table["dataset"]["fingerprint"] == data.fingerprint
         n_test = len(data.object_rows("test"))
     for row in table["rows"]:
-        results = load_results(out / "results" / f"{row['name']}.json")
+        results = load_results(out / "results" / row["name"] / "results.json")
         assert results["metrics"]["n_objects"] == n_test
         assert row["complex_mse"] == results["metrics"]["complex_mse"]
+        rescored = score_predictions(out / "data", out / "results" / row["name"] / "predictions.h5")
+        assert rescored["complex_mse"] == results["metrics"]["complex_mse"]
     invariant = table["rows"][-1]
     assert invariant["name"] == "invariant-basic"
     md = (out / "table.md").read_text()
@@ -172,6 +174,15 @@ def test_tiny_preset_end_to_end(tmp_path):
     # a rerun reuses every finished row instead of training again
     benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
     assert json.loads((out / "table.json").read_text())["rows"] == table["rows"]
+    # the rows are leaderboard submissions as they stand: seed a board and render it
+    from leaderboard import cli as leaderboard_cli
+
+    entries, site = tmp_path / "entries", tmp_path / "site"
+    assert leaderboard_cli.main(["seed", "--from", str(out / "results"), "--data", str(out / "data"),
+                                 "--entries", str(entries)]) is None
+    assert len(list(entries.glob("*.json"))) == 13
+    assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None
+    assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])
 
 
 def test_findings_on_a_table_shaped_like_the_paper():
