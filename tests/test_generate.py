@@ -37,9 +37,14 @@ def dataset(tmp_path_factory):
 def test_bytes_do_not_depend_on_workers(dataset, tmp_path):
     assert cli.main(["generate", "--out", str(tmp_path / "two"), "--workers", "2", *SMALL]) == 0
     assert cli.main(["generate", "--out", str(tmp_path / "zero"), "--workers", "0", *SMALL]) == 0
+    from basic_shapes.cluster import dask_client
+
+    with dask_client(workers=2) as client:  # an existing cluster, reached through --scheduler
+        address = client.scheduler.address
+        assert cli.main(["generate", "--out", str(tmp_path / "sched"), "--scheduler", address, *SMALL]) == 0
     one = _digests(dataset)
     assert len(one) == 3
-    assert one == _digests(tmp_path / "two") == _digests(tmp_path / "zero")
+    assert one == _digests(tmp_path / "two") == _digests(tmp_path / "zero") == _digests(tmp_path / "sched")
 
 
 def test_dataset_content(dataset):
