@@ -28,7 +28,7 @@ demo: install
 	$(BIN)/radar-sim label $(OUT)/data --variants all
 	$(BIN)/basic-shapes info $(OUT)/data
 	$(BIN)/basic-shapes show $(OUT)/data --object 5 --out $(OUT)/shapes.png
-	$(BIN)/radar-sim plot $(OUT)/data --object 5 --out $(OUT)/radar.png
+	$(BIN)/radar-sim plot $(OUT)/data --object 1 --roll 30 --out $(OUT)/radar.png
 	$(BIN)/benchmark reproduce --preset tiny --data $(OUT)/data --out $(OUT)/benchmark --quiet
 	$(BIN)/leaderboard seed --from $(OUT)/benchmark/results --data $(OUT)/data --entries $(OUT)/entries
 	$(BIN)/leaderboard simulator --data $(OUT)/data --entries $(OUT)/entries

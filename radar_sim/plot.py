@@ -11,7 +11,7 @@ import os
 
 import numpy as np
 
-DYNAMIC_RANGE_DB = 60.0
+DYNAMIC_RANGE_DB = 80.0
 
 
 def _db(values: np.ndarray) -> np.ndarray:
