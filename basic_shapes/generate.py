@@ -21,6 +21,7 @@ from basic_shapes.shards import ObjectRecord, Shard, ShardError, atomic_path, sh
 
 CONFIG_FILE = "dataset.json"
 TEST_FRACTION = 0.1
+VAL_FRACTION = 0.1  # model selection only (benchmark.train); never scored
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,7 @@ class GenerateConfig:
     scale_range: tuple[float, float] = SCALE_RANGE
     min_scale_distance: float = MIN_DISTANCE
     test_fraction: float = TEST_FRACTION
+    val_fraction: float = VAL_FRACTION
     toolkit_version: str = field(default=__version__)
 
     def validate(self) -> None:
@@ -50,6 +52,8 @@ class GenerateConfig:
             raise ValueError(f"variants must be < 1000 (mesh ids reserve 3 digits), got {self.variants}")
         if not 0 <= self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
+        if not 0 <= self.val_fraction < 1 - self.test_fraction:
+            raise ValueError(f"val_fraction must be in [0, 1 - test_fraction), got {self.val_fraction}")
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -82,12 +86,17 @@ def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:
         n_test = round(cfg.test_fraction * cfg.objects_per_class)
         if cfg.test_fraction > 0 and cfg.objects_per_class >= 2:
             n_test = max(1, n_test)
-        test = set(rng.permutation(cfg.objects_per_class)[:n_test].tolist())
+        # test and val from one permutation: the test objects do not depend on val_fraction
+        n_val = round(cfg.val_fraction * cfg.objects_per_class)
+        if cfg.val_fraction > 0 and cfg.objects_per_class - n_test >= 2:
+            n_val = max(1, n_val)
+        perm = rng.permutation(cfg.objects_per_class).tolist()
+        test, val = set(perm[:n_test]), set(perm[n_test:n_test + n_val])
         for k in range(cfg.objects_per_class):
             oid = ci * cfg.objects_per_class + k
             seed = int(_rng(cfg.seed, 1, key, k).integers(0, 2**63 - 1))
             plans.append(ObjectPlan(oid, name, ci, tuple(float(x) for x in scales[k]), seed,
-                                    "test" if k in test else "train"))
+                                    "test" if k in test else "val" if k in val else "train"))
     return plans
 
 

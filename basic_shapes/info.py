@@ -22,7 +22,7 @@ def _histogram(n_faces: np.ndarray) -> list[str]:
 
 
 def summary(directory: str | Path) -> str:
-    per_class = defaultdict(lambda: {"objects": 0, "train": 0, "test": 0, "faces": [],
+    per_class = defaultdict(lambda: {"objects": 0, "train": 0, "val": 0, "test": 0, "faces": [],
                                      "hausdorff": [], "labelled": 0})
     shards = list_shards(directory)
     config = None
@@ -49,7 +49,7 @@ def summary(directory: str | Path) -> str:
     for name, d in per_class.items():
         faces = np.concatenate(d["faces"])
         h = np.concatenate(d["hausdorff"])
-        lines.append(f"\n{name}: {d['objects']} objects ({d['train']} train / {d['test']} test), "
+        lines.append(f"\n{name}: {d['objects']} objects ({d['train']} train / {d['val']} val / {d['test']} test), "
                      f"{len(faces)} meshes, {d['labelled']} objects radar-labelled")
         lines.append(f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}")
         lines.extend(_histogram(faces))

@@ -73,7 +73,7 @@ class ObjectRecord:
     class_index: int
     scale: np.ndarray  # (3,) bbox extents, metres
     seed: int
-    split: str  # "train" or "test"
+    split: str  # "train", "val" or "test"
     meshes: list[MeshRecord]
 
 

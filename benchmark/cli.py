@@ -66,6 +66,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     e.add_argument("--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)")
     e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
     e.add_argument("--train-seed", type=int, help="seed the model was trained with")
+    e.add_argument("--speed-ms", type=float, metavar="X", help="with --predictions: your own ms per "
+                   "mesh, recorded as self-reported (the harness times only --model)")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     for name, (_, help_text) in DELEGATED.items():
         d = sub.add_parser(name, help=help_text, description=help_text)
@@ -81,6 +83,11 @@ def evaluate_command(args: argparse.Namespace) -> int:
 
     if args.write_predictions and not args.model:
         raise SystemExit("benchmark evaluate: --write-predictions needs --model")
+    if args.speed_ms is not None and not args.predictions:
+        raise SystemExit("benchmark evaluate: --speed-ms goes with --predictions "
+                         "(a --model is timed by the harness)")
+    if args.speed_ms is not None and not args.speed_ms >= 0:
+        raise SystemExit(f"benchmark evaluate: --speed-ms must be >= 0, got {args.speed_ms}")
     if args.batch_size < 1:
         raise SystemExit("benchmark evaluate: --batch-size must be at least 1")
     out = Path(args.out)
@@ -92,7 +99,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
         results = evaluate(args.data, model=model, predictions=args.predictions,
                            write_predictions=args.write_predictions, overrides=overrides,
                            train_seed=args.train_seed, batch_size=args.batch_size,
-                           progress=not args.quiet, scratch_dir=out.parent)
+                           progress=not args.quiet, scratch_dir=out.parent,
+                           speed_ms=args.speed_ms)
         write_results(out, results)
     except (ShardError, ModelError, PredictionsError, ResultsError, OSError) as exc:
         raise SystemExit(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None

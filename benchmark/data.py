@@ -10,8 +10,9 @@ What a model sees (docs/BENCHMARK.md, "Inputs"):
 * the target: the object's range profiles in dB, ``T = 20 log10(max(|profile|, 1e-4))``.
 
 Only small per-mesh metadata is held in memory; meshes and labels are read on demand, so
-the readers work on datasets of any size. ``MeshDataset`` is the torch view for training;
-torch is imported only inside it.
+the readers work on datasets of any size. ``BasicShapes`` is the torch dataset (the one path
+training reads through), with an optional PyTorch Geometric view; torch is imported only
+inside it.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, list_sha
 
 FLOOR_AMPLITUDE = 1e-4
 FLOOR_DB = -80.0
-SPLITS = ("train", "test")
+SPLITS = ("train", "val", "test")
 VARIANTS = ("simple", "all")
 GRID_NAMES = ("aspect_deg", "roll_deg", "range_m")
 
@@ -263,47 +264,82 @@ class BenchmarkData:
         return {**self.__dict__, "_handles": {}}
 
     def describe(self) -> str:
-        n_test = len(self.object_rows("test"))
+        n_val, n_test = (len(self.object_rows(s)) for s in ("val", "test"))
         return (f"{self.directory}: {len(self.paths)} shards, {len(self.objects['id'])} objects "
-                f"({n_test} test), {len(self.meshes['uid'])} meshes, classes "
+                f"({n_val} val, {n_test} test), {len(self.meshes['uid'])} meshes, classes "
                 f"{json.dumps(self.class_names)}, target grid {self.target_shape}")
 
 
-class MeshDataset:
-    """Map-style torch dataset of one split: "simple" meshes (Basic) or "all" (Ideal).
+class BasicShapes:
+    """Map-style PyTorch dataset of one split: ``BasicShapes(root, split="train",
+    variants="simple")`` (what Basic trains on) or ``variants="all"`` (Ideal; every mesh).
 
-    Item: dict of tensors ``vertices`` (V,3) float32 normalized, ``faces`` (F,3) int64,
-    ``scale_bins`` (3,) int64, ``scale_m`` (3,) float32, ``target`` (n_aspect, n_roll,
-    n_range) float32 dB, ``class_index`` and ``mesh_uid`` int64 scalars. Meshes are ragged:
-    batch with ``collate_meshes``.
+    ``root`` is a directory of labelled shards (or an open ``BenchmarkData``); ``split`` is
+    "train", "val" or "test" (by object; see docs/BENCHMARK.md). Item: dict of tensors
+    ``vertices`` (V,3) float32 normalized, ``faces`` (F,3) int64, ``scale_bins`` (3,) int64,
+    ``scale_m`` (3,) float32, ``target`` (n_aspect, n_roll, n_range) float32 dB,
+    ``class_index``, ``object_id`` and ``mesh_uid`` int64 scalars; ``transform`` (e.g.
+    ``BasicShapes.to_pyg``) is applied to it. Meshes are ragged: batch with
+    ``collate_meshes`` (or PyG's ``DataLoader`` on the ``to_pyg`` view).
     """
 
-    def __init__(self, data: BenchmarkData | str | os.PathLike, split: str = "train",
-                 variants: str = "simple", scale_bins: ScaleBins | None = None):
-        self.data = data if isinstance(data, BenchmarkData) else BenchmarkData(data)
+    def __init__(self, root: BenchmarkData | str | os.PathLike, split: str = "train",
+                 variants: str = "simple", scale_bins: ScaleBins | None = None,
+                 transform=None):
+        self.data = root if isinstance(root, BenchmarkData) else BenchmarkData(root)
+        self.split, self.variants = split, variants
         self.rows = self.data.mesh_rows(split, variants)
         self.scale_bins = scale_bins or self.data.scale_bins
+        self.transform = transform
+        self._last: tuple[int, np.ndarray] | None = None  # consecutive meshes share a target
 
     def __len__(self) -> int:
         return len(self.rows)
+
+    def __repr__(self) -> str:
+        return f"BasicShapes({self.data.directory}, split={self.split!r}, variants={self.variants!r}, n={len(self)})"
+
+    def object_of(self, i: int) -> int:
+        """Global object row of item ``i`` (items of one object are consecutive)."""
+        return int(self.data.meshes["object"][self.rows[i]])
+
+    def target(self, obj: int) -> np.ndarray:
+        if self._last is None or self._last[0] != obj:
+            self._last = (obj, self.data.target(obj))
+        return self._last[1]
 
     def __getitem__(self, i: int) -> dict:
         import torch
 
         row = int(self.rows[i])
-        obj = int(self.data.meshes["object"][row])
+        obj = self.object_of(i)
         b = self.data.batch(np.array([row]), self.scale_bins)
-        return {"vertices": torch.from_numpy(b["vertices"][0]),
+        item = {"vertices": torch.from_numpy(b["vertices"][0]),
                 "faces": torch.from_numpy(b["faces"][0]),
                 "scale_bins": torch.from_numpy(b["scale_bins"][0]),
                 "scale_m": torch.from_numpy(b["scale_m"][0].astype(np.float32)),
-                "target": torch.from_numpy(self.data.target(obj)),
+                "target": torch.from_numpy(self.target(obj)),
                 "class_index": torch.tensor(int(self.data.objects["class_index"][obj])),
+                "object_id": torch.tensor(int(self.data.objects["id"][obj])),
                 "mesh_uid": torch.tensor(int(self.data.meshes["uid"][row]))}
+        return self.transform(item) if self.transform else item
+
+    @staticmethod
+    def to_pyg(item: dict):
+        """A ``torch_geometric.data.Data`` view of an item: ``pos`` (vertices), ``face``
+        (3, F), ``y`` (1, n_aspect, n_roll, n_range) so PyG batches stack targets, and the
+        scalars as (1,)-shaped attributes."""
+        from torch_geometric.data import Data
+
+        return Data(pos=item["vertices"], face=item["faces"].t().contiguous(),
+                    y=item["target"].unsqueeze(0), scale_bins=item["scale_bins"].unsqueeze(0),
+                    scale_m=item["scale_m"].unsqueeze(0),
+                    class_index=item["class_index"].view(1), object_id=item["object_id"].view(1),
+                    mesh_uid=item["mesh_uid"].view(1))
 
 
 def collate_meshes(items: list[dict]) -> dict:
-    """Batch ``MeshDataset`` items: ragged meshes as lists, everything else stacked."""
+    """Batch ``BasicShapes`` items: ragged meshes as lists, everything else stacked."""
     import torch
 
     out = {k: [it[k] for it in items] for k in ("vertices", "faces")}

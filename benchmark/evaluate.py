@@ -18,25 +18,55 @@ from pathlib import Path
 from tqdm import tqdm
 
 from benchmark.data import BenchmarkData
+from benchmark.metrics import METRIC_NAMES
 from benchmark.protocol import (Model, ModelError, Predictions, PredictionsWriter, check_prediction,
                                 make_results, score, why)
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 
 
-def hardware() -> str:
-    """CPU model and core count, plus the GPU when torch is already loaded and sees one."""
+def hardware(threads: int | None = None) -> dict:
+    """The one description of the machine a speed was measured on (models and physics alike).
+
+    CPU model, cores, the threads the timed code ran with (``threads``; by default torch's
+    when torch is loaded), the 1-minute load average when timing (other work on the CPU
+    slows everything), and the GPU when torch is loaded and sees one. ``text`` is the line
+    shown in tables and on the board.
+    """
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as fh:
             cpu = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    text = f"cpu: {cpu} ({os.cpu_count()} cores)"
     torch = sys.modules.get("torch")
-    if torch is not None and torch.cuda.is_available():
-        text += f"; gpu: {torch.cuda.get_device_name(0)}"
-    return text
+    if threads is None and torch is not None:
+        threads = torch.get_num_threads()
+    gpu = torch.cuda.get_device_name(0) if torch is not None and torch.cuda.is_available() else None
+    try:
+        load = round(os.getloadavg()[0], 2)
+    except OSError:
+        load = None
+    text = f"cpu: {cpu} ({os.cpu_count()} cores)"
+    text += f", {threads} thread(s)" if threads else ""
+    text += f", load {load:.2f}" if load is not None else ""
+    text += f"; gpu: {gpu}" if gpu else ""
+    return {"cpu": cpu, "cores": os.cpu_count(), "threads": threads, "load_avg_1m": load,
+            "gpu": gpu, "text": text}
+
+
+def speed_block(ms_per_mesh: float | None, threads: int | None = None,
+                self_reported: bool = False) -> dict:
+    """Results ``speed``: ms per mesh and how it was measured; a speed given by a submitter
+    (``self_reported``) carries no machine description, since none was measured."""
+    if ms_per_mesh is None:
+        return {"ms_per_mesh": None, "hardware": None, "self_reported": False}
+    if self_reported:
+        return {"ms_per_mesh": float(ms_per_mesh), "hardware": None, "self_reported": True}
+    hw = hardware(threads)
+    return {"ms_per_mesh": float(ms_per_mesh), "hardware": hw["text"], "cpu": hw["cpu"],
+            "threads": hw["threads"], "load_avg_1m": hw["load_avg_1m"], "gpu": hw["gpu"],
+            "self_reported": False}
 
 
 def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLike,
@@ -78,48 +108,77 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
              predictions: str | os.PathLike | None = None,
              write_predictions: str | os.PathLike | None = None, overrides: dict | None = None,
              train_seed: int | None = None, batch_size: int = 16, progress: bool = True,
-             scratch_dir: str | os.PathLike | None = None) -> dict:
+             scratch_dir: str | os.PathLike | None = None,
+             speed_ms: float | None = None) -> dict:
     """Results record for exactly one of ``model`` or ``predictions``.
 
     A model's predictions go to ``write_predictions`` if given, else to a temporary file in
-    ``scratch_dir`` (default: the system's), deleted afterwards.
+    ``scratch_dir`` (default: the system's), deleted afterwards. ``speed_ms`` is a
+    submitter's own ms per mesh for a predictions file, recorded as self-reported.
     """
     if (model is None) == (predictions is None):
         raise ValueError("give exactly one of a model or a predictions file")
+    if speed_ms is not None and (model is not None or not speed_ms >= 0):
+        raise ValueError("a self-reported speed goes with a predictions file and is >= 0")
     overrides = dict(overrides or {})
     with BenchmarkData(data_dir) as data:
-        speed = {"ms_per_mesh": None, "hardware": None}
+        speed = speed_block(speed_ms, self_reported=True) if speed_ms is not None \
+            else speed_block(None)
         if model is not None:
             with contextlib.ExitStack() as stack:
                 path = Path(write_predictions) if write_predictions else Path(
                     stack.enter_context(tempfile.TemporaryDirectory(dir=scratch_dir))) / "predictions.h5"
                 who = str(overrides.get("name") or getattr(model, "name", None) or type(model).__name__)
-                speed = {"ms_per_mesh": predict_test_split(model, data, path, batch_size, who, progress),
-                         "hardware": hardware()}
+                speed = speed_block(predict_test_split(model, data, path, batch_size, who, progress))
                 with Predictions(path, data) as preds:
-                    metrics = score(data, preds)
+                    metrics = score(data, preds, per_object=True)
         else:
             overrides["name"] = overrides.get("name") or Path(predictions).stem
             with Predictions(predictions, data) as preds:
-                metrics = score(data, preds)
+                metrics = score(data, preds, per_object=True)
         dataset_seed = data.config.get("seed")
         seeds = {"dataset": dataset_seed if isinstance(dataset_seed, int) else None, "train": train_seed}
-        return make_results(data.fingerprint, metrics, model_info(model, overrides), speed, seeds)
+        per_object = metrics.pop("per_object")
+        results = make_results(data.fingerprint, metrics, model_info(model, overrides), speed, seeds)
+        results["per_object"] = per_object
+        return results
+
+
+def _ci(x, ci) -> str:
+    if x is None:
+        return "-"
+    return f"{x:.2f}" + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "")
 
 
 def format_metrics(results: dict) -> str:
-    """A small plain-text table of the metrics, overall and per class."""
-    def cell(x):
-        return "-" if x is None else f"{x:.3f}"
-
+    """A plain-text table: the model and the reference rows with 95% intervals, per class,
+    its skill against the strongest reference, and its speed."""
     m = results["metrics"]
-    lines = [f"{'':10} {'simple':>10} {'complex':>10} {'variation':>10} {'objects':>8}"]
-    for label, block in [("all", m), *m["per_class"].items()]:
-        lines.append(f"{label:10} {cell(block['simple_mse']):>10} {cell(block['complex_mse']):>10} "
-                     f"{cell(block['variation_mse']):>10} {block['n_objects']:>8}")
-    rho = m["spread_ratio"]
-    lines.append(f"spread ratio {cell(rho)}; mode collapse: {'YES' if m['mode_collapse'] else 'no'}")
-    if results["speed"]["ms_per_mesh"] is not None:
-        lines.append(f"speed {results['speed']['ms_per_mesh']:.3f} ms/mesh on {results['speed']['hardware']}")
-    return "\n".join(lines)
+    head = f"{'':16} {'simple':>24} {'complex':>24} {'variation':>24} {'objects':>7}"
 
+    def line(label, block):
+        return (f"{label:16} " + " ".join(f"{_ci(block[k], block.get(k + '_ci')):>24}"
+                                          for k in METRIC_NAMES) + f" {block['n_objects']:>7}")
+
+    lines = [head, line(str(results["model"]["name"])[:16], m)]
+    lines += [line(f"  {c}"[:16], b) for c, b in m["per_class"].items()]
+    for name, block in m.get("references", {}).items():
+        lines.append(line(f"ref {name}"[:16], block))
+    sk = m.get("skill")
+    if sk:
+        for k, v in sk["vs_reference"].items():
+            lines.append(f"vs strongest reference ({sk['reference']}), {k}: {v['diff']:+.2f} "
+                         f"[{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] dB², skill {v['skill']:.3f}: "
+                         f"{'better' if v['verdict'] == 'holds' else 'worse' if v['verdict'] == 'reversed' else 'not distinguishable'}")
+        if sk["explained_by_class"]:
+            lines.append("no better than the per-class mean: its skill is explained by the class")
+    t = m.get("no_skill_test")
+    if t:
+        lines.append(f"gain over the training mean {_ci(t['gain_vs_train_mean'], t['gain_vs_train_mean_ci'])}"
+                     f" dB², correlation {t['correlation']:.3f}; no skill: "
+                     f"{'YES' if m['no_skill'] else 'no'}")
+    sp = results["speed"]
+    if sp["ms_per_mesh"] is not None:
+        where = "self-reported" if sp.get("self_reported") else f"on {sp['hardware']}"
+        lines.append(f"speed {sp['ms_per_mesh']:.3f} ms/mesh {where}")
+    return "\n".join(lines)

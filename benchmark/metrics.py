@@ -1,4 +1,4 @@
-"""The paper's topology-sensitivity metrics, a mode-collapse detector, and the training loss.
+"""The paper's topology-sensitivity metrics, the floor, a no-skill rule, and the training loss.
 
 All errors are MSE over the whole response (every aspect, roll and range bin) in dB², on the
 target T of ``benchmark.data.db_target``. For one test object with label R, prediction R̂_s
@@ -9,18 +9,32 @@ on its simple mesh and R̂_c on its complex meshes c = 1..C:
     variation = mean_c MSE(R̂_s, R̂_c)
 
 and the reported numbers are the means over test objects (per class: over that class's
-objects). Objects without complex meshes count only towards Simple MSE.
+objects), each with a 95% interval (``benchmark.uncertainty``: bootstrap over test objects,
+stratified by class). Objects without complex meshes count only towards Simple MSE.
 
-Mode collapse (the paper's asterisk): a model that predicts (nearly) one response for every
-object gets a low Variation MSE for the wrong reason. The spread ratio
+**One floor.** Targets are floored at FLOOR_DB (-80 dB); predictions are clipped at the same
+floor before scoring. A value below the floor is never closer to a target than the floor
+itself (every target is >= the floor), so unclipped predictions were penalized for nothing
+and clipping improved every metric for free; scoring the clipped prediction removes that.
 
-    rho = mean_e Var_o(R̂_s[o, e]) / mean_e Var_o(R[o, e])
+**No skill** (replaces the paper's mode-collapse asterisk, which in effect was R² < 0.05 and
+was fooled both ways). Let m be the training-set mean response (the cheapest prediction
+there is). Per test object o, on its simple mesh, with d = T - m and p = R̂_s - m:
 
-compares how much the simple-mesh predictions vary across test objects o, per response
-element e (aspect, roll, range bin), with how much the labels do. ``mode_collapse`` is
-``rho < COLLAPSE_RATIO`` (predictions spread less than 5% of the labels' variance, i.e. a
-standard deviation under about 22% of theirs). rho is None, and nothing is flagged, with
-fewer than two test objects or identical labels.
+    MSE_o(R̂_s) = A_o + B_o - 2 C_o,   A_o = mean_e d², B_o = mean_e p², C_o = mean_e d·p
+
+A_o is MSE_o of the training mean itself. The gain over the training mean is therefore
+G_o = A_o - MSE_o = 2 C_o - B_o: a prediction earns only through C (moving with the truth,
+away from the mean) and pays B (every departure from the mean). ``no_skill`` is set when the
+95% interval of mean_o G_o (bootstrap over test objects) does not lie above 0: the model does
+not beat the training mean by more than the sampling noise. Adding variance cannot game the
+rule: noise independent of the truth raises B and leaves C unchanged, so it lowers G. A
+constant (any constant; the mean itself gives G = 0 exactly) has C ≈ 0 and B >= 0; the mean
+plus per-object noise has G = -B < 0; honest shrinkage m + k(T - m), 0 < k < 1, has
+G = (2k - k²) A > 0, and the oracle G = A. The correlation C / sqrt(A B) is reported beside
+it (pooled over elements, against the training mean). A model that beats the training mean
+only as much as the per-class mean does is not flagged; the ``skill`` block against the
+class-mean reference says how much of its skill the class alone explains.
 
 Only ``intensity_weighted_mse`` needs torch, and imports it when called.
 """
@@ -29,9 +43,16 @@ from __future__ import annotations
 
 import numpy as np
 
-COLLAPSE_RATIO = 0.05
+from benchmark.data import FLOOR_DB
+from benchmark.uncertainty import interval
+
 INTENSITY_TAU_DB = 10.0
 METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
+
+
+def clip_prediction(pred) -> np.ndarray:
+    """Predictions at the target's floor: values below FLOOR_DB become FLOOR_DB (float64)."""
+    return np.maximum(np.asarray(pred, np.float64), FLOOR_DB)
 
 
 def mse(a: np.ndarray, b: np.ndarray) -> float:
@@ -44,82 +65,99 @@ def mse(a: np.ndarray, b: np.ndarray) -> float:
 
 def object_errors(target: np.ndarray, simple: np.ndarray,
                   complex_: np.ndarray) -> tuple[float, float | None, float | None]:
-    """(simple, complex, variation) MSE of one object; ``complex_`` is (C, ...), C may be 0."""
+    """(simple, complex, variation) MSE of one object; ``complex_`` is (C, ...), C may be 0.
+
+    Predictions are clipped at the floor here, the one place every score passes through.
+    """
+    simple = clip_prediction(simple)
     s = mse(target, simple)
     if len(complex_) == 0:
         return s, None, None
+    complex_ = [clip_prediction(c) for c in complex_]
     return (s, float(np.mean([mse(target, c) for c in complex_])),
             float(np.mean([mse(simple, c) for c in complex_])))
 
 
-class _Spread:
-    """Per-element variance across samples, accumulated with shifted sums (exact for constants)."""
-
-    def __init__(self):
-        self.n, self.shift, self.s1, self.s2 = 0, None, 0.0, 0.0
-
-    def add(self, x: np.ndarray) -> None:
-        x = np.asarray(x, np.float64)
-        if self.shift is None:
-            self.shift = x.copy()
-        d = x - self.shift
-        self.n, self.s1, self.s2 = self.n + 1, self.s1 + d, self.s2 + d * d
-
-    def mean_variance(self) -> float:
-        """Mean over elements of the population variance across samples."""
-        m = self.s1 / self.n
-        return float(np.mean(np.maximum(self.s2 / self.n - m * m, 0.0)))
-
-
 class Scorer:
-    """Accumulates objects one at a time (bounded memory) and reports the metrics dict."""
+    """Accumulates objects one at a time (bounded memory) and reports the metrics dict.
 
-    def __init__(self, class_names: list[str], collapse_ratio: float = COLLAPSE_RATIO):
-        self.class_names, self.collapse_ratio = list(class_names), collapse_ratio
-        self.rows: list[tuple[int, float, float | None, float | None]] = []
+    ``train_mean`` (the training-set mean target) enables the no-skill rule; without it
+    ``no_skill`` is None.
+    """
+
+    def __init__(self, class_names: list[str], train_mean: np.ndarray | None = None):
+        self.class_names = list(class_names)
+        self.train_mean = None if train_mean is None else np.asarray(train_mean, np.float64)
+        self.rows: list[tuple] = []  # (class, simple, complex, variation, A, B, C) per object
+        self.ids: list[int] = []
         self.n_meshes = 0
-        self._targets, self._preds = _Spread(), _Spread()
 
     def add(self, class_index: int, target: np.ndarray, simple: np.ndarray,
-            complex_: np.ndarray) -> None:
-        self.rows.append((int(class_index), *object_errors(target, simple, complex_)))
+            complex_: np.ndarray, object_id: int | None = None) -> None:
+        errors = object_errors(target, simple, complex_)
+        abc = (np.nan,) * 3
+        if self.train_mean is not None:
+            d = np.asarray(target, np.float64) - self.train_mean
+            p = clip_prediction(simple) - self.train_mean
+            abc = (float(np.mean(d * d)), float(np.mean(p * p)), float(np.mean(d * p)))
+        self.rows.append((int(class_index), *errors, *abc))
+        self.ids.append(len(self.ids) if object_id is None else int(object_id))
         self.n_meshes += 1 + len(complex_)
-        self._targets.add(target)
-        self._preds.add(simple)
 
-    def spread_ratio(self) -> float | None:
-        if self._targets.n < 2:
-            return None
-        t = self._targets.mean_variance()
-        return None if t == 0 else self._preds.mean_variance() / t
+    def per_object(self) -> dict:
+        """Per-object arrays (NaN where an object lacks a metric): what intervals resample."""
+        r = np.array([[np.nan if x is None else x for x in row] for row in self.rows], np.float64)
+        return {"object_id": np.array(self.ids, np.int64), "class_index": r[:, 0].astype(np.int64),
+                **{name: r[:, k] for k, name in enumerate(METRIC_NAMES, start=1)},
+                "truth_spread": r[:, 4], "prediction_spread": r[:, 5], "co_spread": r[:, 6]}
 
     def result(self) -> dict:
         if not self.rows:
             raise ValueError("no objects were scored")
-        rho = self.spread_ratio()
-        out = {**_means(self.rows), "mode_collapse": bool(rho is not None and rho < self.collapse_ratio),
-               "spread_ratio": rho, "n_objects": len(self.rows), "n_meshes": self.n_meshes,
+        po = self.per_object()
+        cls = po["class_index"]
+        out = {**metric_block(po, cls), "n_meshes": self.n_meshes, **skill_test(po, cls),
                "per_class": {}}
         for c, name in enumerate(self.class_names):
-            rows = [r for r in self.rows if r[0] == c]
-            if rows:
-                out["per_class"][name] = {**_means(rows), "n_objects": len(rows)}
+            sel = cls == c
+            if sel.any():
+                out["per_class"][name] = metric_block({k: v[sel] for k, v in po.items()}, cls[sel])
         return out
 
 
-def _means(rows: list[tuple]) -> dict:
-    """Mean of each metric over the objects that have it (None if none has)."""
+def metric_block(po: dict, strata: np.ndarray) -> dict:
+    """Mean of each metric over the objects that have it (None if none has), with intervals."""
     out = {}
-    for k, name in enumerate(METRIC_NAMES, start=1):
-        vals = [r[k] for r in rows if r[k] is not None]
-        out[name] = float(np.mean(vals)) if vals else None
+    for name in METRIC_NAMES:
+        v = po[name]
+        out[name] = None if np.all(np.isnan(v)) else float(np.nanmean(v))
+        out[name + "_ci"] = interval(v, strata)
+    out["n_objects"] = int(len(strata))
     return out
 
 
+def skill_test(po: dict, strata: np.ndarray) -> dict:
+    """``no_skill`` and its evidence (module docstring): the gain over the training mean,
+    its 95% interval, and the spread decomposition A, B, C with the pooled correlation."""
+    a, b, c = po["truth_spread"], po["prediction_spread"], po["co_spread"]
+    if np.all(np.isnan(a)):
+        return {"no_skill": None, "no_skill_test": None}
+    gain = a - po["simple_mse"]
+    ci = interval(gain, strata)
+    A, B, C = float(np.mean(a)), float(np.mean(b)), float(np.mean(c))
+    corr = C / np.sqrt(A * B) if A > 0 and B > 0 else 0.0
+    return {"no_skill": bool(ci is None or ci[0] <= 0),
+            "no_skill_test": {"gain_vs_train_mean": float(np.mean(gain)),
+                              "gain_vs_train_mean_ci": ci, "truth_spread": A,
+                              "prediction_spread": B, "co_spread": C,
+                              "correlation": float(corr)}}
+
+
 def score_arrays(class_index: np.ndarray, targets: np.ndarray, simple: np.ndarray,
-                 complex_: np.ndarray, class_names: list[str]) -> dict:
+                 complex_: np.ndarray, class_names: list[str],
+                 train_mean: np.ndarray | None = None) -> dict:
     """Metrics for in-memory arrays: targets/simple (N, ...), complex_ (N, C, ...)."""
-    scorer = Scorer(class_names)
+    scorer = Scorer(class_names, train_mean)
     for c, t, s, cx in zip(class_index, targets, simple, complex_):
         scorer.add(c, t, s, cx)
     return scorer.result()

@@ -114,7 +114,7 @@ def check_prediction(out, n: int, target_shape: tuple[int, ...], who: str) -> np
 class MeanResponseModel:
     """Reference: the mean training target over simple meshes, for every mesh.
 
-    The canonical mode collapse: Variation MSE is exactly 0 and the detector flags it.
+    The canonical no-skill model: Variation MSE is exactly 0 and ``no_skill`` flags it.
     """
 
     name, params, embedding, regime = "mean-response", 0, "none", "basic"
@@ -132,7 +132,7 @@ class NearestScaleModel:
     """Reference: mean training target of the ``k`` objects nearest in log scale.
 
     Sees only the scale, never the mesh: topology-invariant by construction (Variation MSE 0)
-    and not collapsed, since its predictions vary with the object.
+    and it has skill when scale predicts the response.
     """
 
     name, params, embedding, regime = "nearest-scale", 0, "none", "basic"
@@ -283,14 +283,34 @@ def _attr(f: h5py.File, name: str) -> str | None:
     return None if value is None else str(value)
 
 
-def score(data: BenchmarkData, predictions: Predictions) -> dict:
-    """Metrics of a validated predictions file, streamed object by object."""
-    scorer = Scorer(data.class_names)
+def score(data: BenchmarkData, predictions: Predictions, per_object: bool = False) -> dict:
+    """Metrics of a validated predictions file, streamed object by object, with the
+    dataset's reference rows and the model's skill against them (``benchmark.references``);
+    ``per_object`` adds the per-object errors (what paired comparisons resample)."""
+    from benchmark import references
+
+    train_mean, ref_scorers = references.reference_scores(data)
+    scorer = Scorer(data.class_names, train_mean)
     for obj in data.test_objects():
         rows = data.meshes_of(obj)
         pred = predictions.read(data.meshes["uid"][rows])
-        scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0], pred[1:])
-    return scorer.result()
+        scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0], pred[1:],
+                   int(data.objects["id"][obj]))
+    metrics = scorer.result()
+    po = scorer.per_object()
+    metrics["references"] = {n: references.summary(s) for n, s in ref_scorers.items()}
+    metrics["skill"] = references.skill(po, ref_scorers, metrics["references"])
+    if per_object:
+        metrics["per_object"] = per_object_json(po)
+    return metrics
+
+
+def per_object_json(po: dict) -> dict:
+    """Per-object arrays as JSON lists (null where an object lacks a metric)."""
+    out = {"object_id": po["object_id"].tolist(), "class_index": po["class_index"].tolist()}
+    for name in METRIC_NAMES:
+        out[name] = [None if np.isnan(x) else float(x) for x in po[name]]
+    return out
 
 
 def score_predictions(data_dir: str | os.PathLike, predictions_path: str | os.PathLike) -> dict:
@@ -341,6 +361,10 @@ def _is_number(x, allow_none: bool = False) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
 def validate_results(r, source: str) -> None:
     """Check the structure and types of a results record; raise ``ResultsError`` naming ``source``."""
     def need(cond: bool, problem: str):
@@ -364,8 +388,9 @@ def validate_results(r, source: str) -> None:
     need(_is_number(s.get("ms_per_mesh"), allow_none=True) and (s.get("ms_per_mesh") or 0) >= 0,
          "speed.ms_per_mesh must be a non-negative number or null")
     need(s.get("hardware") is None or isinstance(s["hardware"], str), "speed.hardware must be a string or null")
-    need(all(v is None or (isinstance(v, int) and not isinstance(v, bool)) for v in r["seeds"].values()),
-         "seeds must map names to integers or null")
+    need(isinstance(s.get("self_reported", False), bool), "speed.self_reported must be true or false")
+    need(all(v is None or _is_int(v) or (isinstance(v, list) and all(map(_is_int, v)))
+             for v in r["seeds"].values()), "seeds must map names to integers, lists of them or null")
     try:
         datetime.datetime.strptime(r["created"], "%Y-%m-%dT%H:%M:%SZ")
     except ValueError:
@@ -384,8 +409,8 @@ def _validate_metrics(met: dict, need) -> None:
              f"{where}.n_objects must be a positive integer")
 
     check_block(met, "metrics")
-    need(isinstance(met.get("mode_collapse"), bool), "metrics.mode_collapse must be true or false")
-    need(_is_number(met.get("spread_ratio"), allow_none=True), "metrics.spread_ratio must be a number or null")
+    need(met.get("no_skill") is None or isinstance(met["no_skill"], bool),
+         "metrics.no_skill must be true, false or null")
     need(isinstance(met.get("n_meshes"), int) and met["n_meshes"] >= met["n_objects"],
          "metrics.n_meshes must be an integer at least n_objects")
     need(isinstance(met.get("per_class"), dict) and met["per_class"], "metrics.per_class must be a non-empty object")

@@ -12,7 +12,9 @@
 
 The loss is MSE on the dB target (or the intensity-weighted MSE of ``benchmark.metrics``),
 plus the token embedding's commitment loss. The decoder predicts in units standardized by
-the training responses (``Decoder.set_output_statistics``). Runs are deterministic for a
+the training responses (``Decoder.set_output_statistics``). The checkpoint is the epoch
+with the lowest Simple MSE on the validation split (``fit``; the last epoch when the dataset
+has no val objects); the test split is never looked at. Runs are deterministic for a
 seed and a thread count on one machine. Under ``torchrun``
 (``WORLD_SIZE`` > 1) the loss module is wrapped in DistributedDataParallel and every epoch's
 objects are sharded with a DistributedSampler; rank 0 writes the checkpoint.
@@ -34,7 +36,7 @@ from torch import nn
 from torch.utils.data import DistributedSampler
 from tqdm import tqdm
 
-from benchmark.data import BenchmarkData, ScaleBins
+from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
 from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, ClassificationHead, MeshSimulator,
                               ReconstructionHead, build_model, collate, featurize)
 from benchmark.models.features import MeshFeatures
@@ -117,26 +119,29 @@ class FeatureCache:
 
 
 def benchmark_examples(data: BenchmarkData, regime: str, probes: bool, scale_bins: ScaleBins,
-                       cache: FeatureCache | None = None,
-                       progress: bool = False) -> tuple[list[Example], list[np.ndarray]]:
-    """Training-split examples of a regime and their grouping by object (one group per
-    object; Ideal groups hold all of an object's meshes, the others only the simple one)."""
+                       cache: FeatureCache | None = None, progress: bool = False,
+                       split: str = "train") -> tuple[list[Example], list[np.ndarray]]:
+    """Examples of a split for a regime, read through ``BasicShapes`` (the one data path),
+    and their grouping by object (one group per object; Ideal groups hold all of an
+    object's meshes, the others only the simple one). Validation uses simple meshes."""
     cache = cache or FeatureCache()
-    variants = "all" if regime == "ideal" else "simple"
-    rows = data.mesh_rows("train", variants)
-    objects = data.meshes["object"][rows]
-    targets = {}
-    examples = []
-    for row, obj in zip(tqdm(rows, desc="features", unit="mesh", disable=not progress), objects):
-        if obj not in targets:
-            targets[obj] = cache.get(("target", data.directory, obj),
-                                     lambda: data.target(obj).reshape(-1))
-        b = data.batch(np.array([row]), scale_bins)
-        feats = cache.get(("mesh", data.directory, int(row), probes),
-                          lambda: featurize(b["vertices"][0], b["faces"][0], probes=probes))
-        examples.append(Example(feats, b["scale_bins"][0], targets[obj]))
-    starts = np.flatnonzero(np.r_[True, objects[1:] != objects[:-1]])
-    groups = np.split(np.arange(len(rows)), starts[1:])
+    variants = "all" if regime == "ideal" and split == "train" else "simple"
+    ds = BasicShapes(data, split, variants, scale_bins)
+
+    def example(i: int) -> Example:
+        item = ds[i]
+        target = cache.get(("target", data.directory, ds.object_of(i)),  # one copy per object
+                           lambda: item["target"].numpy().reshape(-1))
+        return Example(featurize(item["vertices"].numpy(), item["faces"].numpy(), probes=probes),
+                       item["scale_bins"].numpy(), target)
+
+    examples = [cache.get(("mesh", data.directory, int(ds.rows[i]), probes, scale_bins),
+                          lambda i=i: example(i))
+                for i in tqdm(range(len(ds)), desc=f"features ({split})", unit="mesh",
+                              disable=not progress)]
+    objects = np.array([ds.object_of(i) for i in range(len(ds))], np.int64)
+    starts = np.flatnonzero(np.r_[True, objects[1:] != objects[:-1]]) if len(objects) else []
+    groups = np.split(np.arange(len(ds)), starts[1:]) if len(objects) else []
     return examples, groups
 
 
@@ -225,11 +230,33 @@ class PretrainTask(nn.Module):
         return self.head.loss(self.model, batch)
 
 
+@torch.no_grad()
+def validation_mse(model: MeshSimulator, examples: list[Example], batch_size: int,
+                   device: torch.device) -> float:
+    """Mean over validation objects of the MSE (dB²) of the floored prediction on the
+    simple mesh: the benchmark's Simple MSE, which model selection may look at."""
+    was_training = model.training
+    model.eval()
+    errors = []
+    for s in range(0, len(examples), batch_size):
+        batch = make_batch(examples, list(range(s, min(s + batch_size, len(examples))))).to(device)
+        pred = model(batch)[0].clamp_min(FLOOR_DB)
+        errors += ((pred - batch.target) ** 2).mean(dim=1).tolist()
+    model.train(was_training)
+    return float(np.mean(errors))
+
+
 def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, epochs: int,
         batch_size: int, lr: float, weight_decay: float, seed: int, desc: str,
-        device: torch.device, progress: bool = True) -> list[dict]:
+        device: torch.device, progress: bool = True,
+        val: list[Example] | None = None) -> list[dict]:
     """AdamW with linear warm-up and cosine decay, gradient clipping at 1; returns the mean
-    loss and statistics of every epoch."""
+    loss and statistics of every epoch.
+
+    With ``val`` examples (a regression task), every epoch's model is scored on them
+    (``val_mse``) and the weights of the best epoch are kept: the checkpoint is selected on
+    the validation split, never on test, and its record is marked ``selected``. Without,
+    the last epoch is kept."""
     distributed = torch.distributed.is_available() and torch.distributed.is_initialized()
     rank = torch.distributed.get_rank() if distributed else 0
     world = torch.distributed.get_world_size() if distributed else 1
@@ -251,6 +278,7 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
 
     sched = torch.optim.lr_scheduler.LambdaLR(opt, schedule)
     history = []
+    best = None
     bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
     for epoch in bar:
         sums: dict[str, float] = {}
@@ -266,10 +294,26 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
             for k, v in {"loss": loss.item(), **stats}.items():
                 sums[k] = sums.get(k, 0.0) + v
         record = {k: v / max(len(batches), 1) for k, v in sums.items()}
+        if val:
+            record["val_mse"] = validation_mse(task.model, val, batch_size, device)
+            if best is None or record["val_mse"] < best[0]:
+                best = (record["val_mse"], epoch, {k: v.detach().clone()
+                                                   for k, v in task.state_dict().items()})
         history.append(record)
         bar.set_postfix({k: f"{v:.3g}" for k, v in record.items()})
+    if best is not None:
+        task.load_state_dict(best[2])
+        history[best[1]]["selected"] = True
     task.eval()
     return history
+
+
+def selection(history: list[dict]) -> dict:
+    """Which epoch the checkpoint holds and on what it was chosen."""
+    chosen = [k for k, r in enumerate(history) if r.get("selected")]
+    if chosen:
+        return {"on": "val", "epoch": chosen[0], "val_mse": history[chosen[0]]["val_mse"]}
+    return {"on": "last epoch (no val split)", "epoch": len(history) - 1, "val_mse": None}
 
 
 # --- one run ----------------------------------------------------------------------------------
@@ -308,16 +352,19 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
                                   progress=progress)
     examples, groups = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant",
                                           scale_bins, cache, progress)
+    val, _ = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant", scale_bins,
+                                cache, progress, split="val")
     model.decoder.set_output_statistics(torch.from_numpy(np.stack([examples[g[0]].target for g in groups])))
     task = RegressionTask(model, cfg.loss, data.target_shape)
     history["train"] = fit(task, examples, groups, epochs=cfg.epochs, batch_size=cfg.batch_size,
                            lr=cfg.lr, weight_decay=cfg.weight_decay, seed=cfg.seed,
-                           desc=cfg.name, device=device, progress=progress)
+                           desc=cfg.name, device=device, progress=progress, val=val)
     model.to("cpu").eval()
     config = {"name": cfg.name, "embedding": cfg.embedding, "regime": cfg.regime,
               "model": kwargs, "target_shape": list(data.target_shape),
               "scale_bins": {"lo": scale_bins.lo, "hi": scale_bins.hi, "n": scale_bins.n},
-              "train": asdict(cfg), "history": history, "train_seconds": time.perf_counter() - t0,
+              "train": asdict(cfg), "history": history, "selection": selection(history["train"]),
+              "train_seconds": time.perf_counter() - t0,
               "dataset_fingerprint": data.fingerprint}
     return model, config
 

@@ -70,8 +70,12 @@ def test_split_is_ninety_ten_by_object():
     plans = plan_objects(cfg)
     for cls in cfg.classes:
         splits = [p.split for p in plans if p.class_name == cls]
-        assert splits.count("test") == 5
+        assert (splits.count("test"), splits.count("val")) == (5, 5)
     assert len({p.id for p in plans}) == 150
+    no_val = plan_objects(GenerateConfig(objects_per_class=50, variants=1, val_fraction=0.0))
+    # the test objects do not depend on the validation fraction; val comes out of train
+    assert [p.split == "test" for p in plans] == [p.split == "test" for p in no_val]
+    assert {p.split for p in no_val} == {"train", "test"}
     assert [p.scale for p in plans] == [p.scale for p in plan_objects(cfg)]
 
 
@@ -127,7 +131,7 @@ def test_truncated_shard_is_reported_by_info(dataset, tmp_path):
 def test_info_show_export(dataset, tmp_path):
     r = _run_cli("info", str(dataset))
     assert r.returncode == 0, r.stderr
-    assert "cube: 2 objects (1 train / 1 test), 8 meshes" in r.stdout
+    assert "cube: 2 objects (1 train / 0 val / 1 test), 8 meshes" in r.stdout
     assert dataset_fingerprint(dataset) in r.stdout
     png = tmp_path / "o.png"
     assert cli.main(["show", str(dataset), "--object", "2", "--out", str(png)]) == 0

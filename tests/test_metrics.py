@@ -1,4 +1,5 @@
-"""Metrics against hand-computed values and independent numpy formulae."""
+"""Metrics, the floor, the no-skill rule and the intervals, against hand-computed values,
+independent numpy formulae and normal theory."""
 
 import math
 
@@ -6,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.data import db_target
-from benchmark.metrics import COLLAPSE_RATIO, Scorer, intensity_weighted_mse, mse, object_errors, score_arrays
+from benchmark.data import FLOOR_DB, db_target
+from benchmark.metrics import Scorer, intensity_weighted_mse, mse, object_errors, score_arrays
+from benchmark.uncertainty import interval, paired, resamples, verdict
 
 
 def test_db_target_hand_values():
@@ -32,11 +34,13 @@ def test_two_objects_by_hand():
     s.add(1, np.array([1.0, 3.0]), np.array([1.0, 1.0]), np.array([[1.0, 3.0]]))
     r = s.result()
     assert (r["simple_mse"], r["complex_mse"], r["variation_mse"]) == (1.5, 1.0, 1.5)
-    assert r["per_class"]["cube"] == {"simple_mse": 1.0, "complex_mse": 2.0, "variation_mse": 1.0, "n_objects": 1}
-    assert r["per_class"]["cylinder"] == {"simple_mse": 2.0, "complex_mse": 0.0, "variation_mse": 2.0, "n_objects": 1}
+    assert r["per_class"]["cube"] == {"simple_mse": 1.0, "complex_mse": 2.0, "variation_mse": 1.0,
+                                      "n_objects": 1, "simple_mse_ci": [1.0, 1.0],
+                                      "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0]}
+    assert r["per_class"]["cylinder"]["complex_mse"] == 0.0
+    assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: no spread
     assert (r["n_objects"], r["n_meshes"]) == (2, 5)
-    # spread: per element, Var_o(preds) = 0 (both simple predictions are [1, 1]) -> collapsed
-    assert r["spread_ratio"] == 0.0 and r["mode_collapse"] is True
+    assert r["no_skill"] is None  # no training mean given: the rule cannot be applied
 
 
 def test_random_arrays_against_vectorized_formulae():
@@ -56,8 +60,8 @@ def test_random_arrays_against_vectorized_formulae():
     assert r["variation_mse"] == pytest.approx(per_var.mean(), rel=1e-12)
     for j, name in enumerate("abc"):
         assert r["per_class"][name]["complex_mse"] == pytest.approx(per_complex[cls == j].mean(), rel=1e-12)
-    ratio = np.var(s, axis=0).mean() / np.var(t, axis=0).mean()
-    assert r["spread_ratio"] == pytest.approx(ratio, rel=1e-10)
+    lo, hi = r["simple_mse_ci"]
+    assert lo < r["simple_mse"] < hi
 
 
 def test_objects_without_complex_meshes_count_only_for_simple():
@@ -72,34 +76,107 @@ def test_objects_without_complex_meshes_count_only_for_simple():
     assert only_simple.result()["complex_mse"] is None
 
 
-def _shrunk(a: float, n: int = 40, seed: int = 2):
-    """Targets, and predictions mean + a (T - mean): their spread ratio is exactly a²."""
-    t = np.random.default_rng(seed).normal(-40, 15, (n, 4, 3, 6))
-    return t, t.mean(axis=0) + a * (t - t.mean(axis=0))
+def test_predictions_are_clipped_at_the_targets_floor():
+    # target at the floor and above; a prediction below the floor scores as the floor itself
+    t = np.array([FLOOR_DB, FLOOR_DB, -20.0])
+    below = np.array([-200.0, -81.0, -30.0])
+    at = np.array([FLOOR_DB, FLOOR_DB, -30.0])
+    assert object_errors(t, below, below[None]) == object_errors(t, at, at[None])
+    assert object_errors(t, below, below[None])[0] == pytest.approx(100 / 3, abs=1e-12)
+    # variation compares clipped predictions too: two sub-floor values do not differ
+    assert object_errors(t, below, at[None])[2] == 0.0
 
 
-@pytest.mark.parametrize("a, flagged", [(0.0, True), (0.2, True), (0.25, False), (1.0, False)])
-def test_mode_collapse_both_ways(a, flagged):
-    t, p = _shrunk(a)
-    r = score_arrays(np.zeros(len(t), int), t, p, p[:, None], ["cube"])
-    assert r["spread_ratio"] == pytest.approx(a * a, abs=1e-12)
-    assert r["mode_collapse"] is flagged
-    assert r["variation_mse"] == 0.0  # collapsed or not, identical simple/complex predictions
+def _probe_world(n: int = 60, seed: int = 2):
+    """Train and test responses of 3 classes: class offset + per-object structure, floored."""
+    rng = np.random.default_rng(seed)
+    shape = (4, 3, 6)
+    offsets = rng.normal(0, 8, (3, *shape))
+
+    def draw(k):
+        cls = np.arange(k) % 3
+        t = -45 + offsets[cls] + rng.normal(0, 10, (k, *shape))
+        return cls, np.maximum(t, FLOOR_DB)
+
+    (c_train, train), (c_test, test) = draw(300), draw(n)
+    return c_train, train, c_test, test, rng
 
 
-def test_one_response_for_everything_is_flagged_although_it_varies_over_the_grid():
-    t, _ = _shrunk(1.0)
+def _score(cls, t, p, train_mean):
+    return score_arrays(cls, t, p, p[:, None], ["a", "b", "c"], train_mean=train_mean)
+
+
+@pytest.mark.parametrize("probe, flagged", [
+    ("constant", True), ("mean+noise", True), ("shrinkage", False), ("oracle", False),
+    ("class-mean", False)])
+def test_no_skill_probes(probe, flagged):
+    c_train, train, cls, t, rng = _probe_world()
+    m = train.mean(axis=0)
+    p = {"constant": np.broadcast_to(m, t.shape),
+         "mean+noise": m + rng.normal(0, 10, t.shape),
+         "shrinkage": m + 0.2 * (t - m),
+         "oracle": t,
+         "class-mean": np.stack([train[c_train == c].mean(axis=0) for c in cls])}[probe]
+    r = _score(cls, t, p, m)
+    assert r["no_skill"] is flagged
+    # the decomposition is exact: MSE = A + B - 2C, gain = A - MSE (independent numpy formulae)
+    d, q = t - m, np.maximum(p, FLOOR_DB) - m
+    ax = (1, 2, 3)
+    a, b, c = (d * d).mean(ax), (q * q).mean(ax), (d * q).mean(ax)
+    test = r["no_skill_test"]
+    assert test["gain_vs_train_mean"] == pytest.approx((2 * c - b).mean(), rel=1e-9, abs=1e-9)
+    assert r["simple_mse"] == pytest.approx((a + b - 2 * c).mean(), rel=1e-9)
+
+
+def test_adding_variance_cannot_buy_skill():
+    c_train, train, cls, t, rng = _probe_world()
+    m = train.mean(axis=0)
+    honest = m + 0.5 * (t - m)
+    gains = []
+    for sd in (0.0, 3.0, 10.0, 30.0):
+        r = _score(cls, t, honest + rng.normal(0, sd, t.shape), m)
+        gains.append(r["no_skill_test"]["gain_vs_train_mean"])
+    assert gains == sorted(gains, reverse=True)  # every extra spread costs
+    assert r["no_skill"] is True  # drowned in noise: flagged although it "varies" a lot
+
+
+def test_constant_is_flagged_even_if_it_varies_over_the_grid():
+    _, train, cls, t, _ = _probe_world()
     p = np.broadcast_to(np.linspace(-60, 0, t[0].size).reshape(t.shape[1:]), t.shape)
-    r = score_arrays(np.zeros(len(t), int), t, p, p[:, None], ["cube"])
-    assert r["spread_ratio"] == 0.0 and r["mode_collapse"] and COLLAPSE_RATIO == 0.05
+    r = _score(cls, t, p, train.mean(axis=0))
+    assert r["no_skill"] is True and r["variation_mse"] == 0.0
 
 
-def test_spread_undefined_for_one_object_or_identical_labels():
-    s = Scorer(["cube"])
-    s.add(0, np.zeros(3), np.ones(3), np.zeros((0, 3)))
-    assert s.result()["spread_ratio"] is None and s.result()["mode_collapse"] is False
-    s.add(0, np.zeros(3), np.full(3, 2.0), np.zeros((0, 3)))
-    assert s.result()["spread_ratio"] is None
+def test_bootstrap_interval_matches_normal_theory():
+    rng = np.random.default_rng(5)
+    v = rng.gamma(2.0, 3.0, 600)  # skewed, like per-object MSEs
+    strata = np.zeros(len(v), int)
+    lo, hi = interval(v, strata)
+    half = 1.96 * v.std(ddof=1) / np.sqrt(len(v))
+    assert (hi - lo) / 2 == pytest.approx(half, rel=0.1)
+    assert lo < v.mean() < hi
+    assert interval(v, strata) == [lo, hi]  # deterministic
+
+
+def test_resamples_are_stratified_by_class():
+    strata = np.array([0] * 5 + [1] * 3 + [2] * 1)
+    idx = resamples(strata, n_boot=200)
+    assert np.array_equal(strata[idx], np.broadcast_to(strata, idx.shape))
+    assert len(np.unique(idx[:, 8])) == 1  # a class of one object is always that object
+
+
+def test_paired_interval_removes_shared_spread_and_verdicts():
+    rng = np.random.default_rng(6)
+    base = rng.gamma(2.0, 20.0, 200)  # objects differ a lot ...
+    strata = np.arange(200) % 4
+    better = base - 1.0 + rng.normal(0, 0.5, 200)  # ... the models by ~1 on each
+    p = paired(better, base, strata)
+    assert p["ci"][1] < 0 and p["half_width"] < 0.2
+    assert p["diff"] == pytest.approx((better - base).mean(), rel=1e-12)
+    assert interval(better, strata)[1] > interval(base, strata)[0]  # unpaired: overlap
+    assert verdict(p["ci"]) == "holds" and verdict([0.5, 2.0]) == "reversed"
+    assert verdict([-1.0, 0.5]) == "inconclusive" and verdict(None) == "inconclusive"
+    assert verdict([0.5, 2.0], claimed="higher") == "holds"
 
 
 def test_empty_scorer_refuses():

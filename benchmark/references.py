@@ -1,0 +1,185 @@
+"""Reference rows every table shows: what a model must beat before its numbers mean anything.
+
+Four zero-parameter predictors, fitted on the training split only and scored through the
+same ``Scorer`` as any model (so the same floor, intervals and no-skill rule apply):
+
+* ``train-mean``: the mean training target, for every mesh (the no-skill baseline);
+* ``class-mean``: the mean training target of the object's class (the class is *given*:
+  how much skill the class alone explains);
+* ``nearest-scale``: the target of the training object nearest in log scale (sees the
+  scale, never the mesh: Variation MSE 0);
+* ``class-scale-nn``: the class inferred from each mesh (``MeshClassifier``), then the
+  training object of that class nearest in log scale.
+
+A model's ``skill`` is reported against the strongest reference (lowest Complex MSE, else
+Simple MSE) and against ``class-mean``, as paired differences over the same test objects.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchmark.data import BenchmarkData
+from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, skill_test
+from benchmark.uncertainty import paired, verdict
+
+REFERENCES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
+HIST_BINS = 6
+AXIS_TOL = 1e-3  # |n_k| > 1 - tol: facing along axis k; |n_k| < tol: in the ring around it
+
+
+def normal_descriptor(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted statistics of face normals, in the object's axes (primitives are scaled
+    per axis, never rotated), nearly independent of how the surface is meshed:
+
+    * per axis, a histogram of |n_k| (a box puts all its area at 0 and 1; a cylinder's side
+      sits at n_z = 0 and its caps at 1; a cone's side at one |n_z|; a sphere spreads);
+    * per axis, the area facing exactly along it and exactly across it (the caps and flat
+      sides; the cylinder's ring), weighted 3x because they are exact for planar parts;
+    * the area whose normal points towards the bounding-box centre (zero for any convex
+      body: the torus's inner side), weighted 3x.
+    """
+    v = np.asarray(vertices, np.float64)
+    tri = v[np.asarray(faces, np.int64)]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(n, axis=1)
+    ok = area > 0
+    if not ok.any():
+        raise ValueError("mesh has no face of non-zero area")
+    n, w, tri = n[ok] / area[ok, None], area[ok] / area[ok].sum(), tri[ok]
+    centre = (v.min(axis=0) + v.max(axis=0)) / 2
+    inward = w[np.einsum("ij,ij->i", n, tri.mean(axis=1) - centre) < 0].sum()
+    an = np.abs(n)
+    hist = [np.histogram(an[:, k], bins=HIST_BINS, range=(0, 1 + 1e-9), weights=w)[0]
+            for k in range(3)]
+    exact = [[w[an[:, k] > 1 - AXIS_TOL].sum(), w[an[:, k] < AXIS_TOL].sum()] for k in range(3)]
+    return np.concatenate(hist + [3 * np.ravel(exact), [3 * inward]])
+
+
+class MeshClassifier:
+    """1-nearest-neighbour (L1) on ``normal_descriptor`` of the training objects' simple meshes."""
+
+    def __init__(self, descriptors: np.ndarray, classes: np.ndarray):
+        self.descriptors, self.classes = np.asarray(descriptors), np.asarray(classes)
+
+    @classmethod
+    def fit(cls, data: BenchmarkData, objects: np.ndarray) -> "MeshClassifier":
+        desc = [normal_descriptor(*data.mesh(int(data.meshes_of(o)[0]))) for o in objects]
+        return cls(np.stack(desc), data.objects["class_index"][objects])
+
+    def predict(self, vertices: np.ndarray, faces: np.ndarray) -> int:
+        d = np.abs(self.descriptors - normal_descriptor(vertices, faces)).sum(axis=1)
+        return int(self.classes[int(np.argmin(d))])
+
+
+class References:
+    """The four reference predictors of one dataset, fitted on its training split."""
+
+    def __init__(self, data: BenchmarkData):
+        self.data = data
+        self.train = data.object_rows("train")
+        if not len(self.train):
+            raise ValueError(f"{data.directory}: no training objects to fit references on")
+        cls = data.objects["class_index"][self.train]
+        self.train_class = cls
+        self.log_scale = np.log(data.objects["scale"][self.train].astype(np.float64))
+        total = None
+        by_class: dict[int, np.ndarray] = {}
+        for o, c in zip(self.train, cls):
+            t = data.target(int(o)).astype(np.float64)
+            total = t if total is None else total + t
+            by_class[int(c)] = by_class.get(int(c), 0.0) + t
+        self.mean = total / len(self.train)
+        counts = np.bincount(cls, minlength=len(data.class_names))
+        self.class_mean = {c: s / counts[c] for c, s in by_class.items()}
+        self.classifier = MeshClassifier.fit(data, self.train)
+        self._targets: dict[int, np.ndarray] = {}
+
+    def _target(self, obj: int) -> np.ndarray:
+        if obj not in self._targets:
+            self._targets[obj] = self.data.target(obj)
+        return self._targets[obj]
+
+    def nearest(self, obj: int, class_index: int | None = None) -> int:
+        """Training object nearest to test object ``obj`` in log scale (of a class, if given)."""
+        pool = np.arange(len(self.train)) if class_index is None else \
+            np.flatnonzero(self.train_class == class_index)
+        if not len(pool):
+            pool = np.arange(len(self.train))
+        x = np.log(self.data.objects["scale"][obj].astype(np.float64))
+        d = np.linalg.norm(self.log_scale[pool] - x, axis=1)
+        return int(self.train[pool[int(np.argmin(d))]])
+
+    def predictions(self, obj: int) -> dict[str, np.ndarray]:
+        """Each reference's predictions (n_meshes, *target_shape) for test object ``obj``."""
+        rows = self.data.meshes_of(obj)
+        c = int(self.data.objects["class_index"][obj])
+        n = len(rows)
+        scale_nn = self._target(self.nearest(obj))
+        inferred = [self.classifier.predict(*self.data.mesh(int(r))) for r in rows]
+        class_nn = {k: self._target(self.nearest(obj, k)) for k in set(inferred)}
+        return {"train-mean": np.broadcast_to(self.mean, (n, *self.mean.shape)),
+                "class-mean": np.broadcast_to(self.class_mean.get(c, self.mean), (n, *self.mean.shape)),
+                "nearest-scale": np.broadcast_to(scale_nn, (n, *scale_nn.shape)),
+                "class-scale-nn": np.stack([class_nn[k] for k in inferred])}
+
+    def score(self) -> dict[str, Scorer]:
+        """A filled ``Scorer`` per reference, over the test split."""
+        scorers = {name: Scorer(self.data.class_names, self.mean) for name in REFERENCES}
+        for obj in self.data.test_objects():
+            target = self.data.target(int(obj))
+            c, oid = int(self.data.objects["class_index"][obj]), int(self.data.objects["id"][obj])
+            for name, pred in self.predictions(int(obj)).items():
+                scorers[name].add(c, target, pred[0], pred[1:], oid)
+        return scorers
+
+
+_CACHE: dict[tuple, tuple[np.ndarray, dict]] = {}
+
+
+def reference_scores(data: BenchmarkData) -> tuple[np.ndarray, dict[str, Scorer]]:
+    """(training mean, reference scorers) of a dataset, computed once per process."""
+    key = (str(data.directory.resolve()), data.fingerprint)
+    if key not in _CACHE:
+        refs = References(data)
+        _CACHE[key] = (refs.mean, refs.score())
+    return _CACHE[key]
+
+
+def summary(scorer: Scorer) -> dict:
+    """A reference's row: the metrics with intervals and its no-skill flag, overall only."""
+    po = scorer.per_object()
+    return {**metric_block(po, po["class_index"]),
+            "no_skill": skill_test(po, po["class_index"])["no_skill"]}
+
+
+def strongest(rows: dict[str, dict]) -> str:
+    """The reference with the lowest Complex MSE (Simple MSE when there is none)."""
+    key = "complex_mse" if all(r["complex_mse"] is not None for r in rows.values()) else "simple_mse"
+    return min(rows, key=lambda name: (rows[name][key], REFERENCES.index(name)))
+
+
+def compare(model_po: dict, ref_po: dict) -> dict:
+    """Paired model - reference difference per metric, with interval, verdict and
+    skill = 1 - MSE_model / MSE_reference (the objects must be the same, in the same order)."""
+    if not np.array_equal(model_po["object_id"], ref_po["object_id"]):
+        raise ValueError("model and reference were scored on different test objects")
+    out = {}
+    for m in METRIC_NAMES[:2]:
+        p = paired(model_po[m], ref_po[m], model_po["class_index"])
+        if p is None:
+            continue
+        ref = float(np.nanmean(ref_po[m]))
+        out[m] = {**p, "skill": 1.0 - float(np.nanmean(model_po[m])) / ref if ref > 0 else None,
+                  "verdict": verdict(p["ci"])}
+    return out
+
+
+def skill(model_po: dict, scorers: dict[str, Scorer], rows: dict[str, dict]) -> dict:
+    """The ``skill`` block: against the strongest reference and against the class mean."""
+    best = strongest(rows)
+    vs_best = compare(model_po, scorers[best].per_object())
+    vs_class = compare(model_po, scorers["class-mean"].per_object())
+    key = "complex_mse" if "complex_mse" in vs_class else "simple_mse"
+    return {"reference": best, "vs_reference": vs_best, "vs_class_mean": vs_class,
+            "explained_by_class": vs_class[key]["verdict"] != "holds"}

@@ -1,0 +1,90 @@
+"""95% intervals by bootstrap over test objects, stratified by class, and paired verdicts.
+
+Why objects and not meshes or response elements: the test objects are the random sample
+(the meshes of one object and the elements of one response are strongly correlated), so an
+interval says how much a number would move on another draw of test objects of the same
+classes. Resampling within each class keeps the class mix of the test split fixed, as the
+generator fixes it. The resampling is deterministic (``SEED``), so the same per-object
+errors give the same interval bytes.
+
+Intervals are percentile intervals of the statistic over ``N_BOOT`` resamples. A paired
+comparison resamples the *difference* of two models' errors on the same objects, which
+removes the object-to-object spread both share (``paired``); its verdict is ``holds`` only
+when the whole interval lies on the claimed side of zero (``verdict``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+N_BOOT = 2000
+SEED = 20240601
+LEVEL = 0.95
+
+
+def resamples(strata: np.ndarray, n_boot: int = N_BOOT, seed: int = SEED) -> np.ndarray:
+    """(n_boot, n) object indices: each row draws, within every class, as many objects as
+    the class has, with replacement."""
+    strata = np.asarray(strata)
+    rng = np.random.default_rng(seed)
+    out = np.empty((n_boot, len(strata)), np.int64)
+    for s in np.unique(strata):
+        members = np.flatnonzero(strata == s)
+        out[:, members] = members[rng.integers(0, len(members), (n_boot, len(members)))]
+    return out
+
+
+def _nanmean_rows(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Mean of ``values[idx]`` per resample, ignoring NaN (objects without the metric)."""
+    v = values[idx]
+    ok = ~np.isnan(v)
+    n = ok.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.where(ok, v, 0.0).sum(axis=1) / n, np.nan)
+
+
+def interval(values, strata, statistic: Callable | None = None, n_boot: int = N_BOOT,
+             seed: int = SEED) -> list[float] | None:
+    """[lo, hi] 95% percentile interval of the mean of ``values`` (NaN = missing), or of
+    ``statistic(idx) -> (n_boot,)`` when given; None when nothing can be resampled."""
+    strata = np.asarray(strata)
+    if len(strata) == 0:
+        return None
+    idx = resamples(strata, n_boot, seed)
+    if statistic is None:
+        values = np.asarray(values, np.float64)
+        if np.all(np.isnan(values)):
+            return None
+        stats = _nanmean_rows(values, idx)
+    else:
+        stats = np.asarray(statistic(idx), np.float64)
+    stats = stats[np.isfinite(stats)]
+    if not len(stats):
+        return None
+    tail = 100 * (1 - LEVEL) / 2
+    lo, hi = np.percentile(stats, [tail, 100 - tail])
+    return [float(lo), float(hi)]
+
+
+def paired(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict | None:
+    """Mean of a - b over objects that have both, its paired 95% interval and half-width."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    d = a - b
+    if np.all(np.isnan(d)):
+        return None
+    ci = interval(d, strata, n_boot=n_boot, seed=seed)
+    return {"diff": float(np.nanmean(d)), "ci": ci, "half_width": (ci[1] - ci[0]) / 2}
+
+
+def verdict(ci: list[float] | None, claimed: str = "lower") -> str:
+    """"holds" when the interval of (claimed better - other) excludes 0 on the claimed side
+    (``lower``: a difference of errors below 0), "reversed" when it excludes 0 on the other
+    side, else "inconclusive"."""
+    if ci is None:
+        return "inconclusive"
+    below, above = ci[1] < 0, ci[0] > 0
+    if claimed == "higher":
+        below, above = above, below
+    return "holds" if below else "reversed" if above else "inconclusive"
