@@ -86,7 +86,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.speed_ms is not None and not args.predictions:
         raise SystemExit("benchmark evaluate: --speed-ms goes with --predictions "
                          "(a --model is timed by the harness)")
-    if args.speed_ms is not None and not args.speed_ms >= 0:
+    if args.speed_ms is not None and not 0 <= args.speed_ms < float("inf"):
         raise SystemExit(f"benchmark evaluate: --speed-ms must be >= 0, got {args.speed_ms}")
     if args.batch_size < 1:
         raise SystemExit("benchmark evaluate: --batch-size must be at least 1")

@@ -154,23 +154,23 @@ def format_metrics(results: dict) -> str:
     """A plain-text table: the model and the reference rows with 95% intervals, per class,
     its skill against the strongest reference, and its speed."""
     m = results["metrics"]
-    head = f"{'':16} {'simple':>24} {'complex':>24} {'variation':>24} {'objects':>7}"
+    head = f"{'':20} {'simple':>24} {'complex':>24} {'variation':>24} {'objects':>7}"
 
     def line(label, block):
-        return (f"{label:16} " + " ".join(f"{_ci(block[k], block.get(k + '_ci')):>24}"
+        return (f"{label:20} " + " ".join(f"{_ci(block[k], block.get(k + '_ci')):>24}"
                                           for k in METRIC_NAMES) + f" {block['n_objects']:>7}")
 
-    lines = [head, line(str(results["model"]["name"])[:16], m)]
-    lines += [line(f"  {c}"[:16], b) for c, b in m["per_class"].items()]
+    lines = [head, line(str(results["model"]["name"])[:20], m)]
+    lines += [line(f"  {c}"[:20], b) for c, b in m["per_class"].items()]
     for name, block in m.get("references", {}).items():
-        lines.append(line(f"ref {name}"[:16], block))
+        lines.append(line(f"ref {name}"[:20], block))
     sk = m.get("skill")
     if sk:
         for k, v in sk["vs_reference"].items():
             lines.append(f"vs strongest reference ({sk['reference']}), {k}: {v['diff']:+.2f} "
                          f"[{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] dB², skill {v['skill']:.3f}: "
                          f"{'better' if v['verdict'] == 'holds' else 'worse' if v['verdict'] == 'reversed' else 'not distinguishable'}")
-        if sk["explained_by_class"]:
+        if sk["explained_by_class"] and not m.get("no_skill"):
             lines.append("no better than the per-class mean: its skill is explained by the class")
     t = m.get("no_skill_test")
     if t:

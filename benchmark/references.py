@@ -25,19 +25,38 @@ from benchmark.uncertainty import paired, verdict
 
 REFERENCES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
 HIST_BINS = 6
-AXIS_TOL = 1e-3  # |n_k| > 1 - tol: facing along axis k; |n_k| < tol: in the ring around it
+AZIMUTH_BINS = 24
+AXIS_TOL = 1e-3  # |n_k| > 1 - tol: facing along axis k; |n_k| < tol: across it
+
+
+def _conditional_spread(n: np.ndarray, w: np.ndarray, k: int) -> float:
+    """Area-weighted std of n_k within bins of the azimuth around axis k: 0 when n_k is a
+    function of the azimuth (the side of a cylinder or of an elliptic cone), large when
+    the normals cover an area of the sphere (ellipsoid, torus)."""
+    u, v = n[:, (k + 1) % 3], n[:, (k + 2) % 3]
+    b = np.minimum(((np.arctan2(v, u) + np.pi) / (2 * np.pi) * AZIMUTH_BINS).astype(int),
+                   AZIMUTH_BINS - 1)
+    wsum = np.bincount(b, w, AZIMUTH_BINS)
+    m1, m2 = np.bincount(b, w * n[:, k], AZIMUTH_BINS), np.bincount(b, w * n[:, k] ** 2, AZIMUTH_BINS)
+    ok = wsum > 0
+    return float(np.sqrt(max((m2[ok] - m1[ok] ** 2 / wsum[ok]).sum() / wsum.sum(), 0.0)))
 
 
 def normal_descriptor(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted statistics of face normals, in the object's axes (primitives are scaled
-    per axis, never rotated), nearly independent of how the surface is meshed:
+    """Area-weighted statistics of face normals in the object's axes (primitives are scaled
+    per axis, never rotated) that tell the primitive's *kind* apart whatever its proportions
+    and however its surface is meshed:
 
-    * per axis, a histogram of |n_k| (a box puts all its area at 0 and 1; a cylinder's side
-      sits at n_z = 0 and its caps at 1; a cone's side at one |n_z|; a sphere spreads);
-    * per axis, the area facing exactly along it and exactly across it (the caps and flat
-      sides; the cylinder's ring), weighted 3x because they are exact for planar parts;
-    * the area whose normal points towards the bounding-box centre (zero for any convex
-      body: the torus's inner side), weighted 3x.
+    * the area facing exactly along an axis (all of a box; a cylinder's or cone's caps);
+    * the area facing exactly across an axis but not along one (a cylinder's side);
+    * the normals' spread around a curve (``_conditional_spread``, least over the axes,
+      saturated at 0.5): ~0 for ruled sides (cylinder, cone), large for ellipsoid and torus;
+    * the area whose normal points towards the bounding-box centre, x3 (zero for any convex
+      body; the torus's inner side);
+    * per axis, a histogram of |n_k| at weight 0.1 (proportions: breaks ties only).
+
+    On real generated meshes (5 primitives, every variant) a 1-NN on this descriptor names
+    the class of held-out objects without error (tests/test_references.py).
     """
     v = np.asarray(vertices, np.float64)
     tri = v[np.asarray(faces, np.int64)]
@@ -50,10 +69,14 @@ def normal_descriptor(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     centre = (v.min(axis=0) + v.max(axis=0)) / 2
     inward = w[np.einsum("ij,ij->i", n, tri.mean(axis=1) - centre) < 0].sum()
     an = np.abs(n)
+    along = an.max(axis=1) > 1 - AXIS_TOL
+    across = ~along & (an.min(axis=1) < AXIS_TOL)
+    rest = ~along
+    spread = min(_conditional_spread(n[rest], w[rest], k) for k in range(3)) if rest.any() else 0.0
     hist = [np.histogram(an[:, k], bins=HIST_BINS, range=(0, 1 + 1e-9), weights=w)[0]
             for k in range(3)]
-    exact = [[w[an[:, k] > 1 - AXIS_TOL].sum(), w[an[:, k] < AXIS_TOL].sum()] for k in range(3)]
-    return np.concatenate(hist + [3 * np.ravel(exact), [3 * inward]])
+    return np.concatenate([[w[along].sum(), w[across].sum(), min(4 * spread, 0.5), 3 * inward],
+                           0.1 * np.concatenate(hist)])
 
 
 class MeshClassifier:

@@ -54,8 +54,10 @@ def analytic_label(cls: str, scale: np.ndarray, aspect_deg, roll_deg, range_m) -
 
 
 def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_class: int = 2,
-                 n_shards: int = 2, grid: tuple[int, int, int] = (7, 5, 16), seed: int = 0) -> Path:
-    """Write ``n_shards`` labelled shards into ``directory``; return it."""
+                 n_shards: int = 2, grid: tuple[int, int, int] = (7, 5, 16), seed: int = 0,
+                 n_val_per_class: int = 0) -> Path:
+    """Write ``n_shards`` labelled shards into ``directory``; return it. Per class, the first
+    ``n_test_per_class`` objects are test, the next ``n_val_per_class`` val, the rest train."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -72,7 +74,8 @@ def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_c
                       for v, m in enumerate(variants(cls, scale))]
             objects.append(ObjectRecord(id=len(objects), class_index=c, scale=scale,
                                         seed=seed * 1000 + len(objects),
-                                        split="test" if j < n_test_per_class else "train",
+                                        split="test" if j < n_test_per_class else "val"
+                                        if j < n_test_per_class + n_val_per_class else "train",
                                         meshes=meshes))
     for k in range(n_shards):
         part = objects[k::n_shards]

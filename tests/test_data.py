@@ -1,4 +1,5 @@
-"""Readers over labelled shards: index, splits, targets, normalization, scale bins, torch view."""
+"""Readers over labelled shards: index, splits, targets, normalization, scale bins, and the
+``BasicShapes`` PyTorch dataset with its PyTorch Geometric view."""
 
 import pickle
 import shutil
@@ -9,13 +10,13 @@ import pytest
 import torch
 
 from basic_shapes.shards import ShardError, iter_objects, rewrite_atomically, shard_name
-from benchmark.data import BenchmarkData, MeshDataset, ScaleBins, collate_meshes, normalize_mesh
+from benchmark.data import BasicShapes, BenchmarkData, ScaleBins, collate_meshes, normalize_mesh
 from benchmark_fixture import CLASSES, make_dataset
 
 
 @pytest.fixture(scope="module")
 def data_dir(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("data"))
+    return make_dataset(tmp_path_factory.mktemp("data"), objects_per_class=5, n_val_per_class=1)
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,7 @@ def test_index_matches_the_shards(data, data_dir):
     expected = {}
     for _, obj, meshes in iter_objects(data_dir):
         expected[obj["id"]] = (obj["class"], obj["split"], sorted(v for v, _, _ in meshes))
-    assert len(data.paths) == 2 and len(data.objects["id"]) == len(expected) == 12
+    assert len(data.paths) == 2 and len(data.objects["id"]) == len(expected) == 15
     for row, oid in enumerate(data.objects["id"]):
         cls, split, variants = expected[int(oid)]
         assert CLASSES[data.objects["class_index"][row]] == cls
@@ -40,15 +41,17 @@ def test_index_matches_the_shards(data, data_dir):
 
 
 def test_splits_are_by_object_and_variant_selection(data):
-    test, train = set(data.object_rows("test")), set(data.object_rows("train"))
-    assert not test & train and len(test) == 6 and len(train) == 6
+    test, val, train = (set(data.object_rows(s)) for s in ("test", "val", "train"))
+    assert not (test & train or val & train or val & test)
+    assert (len(test), len(val), len(train)) == (6, 3, 6)
     simple = data.mesh_rows("train", "simple")
     every = data.mesh_rows("train", "all")
     assert len(simple) == 6 and np.all(data.meshes["variant"][simple] == 0)
     assert len(every) == 18 and set(data.meshes["object"][every]) == train
     assert set(data.meshes["object"][data.mesh_rows("test")]) == test
+    assert set(data.meshes["object"][data.mesh_rows("val", "simple")]) == val
     with pytest.raises(ValueError, match="split"):
-        data.object_rows("val")
+        data.object_rows("validation")
     with pytest.raises(ValueError, match="variants"):
         data.mesh_rows("train", "ideal")
 
@@ -115,9 +118,9 @@ def test_scale_bins_are_log_spaced_over_the_generator_range(data):
 
 
 def test_torch_dataset_items_and_collate(data, data_dir):
-    basic = MeshDataset(data_dir, split="train", variants="simple")
-    ideal = MeshDataset(data, split="train", variants="all")
-    assert len(basic) == 6 and len(ideal) == 18
+    basic = BasicShapes(data_dir, split="train", variants="simple")
+    ideal = BasicShapes(data, split="train", variants="all")
+    assert len(basic) == 6 and len(ideal) == 18 and len(BasicShapes(data, split="val")) == 3
     item = ideal[4]
     row = int(ideal.rows[4])
     obj = int(data.meshes["object"][row])
@@ -125,6 +128,7 @@ def test_torch_dataset_items_and_collate(data, data_dir):
     assert item["target"].shape == data.target_shape
     assert int(item["mesh_uid"]) == int(data.meshes["uid"][row])
     assert int(item["class_index"]) == int(data.objects["class_index"][obj])
+    assert int(item["object_id"]) == int(data.objects["id"][obj])
     np.testing.assert_array_equal(item["target"].numpy(), data.target(obj))
     np.testing.assert_array_equal(item["scale_bins"].numpy(), data.scale_bins.index(data.objects["scale"][obj]))
     batch = collate_meshes([ideal[i] for i in range(3)])
@@ -133,12 +137,27 @@ def test_torch_dataset_items_and_collate(data, data_dir):
 
 
 def test_dataloader_workers_open_their_own_files(data_dir):
-    ds = MeshDataset(data_dir, split="test", variants="all")
+    ds = BasicShapes(data_dir, split="test", variants="all")
     ds[0]  # the parent opens a handle before forking
     loader = torch.utils.data.DataLoader(ds, batch_size=4, num_workers=2, collate_fn=collate_meshes)
     uids = torch.cat([b["mesh_uid"] for b in loader])
     assert sorted(uids.tolist()) == sorted(ds.data.meshes["uid"][ds.rows].tolist())
     assert pickle.loads(pickle.dumps(ds)).data.target(0).shape == (7, 5, 16)
+
+
+def test_pyg_view_batches_with_pyg_loader(data):
+    from torch_geometric.loader import DataLoader
+
+    ds = BasicShapes(data, split="test", variants="all", transform=BasicShapes.to_pyg)
+    g = ds[1]
+    plain = BasicShapes(data, split="test", variants="all")[1]
+    assert torch.equal(g.pos, plain["vertices"]) and torch.equal(g.face.t(), plain["faces"])
+    assert g.num_nodes == len(plain["vertices"]) and g.y.shape == (1, *data.target_shape)
+    batch = next(iter(DataLoader(ds, batch_size=4)))
+    assert batch.num_graphs == 4 and batch.y.shape == (4, *data.target_shape)
+    # faces are offset per graph by PyG, so they still index their own graph's vertices
+    assert batch.face.max() < batch.pos.shape[0] and batch.mesh_uid.tolist() == [
+        int(data.meshes["uid"][r]) for r in ds.rows[:4]]
 
 
 def test_any_grid_size(tmp_path):

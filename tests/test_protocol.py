@@ -81,7 +81,10 @@ def test_model_path_and_predictions_path_give_identical_metrics(data_dir, model_
     assert from_file["metrics"] == results["metrics"]
     assert from_file["model"]["name"] == "preds" and results["model"]["name"] == "geometry"
     assert results["speed"]["ms_per_mesh"] > 0 and results["speed"]["hardware"].startswith("cpu: ")
-    assert from_file["speed"] == {"ms_per_mesh": None, "hardware": None}
+    assert from_file["speed"] == {"ms_per_mesh": None, "hardware": None, "self_reported": False}
+    sp = results["speed"]
+    assert sp["self_reported"] is False and sp["cpu"] in sp["hardware"] and sp["load_avg_1m"] >= 0
+    assert len(results["per_object"]["object_id"]) == results["metrics"]["n_objects"]
     assert results["dataset_fingerprint"] == dataset_fingerprint(data_dir)
 
 
@@ -122,13 +125,22 @@ def test_models_load_from_module_and_file(data_dir, model_file):
             load_model(spec)
 
 
-def test_reference_models_mode_collapse_both_ways(data_dir):
+def test_reference_rows_match_the_reference_models_and_the_mean_has_no_skill(data_dir):
     kw = {"data_dir": str(data_dir)}
     mean = evaluate(data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False)
-    near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw), progress=False)
-    assert mean["metrics"]["mode_collapse"] and mean["metrics"]["spread_ratio"] == 0.0
-    assert not near["metrics"]["mode_collapse"] and near["metrics"]["spread_ratio"] > 0.05
+    near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", {**kw, "k": "1"}),
+                    progress=False)
+    refs = mean["metrics"]["references"]
+    assert set(refs) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
+    for model, name in ((mean, "train-mean"), (near, "nearest-scale")):  # two code paths, one number
+        for k in ("simple_mse", "complex_mse", "variation_mse"):
+            assert refs[name][k] == pytest.approx(model["metrics"][k], rel=1e-5, abs=1e-6)
+    assert mean["metrics"]["no_skill"] is True and refs["train-mean"]["no_skill"] is True
     assert mean["metrics"]["variation_mse"] == near["metrics"]["variation_mse"] == 0.0
+    sk = mean["metrics"]["skill"]
+    assert sk["reference"] in refs and isinstance(sk["explained_by_class"], bool)
+    assert sk["vs_reference"]["complex_mse"]["diff"] == pytest.approx(
+        mean["metrics"]["complex_mse"] - refs[sk["reference"]]["complex_mse"], rel=1e-9)
 
 
 class BadShape:
@@ -247,9 +259,12 @@ def test_cli_evaluate_both_paths(data_dir, model_file, tmp_path, capsys):
                  "--model-arg", "offset=1", "--out", str(r1), "--write-predictions", str(preds),
                  "--params", "12", "--regime", "basic", "--train-seed", "3"]) == 0
     assert main(["evaluate", "--data", str(data_dir), "--predictions", str(preds), "--out", str(r2),
-                 "--name", "geometry-file"]) == 0
+                 "--name", "geometry-file", "--speed-ms", "2.5"]) == 0
     a, b = load_results(r1), load_results(r2)
-    assert a["metrics"] == b["metrics"] and "mode collapse" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert a["metrics"] == b["metrics"] and "no skill" in out and "ref class-scale-nn" in out
+    assert b["speed"] == {"ms_per_mesh": 2.5, "hardware": None, "self_reported": True}
+    assert "2.500 ms/mesh self-reported" in out and a["speed"]["self_reported"] is False
     assert a["model"] == {"name": "geometry", "params": 12, "embedding": None, "regime": "basic"}
     assert a["seeds"] == {"dataset": 0, "train": 3} and b["model"]["name"] == "geometry-file"
 
@@ -262,6 +277,8 @@ def test_cli_errors_are_one_line_and_keep_existing_results(data_dir, tmp_path):
         f["x"] = np.zeros(3)
     for argv, problem in [(["--predictions", str(bad)], "not a predictions file"),
                           (["--predictions", str(bad), "--write-predictions", "x.h5"], "needs --model"),
+                          (["--model", "m:M", "--speed-ms", "3"], "goes with --predictions"),
+                          (["--predictions", str(bad), "--speed-ms", "-1"], "must be >= 0"),
                           (["--model", "nope"], "module:Class")]:
         with pytest.raises(SystemExit) as err:
             main(["evaluate", "--data", str(data_dir), "--out", str(out), *argv])
