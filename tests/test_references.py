@@ -56,7 +56,7 @@ def test_descriptor_by_hand():
     sphere = trimesh.creation.icosphere(subdivisions=3)
     assert normal_descriptor(sphere.vertices, sphere.faces)[2] == 0.5  # saturated spread
     torus = trimesh.creation.torus(major_radius=1.0, minor_radius=0.3)
-    assert normal_descriptor(torus.vertices, torus.faces)[3] > 3 * 0.3  # inner side faces in
+    assert normal_descriptor(torus.vertices, torus.faces)[3] > 3 * 0.2  # inner side faces in
 
 
 def test_reference_predictions_by_hand(tmp_path):
