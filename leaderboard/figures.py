@@ -1,8 +1,9 @@
 """The board's two figures, as PNG bytes (matplotlib, Agg; no fonts or files fetched).
 
-Speed against error puts every model of one dataset at (ms per mesh, Complex MSE), with the
-physics simulator as the reference point: a model is only useful left of it, and only as good
-as it is low. The example shows one test object's physics response beside the best models'
+Speed against error puts every model of one dataset at (ms per mesh, Complex MSE) with its
+95% interval, the physics simulator as the reference point (a model is only useful left of it,
+and only as good as it is low) and the harness's reference rows as dashed lines (they cost
+nothing to run: a model must be below them). Self-reported speeds are drawn as diamonds. The example shows one test object's physics response beside the best models'
 predictions for its simple mesh and for a complex mesh of exactly the same shape.
 """
 
@@ -38,25 +39,39 @@ def plottable(models: list[dict]) -> list[dict]:
     return [e for e in models if e["speed"]["ms_per_mesh"] and e["metrics"]["complex_mse"] is not None]
 
 
-def speed_vs_error(models: list[dict], simulator: dict | None) -> bytes:
-    """Scatter of ms per mesh (log) against Complex MSE; mode-collapsed models hollow."""
+def speed_vs_error(models: list[dict], simulator: dict | None,
+                   references: dict | None = None) -> bytes:
+    """Scatter of ms per mesh (log) against Complex MSE; models without skill hollow."""
     fig, ax = plt.subplots(figsize=(7.5, 4.6), layout="constrained")
     for e in plottable(models):
-        x, y = e["speed"]["ms_per_mesh"], e["metrics"]["complex_mse"]
-        collapsed = e["metrics"]["mode_collapse"]
-        ax.scatter([x], [y], s=46, marker="o", facecolors="none" if collapsed else "tab:blue",
-                   edgecolors="tab:red" if collapsed else "tab:blue", zorder=3)
-        ax.annotate(_text(e["name"]) + (" (mode collapse)" if collapsed else ""), (x, y),
-                    textcoords="offset points", xytext=(5, 4), fontsize=8)
+        m = e["metrics"]
+        x, y = e["speed"]["ms_per_mesh"], m["complex_mse"]
+        flagged = bool(m.get("no_skill", m.get("mode_collapse")))
+        ci = m.get("complex_mse_ci")
+        if ci:
+            ax.errorbar([x], [y], yerr=[[y - ci[0]], [ci[1] - y]], fmt="none", ecolor="0.6", zorder=2)
+        own = e["speed"].get("self_reported")
+        ax.scatter([x], [y], s=46, marker="D" if own else "o",
+                   facecolors="none" if flagged else "tab:blue",
+                   edgecolors="tab:red" if flagged else "tab:blue", zorder=3)
+        label = _text(e["name"]) + (" (no skill)" if flagged else "") \
+            + (" (self-reported speed)" if own else "")
+        ax.annotate(label, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
+    for name, ref in (references or {}).items():
+        if ref.get("complex_mse") is not None:
+            ax.axhline(ref["complex_mse"], color="0.55", lw=0.8, ls="--", zorder=1)
+            ax.annotate(f"reference: {_text(name)}", (0.005, ref["complex_mse"]), fontsize=7,
+                        color="0.4", xycoords=("axes fraction", "data"),
+                        textcoords="offset points", xytext=(0, 2))
     if simulator is not None:
         x, y = simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"]
         ax.scatter([x], [y], s=140, marker="*", color="tab:orange", zorder=4)
         ax.annotate("physics simulator", (x, y), textcoords="offset points", xytext=(6, 4),
                     fontsize=8, color="tab:orange")
     ax.set_xscale("log")
-    ax.set_yscale("symlog", linthresh=1.0)  # spans 0 (the physics) to collapsed models' hundreds
+    ax.set_yscale("symlog", linthresh=1.0)  # spans 0 (the physics) to no-skill models' hundreds
     ax.set_xlabel("ms per mesh (log scale; lower is faster)")
-    ax.set_ylabel("Complex MSE (dB², symlog scale; lower is better)")
+    ax.set_ylabel("Complex MSE (dB², 95% interval; symlog; lower is better)")
     ax.margins(x=0.25, y=0.1)  # room for the labels
     ax.grid(True, which="both", alpha=0.3)
     return _png(fig)

@@ -1,8 +1,10 @@
 """`leaderboard render`: entry files -> a static site (HTML, CSS, JS, PNG) and LEADERBOARD.md.
 
 Entries are grouped by dataset fingerprint, because numbers on different datasets are not
-comparable; each dataset gets its table (sorted by Complex MSE; sortable in the browser),
-per-class breakdown, speed-vs-error chart and example figure. Every text from an entry is
+comparable; each dataset gets its table (sorted by Complex MSE; sortable in the browser) with
+95% intervals, the harness's reference rows (marked "reference", unranked) and each model's
+skill against the strongest of them, a no-skill flag, self-reported speeds marked as such,
+a per-class breakdown, a speed-vs-error chart and an example figure. Every text from an entry is
 escaped; the page loads nothing but its own files (a Content-Security-Policy says so), so it
 works offline and from any static host. Everything is built in memory and validated first,
 then each file is written atomically, so a bad entry leaves a previous site untouched.
@@ -41,6 +43,44 @@ def fmt_params(n: int | None) -> str:
 
 def fmt_ms(x: float | None) -> str:
     return "—" if x is None else f"{x:.3g}"
+
+
+def fmt_ci(block: dict, key: str) -> str:
+    """A metric with its 95% interval when the entry has one: ``74.75 [70.10, 79.51]``."""
+    ci = block.get(key + "_ci")
+    text = fmt_mse(block.get(key))
+    return text + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci and block.get(key) is not None else "")
+
+
+def no_skill(m: dict) -> bool:
+    """The no-skill flag (``mode_collapse`` in entries made before it replaced that flag)."""
+    return bool(m.get("no_skill", m.get("mode_collapse")))
+
+
+def fmt_speed(speed: dict) -> str:
+    text = fmt_ms(speed.get("ms_per_mesh"))
+    return text + " (self-reported)" if speed.get("self_reported") and speed.get("ms_per_mesh") \
+        is not None else text
+
+
+def skill_of(e: dict) -> tuple[float | None, str]:
+    """(1 - Complex MSE / that of the strongest reference, the cell's text)."""
+    sk = e["metrics"].get("skill") or {}
+    v = sk.get("vs_reference", {})
+    v = v.get("complex_mse") or v.get("simple_mse")
+    if not v or v.get("skill") is None:
+        return None, "—"
+    return v["skill"], f"{v['skill']:+.2f} ({v['verdict']})"
+
+
+def references(g: dict) -> dict:
+    """The dataset's reference rows, as the harness computed them (from any model entry)."""
+    for e in g["models"]:
+        refs = e["metrics"].get("references")
+        if refs:  # entry files sort their keys: show them in the harness's order
+            order = [n for n in REFERENCE_NOTES if n in refs] + sorted(set(refs) - set(REFERENCE_NOTES))
+            return {n: refs[n] for n in order}
+    return {}
 
 
 def datasets(entries: list[dict]) -> list[dict]:
@@ -111,29 +151,56 @@ def _link(e: dict) -> str:
 
 def html_table(g: dict) -> str:
     head = ([_th("#", "num"), _th("Model", "text")]
-            + [_th(METRIC_TITLES[k], "num", "ascending" if k == "complex_mse" else None)
+            + [_th(METRIC_TITLES[k] + " [95%]", "num", "ascending" if k == "complex_mse" else None)
                for k in METRIC_NAMES]
-            + [_th("Mode collapse", "text"), _th("Params", "num"), _th("ms / mesh", "num"),
-               _th("Hardware", "text"), _th("Date", "text"), _th("Link", "text")])
+            + [_th("Skill", "num"), _th("No skill", "text"), _th("Params", "num"),
+               _th("ms / mesh", "num"), _th("Hardware", "text"), _th("Date", "text"),
+               _th("Link", "text")])
     rows = []
     for rank, e in enumerate(g["models"], 1):
         m = e["metrics"]
-        collapsed = m["mode_collapse"]
+        flagged = no_skill(m)
         model = e.get("model", {})
         detail = " · ".join(str(model[k]) for k in ("embedding", "regime") if model.get(k))
+        skill, skill_text = skill_of(e)
         cells = ([_num(rank, str(rank)),
                   f'<td data-value="{_e(e["name"].lower())}">{_e(e["name"])}'
                   + (f'<br><small class="note">{_e(detail)}</small>' if detail else "") + "</td>"]
-                 + [_num(m[k], fmt_mse(m[k])) for k in METRIC_NAMES]
-                 + ['<td class="flag">yes</td>' if collapsed else "<td>no</td>",
+                 + [_num(m[k], fmt_ci(m, k)) for k in METRIC_NAMES]
+                 + [_num(skill, skill_text),
+                    '<td class="flag">yes</td>' if flagged else "<td>no</td>",
                     _num(e.get("params"), fmt_params(e.get("params"))),
-                    _num(e["speed"]["ms_per_mesh"], fmt_ms(e["speed"]["ms_per_mesh"])),
+                    _num(e["speed"]["ms_per_mesh"], fmt_speed(e["speed"])),
                     f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
                     f'<td class="date">{_e(e["submitted"][:10])}</td>', _link(e)])
-        cls = ' class="collapsed"' if collapsed else ""
+        cls = ' class="collapsed"' if flagged else ""
         rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
+    for name, r in references(g).items():
+        cells = ([_num(None, "ref"), f'<td data-value="{_e(name)}">reference: {_e(name)}'
+                  f'<br><small class="note">{_e(REFERENCE_NOTES.get(name, ""))}</small></td>']
+                 + [_num(r[k], fmt_ci(r, k)) for k in METRIC_NAMES]
+                 + [_num(None, "—"), '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
+                    _num(0, "0"), _num(None, "—"), "<td>—</td>", "<td>—</td>", "<td>—</td>"])
+        rows.append('<tr class="reference">' + "".join(cells) + "</tr>")
     return (f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'
             f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>")
+
+
+REFERENCE_NOTES = {"train-mean": "the training-set mean response, for every mesh",
+                   "class-mean": "the training mean of the object's class (class given)",
+                   "nearest-scale": "the training object nearest in log scale",
+                   "class-scale-nn": "class read from the mesh's normals, then nearest in scale"}
+
+
+def skill_note(g: dict) -> str:
+    """Plain-text sentence naming the strongest reference that Skill is measured against."""
+    names = {(e["metrics"].get("skill") or {}).get("reference") for e in g["models"]} - {None}
+    if not names:
+        return ""
+    return (f"Skill: 1 − Complex MSE / Complex MSE of the strongest reference "
+            f"({', '.join(sorted(names))}), with the verdict of the paired 95% interval of the "
+            f"difference (holds: better). No skill: not better than the training-set mean by a "
+            f"paired 95% interval. Reference rows cost nothing to run and are not ranked.")
 
 
 def html_per_class(g: dict) -> str:
@@ -143,7 +210,7 @@ def html_per_class(g: dict) -> str:
     for e in g["models"]:
         for cls, m in sorted(e["metrics"]["per_class"].items()):
             rows.append("<tr>" + f"<td>{_e(e['name'])}</td><td>{_e(cls)}</td>"
-                        + "".join(_num(m[k], fmt_mse(m[k])) for k in METRIC_NAMES) + "</tr>")
+                        + "".join(_num(m[k], fmt_ci(m, k)) for k in METRIC_NAMES) + "</tr>")
     return (f'<table class="per-class sortable" id="per-class-{g["short"]}">\n<thead><tr>'
             f'{"".join(head)}</tr></thead>\n<tbody>\n' + "\n".join(rows) + "\n</tbody>\n</table>")
 
@@ -158,7 +225,7 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
              f"<h2>Dataset <code>{short}</code></h2>",
              f'<p class="note">{_e(describe(g["dataset"]))}</p>']
     if g["models"]:
-        parts += [html_table(g)]
+        parts += [html_table(g), f'<p class="note">{_e(skill_note(g))}</p>']
     notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
     parts += ["<h3>Speed against error</h3>", f"<p>{_e(notes)}</p>",
               _img(f"speed-vs-error-{short}.png", images[f"speed-vs-error-{short}.png"],
@@ -184,35 +251,42 @@ def _md(text) -> str:
 
 def markdown(groups: list[dict]) -> str:
     out = ["# Basic Shapes leaderboard", "",
-           "Verified by re-scoring each submission's predictions against the dataset; MSE in dB², "
-           "lower is better; speeds are self-reported. Mode-collapsed models (one response for "
-           "everything) are flagged: their low Variation MSE is not an achievement.", ""]
+           "Verified by re-scoring each submission's predictions against the dataset; MSE in dB² "
+           "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
+           "computed by the harness and not ranked. Models with no skill (not better than the "
+           "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
+           "not an achievement. Speeds marked (self-reported) were not measured by the harness.",
+           ""]
     if not groups:
         out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
         short = g["short"]
         out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
         if g["models"]:
-            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | Mode collapse | Params "
+            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | Skill | No skill | Params "
                     "| ms / mesh | Hardware | Date |",
-                    "|---:|---|---:|---:|---:|---|---:|---:|---|---|"]
+                    "|---:|---|---:|---:|---:|---:|---|---:|---:|---|---|"]
             for rank, e in enumerate(g["models"], 1):
                 m = e["metrics"]
                 name = _md(e["name"])
                 if e.get("link"):
                     name = f"[{name}]({e['link'].replace('(', '%28').replace(')', '%29')})"
-                out.append(f"| {rank} | {name} | " + " | ".join(fmt_mse(m[k]) for k in METRIC_NAMES)
-                           + f" | {'**yes**' if m['mode_collapse'] else 'no'} | "
-                           f"{fmt_params(e.get('params'))} | {fmt_ms(e['speed']['ms_per_mesh'])} | "
+                out.append(f"| {rank} | {name} | " + " | ".join(fmt_ci(m, k) for k in METRIC_NAMES)
+                           + f" | {skill_of(e)[1]} | {'**yes**' if no_skill(m) else 'no'} | "
+                           f"{fmt_params(e.get('params'))} | {fmt_speed(e['speed'])} | "
                            f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |")
-            out.append("")
+            for ref, r in references(g).items():
+                out.append(f"| ref | reference: {_md(ref)} | "
+                           + " | ".join(fmt_ci(r, k) for k in METRIC_NAMES)
+                           + f" | — | {'**yes**' if r.get('no_skill') else 'no'} | 0 | — | — | — |")
+            out += ["", _md(skill_note(g)), ""]
         notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
         out += [_md(notes), "",
                 f"![Speed against error](speed-vs-error-{short}.png)", ""]
         if g["models"]:
             out += ["### Per class", "", "| Model | Class | Simple MSE | Complex MSE | Variation MSE |",
                     "|---|---|---:|---:|---:|"]
-            out += [f"| {_md(e['name'])} | {_md(c)} | " + " | ".join(fmt_mse(m[k]) for k in METRIC_NAMES)
+            out += [f"| {_md(e['name'])} | {_md(c)} | " + " | ".join(fmt_ci(m, k) for k in METRIC_NAMES)
                     + " |" for e in g["models"] for c, m in sorted(e["metrics"]["per_class"].items())]
             out += [""]
         if g["example"]:
@@ -231,7 +305,8 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     groups = datasets(entries)
     files: dict[str, bytes] = {}
     for g in groups:
-        files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(g["models"], g["simulator"])
+        files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(g["models"], g["simulator"],
+                                                                            references(g))
         if g["example"]:
             files[f"example-{g['short']}.png"] = figures.example(g["example"])
     sizes = {name: _png_size(data) for name, data in files.items()}

@@ -72,8 +72,9 @@ def _check_block(block, what: str) -> None:
 def check_metrics(m, what: str = "metrics") -> dict:
     """The ``metrics`` structure of the results JSON (docs/ARCHITECTURE.md)."""
     _check_block(m, what)
-    if not isinstance(m.get("mode_collapse"), bool):
-        raise EntryError(f"{what}.mode_collapse must be true or false")
+    flag = "no_skill" if "no_skill" in m else "mode_collapse"  # mode_collapse: entries before v0.2
+    if m.get(flag) is not None and not isinstance(m[flag], bool):
+        raise EntryError(f"{what}.{flag} must be true, false or null")
     per_class = m.get("per_class")
     if not isinstance(per_class, dict) or not per_class:
         raise EntryError(f"{what}.per_class must be a non-empty object")

@@ -55,9 +55,9 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
 
     diffs = [f"claimed {k} {claimed.get(k)!r} differs from the re-score {rescored[k]!r}"
              for k in METRIC_NAMES if not close(claimed.get(k), rescored[k])]
-    if claimed["mode_collapse"] != rescored["mode_collapse"]:
-        diffs.append(f"claimed mode_collapse {claimed['mode_collapse']} differs from the re-score "
-                     f"{rescored['mode_collapse']}")
+    if claimed.get("no_skill") != rescored["no_skill"]:
+        diffs.append(f"claimed no_skill {claimed.get('no_skill')} differs from the re-score "
+                     f"{rescored['no_skill']}")
     cl, rs = claimed["per_class"], rescored["per_class"]
     if set(cl) != set(rs):
         diffs.append(f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}")

@@ -193,7 +193,7 @@ def test_accepted_submission_is_rescored_and_written(data, submission, tmp_path)
     assert entry["dataset"]["test_objects"] == 6 and entry["dataset"]["test_meshes"] == 18
     expected = expected_metrics()
     m = entry["metrics"]
-    assert m["mode_collapse"] is False
+    assert m["no_skill"] is False and "train-mean" in m["references"]
     for k in ("simple_mse", "complex_mse", "variation_mse"):
         assert close(m[k], expected[k]), (k, m[k], expected[k])
         for c in CLASSES:
@@ -232,7 +232,7 @@ TAMPERS = {
                "claimed simple_mse"),
     "per-class": (lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
                   "claimed per_class.sphere.complex_mse"),
-    "collapse": (lambda r: r["metrics"].__setitem__("mode_collapse", True), "claimed mode_collapse"),
+    "no-skill": (lambda r: r["metrics"].__setitem__("no_skill", True), "claimed no_skill"),
     "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
     "no-metrics": (lambda r: r.pop("metrics"), "results.json"),
     "bad-params": (lambda r: r["model"].__setitem__("params", "many"), "params"),
@@ -322,7 +322,7 @@ def test_seed_submits_every_row_and_reports_the_rest(data, submission, tmp_path)
     assert "no-predictions" in msg and "1 refused" in msg, msg
     names = sorted(e["name"] for e in store.load_entries(entries))
     assert names == ["basic-direct", "ideal-graph"]
-    flags = {e["name"]: e["metrics"]["mode_collapse"] for e in store.load_entries(entries)}
+    flags = {e["name"]: e["metrics"]["no_skill"] for e in store.load_entries(entries)}
     assert flags == {"basic-direct": False, "ideal-graph": True}
     shutil.rmtree(rows / "no-predictions")
     before = {p: p.read_bytes() for p in entries.iterdir()}
@@ -345,9 +345,12 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
         "--name", "Graph AE <b>", "--link", "https://example.org/paper?a=1&b=2")
     worse = write_predictions(tmp_path / "worse.h5", data,
                               offsets={c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()})
-    run("submit", write_results(tmp_path / "worse.json", data, worse, name="direct $\\frac{$",
-                      ms_per_mesh=0.1),
-        "--predictions", worse, "--data", data, "--entries", entries)
+    worse_results = write_results(tmp_path / "worse.json", data, worse, name="direct $\\frac{$",
+                                  ms_per_mesh=0.1)
+    r = json.loads(worse_results.read_text())
+    r["speed"] = {"ms_per_mesh": 0.1, "hardware": None, "self_reported": True}  # --speed-ms
+    worse_results.write_text(json.dumps(r))
+    run("submit", worse_results, "--predictions", worse, "--data", data, "--entries", entries)
     run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250",
         "--hardware", "cpu: test")
     site = tmp_path / "site"
@@ -361,8 +364,14 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     exp = expected_metrics()
     worse_exp = expected_metrics({c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()})
     body = re.search(r"<tbody>(.*?)</tbody>", html, re.S).group(1)
-    rows = re.findall(r"<tr[^>]*>(.*?)</tr>", body, re.S)
+    rows = re.findall(r"<tr(?! class=\"reference\")[^>]*>(.*?)</tr>", body, re.S)
+    refs = re.findall(r"<tr class=\"reference\">(.*?)</tr>", body, re.S)
     assert len(rows) == 2 and "Graph AE" in rows[0] and "direct" in rows[1]  # by Complex MSE
+    assert [re.search(r"reference: ([a-z-]+)", r).group(1) for r in refs] == [
+        "train-mean", "class-mean", "nearest-scale", "class-scale-nn"]
+    assert "0.1 (self-reported)" in rows[1] and "self-reported" not in rows[0]
+    ci = json.loads(next(entries.glob("graph-ae*.json")).read_text())["metrics"]["complex_mse_ci"]
+    assert f"{exp['complex_mse']:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]" in rows[0]
     assert f"{exp['complex_mse']:.2f}" in rows[0] and f"{worse_exp['complex_mse']:.2f}" in rows[1]
     for img in re.findall(r'<img src="([^"]+)"', html):
         assert png_size(site / img)[0] > 100
@@ -370,6 +379,7 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     md = (site / "LEADERBOARD.md").read_text()
     table = [line for line in md.splitlines() if line.startswith("| 1 ")]
     assert table and "[Graph AE \\<b\\>](https://example.org/paper?a=1&b=2)" in table[0], md
+    assert md.count("| ref | reference: ") == 4 and "0.1 (self-reported)" in md
     assert f"{exp['complex_mse']:.2f}" in table[0]
     assert f"250 ms per mesh on cpu: test; Complex MSE {VARIANT_DB ** 2:.2f} dB²" in md
 

@@ -159,18 +159,21 @@ def test_tiny_preset_end_to_end(tmp_path):
         assert table["dataset"]["fingerprint"] == data.fingerprint
         n_test = len(data.object_rows("test"))
     for row in table["rows"]:
-        results = load_results(out / "results" / row["name"] / "results.json")
-        assert results["metrics"]["n_objects"] == n_test
-        assert row["complex_mse"] == results["metrics"]["complex_mse"]
+        results = load_results(out / "results" / row["name"] / "seed-0" / "results.json")
+        assert results["metrics"]["n_objects"] == n_test and row["seeds"] == [0]
+        assert row["complex_mse"] == pytest.approx(results["metrics"]["complex_mse"], rel=1e-12)
+        board = load_results(out / "results" / row["name"] / "results.json")
+        assert board["seeds"]["train_all"] == [0] and board["metrics"] == results["metrics"]
         rescored = score_predictions(out / "data", out / "results" / row["name"] / "predictions.h5")
         assert rescored["complex_mse"] == results["metrics"]["complex_mse"]
+        assert row["speed"]["threads"] >= 1 and "timed alone" in row["speed"]["hardware"]
     invariant = table["rows"][-1]
     assert invariant["name"] == "invariant-basic"
+    assert set(table["references"]) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
     md = (out / "table.md").read_text()
-    assert md.count("\n| ") == 14 and table["command"] in md
+    assert md.count("\n| ") == 14 + 4 and table["command"] in md and "reference: train-mean" in md
     assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert {f["claim"] for f in table["findings"]} >= {
-        "every non-Ideal model falls short of its Ideal model on Variation MSE"}
+    assert table["findings"] == [] and "No findings" in md  # the tiny preset decides nothing
     # a rerun reuses every finished row instead of training again
     benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
     assert json.loads((out / "table.json").read_text())["rows"] == table["rows"]
@@ -185,33 +188,75 @@ def test_tiny_preset_end_to_end(tmp_path):
     assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])
 
 
-def test_findings_on_a_table_shaped_like_the_paper():
-    """The paper's pattern holds by construction here, except one planted violation."""
+def _paper_shaped_rows(n: int = 90, seed: int = 0) -> list[dict]:
+    """Rows whose per-object errors follow the paper's pattern by construction: a shared
+    per-object difficulty times a per-row quality, plus small independent noise."""
+    rng = np.random.default_rng(seed)
+    hard = rng.gamma(2.0, 10.0, n)
+    cls = np.arange(n) % 3
     quality = {"direct": 3.0, "graph": 1.0, "token": 2.0}
     factor = {"autoencoder": 1.0, "classification": 1.5, "basic": 2.0}
     rows = []
+
+    def row(e, r, simple, complex_, variation):
+        noisy = [list(x * (1 + 0.01 * rng.standard_normal(n))) for x in (simple, complex_, variation)]
+        return {"name": f"{e}-{r}", "embedding": e, "regime": r,
+                "per_object": {"class_index": cls.tolist(), "simple_mse": noisy[0],
+                               "complex_mse": noisy[1], "variation_mse": noisy[2]}}
+
     for e, r in ROWS[:9]:
-        s = quality[e] * factor[r] * 10
-        rows.append({"name": f"{e}-{r}", "embedding": e, "regime": r, "simple_mse": s,
-                     "complex_mse": 2 * s, "variation_mse": s, "mode_collapse": False})
+        q = quality[e] * factor[r]
+        rows.append(row(e, r, q * hard, 2 * q * hard, q * hard))
     for e, r in ROWS[9:12]:
-        rows.append({"name": f"{e}-{r}", "embedding": e, "regime": r, "simple_mse": 5.0,
-                     "complex_mse": 5.0, "variation_mse": 1.0, "mode_collapse": False})
-    rows[-1]["variation_mse"] = 100.0  # token-ideal varies more than token-autoencoder
-    rows.append({"name": "invariant-basic", "embedding": "invariant", "regime": "basic",
-                 "simple_mse": 50.0, "complex_mse": 50.0, "variation_mse": 0.0, "mode_collapse": True})
-    f = {x["claim"].split(" (")[0].split(":")[0]: x for x in findings(rows)}
-    assert f["graph and token embeddings beat direct"]["holds"]
-    assert (f["graph and token embeddings beat direct"]["held"],
-            f["graph and token embeddings beat direct"]["of"]) == (18, 18)
-    assert f["autoencoder pretraining beats classification pretraining and none"]["holds"]
+        rows.append(row(e, r, hard, hard, 0.2 * hard))
+    return rows
+
+
+def test_findings_are_decided_by_paired_intervals():
+    rows = _paper_shaped_rows()
+    f = {x["claim"].split(" (")[0]: x for x in findings(rows)}
+    embed = f["graph and token embeddings beat direct"]
+    assert embed["verdict"] == "holds" and (embed["holds"], embed["of"]) == (18, 18)
+    assert f["autoencoder pretraining beats classification pretraining and none"]["verdict"] == "holds"
     assert f["graph + autoencoder is best of the non-Ideal paper rows on all three metrics"]["of"] == 24
     ideal = f["every non-Ideal model falls short of its Ideal model on Variation MSE"]
-    assert not ideal["holds"] and (ideal["held"], ideal["of"]) == (6, 9)
-    assert ideal["failed"] == ["token-basic", "token-classification", "token-autoencoder"]
-    assert f["no row is mode-collapsed"]["failed"] == ["invariant-basic"]
-    partial = findings(rows[9:])  # only the Ideal and invariant rows: nothing to compare
-    assert [x["holds"] for x in partial[:4]] == [None] * 4 and partial[4]["holds"] is False
+    assert ideal["verdict"] == "holds" and ideal["of"] == 9
+    for c in embed["comparisons"]:  # every comparison reports its interval and half-width
+        assert c["ci"][0] < c["diff"] < c["ci"][1] < 0
+        assert c["half_width"] == pytest.approx((c["ci"][1] - c["ci"][0]) / 2)
+    # plant a reversal (token-ideal varies more than every token row) and a tie
+    by = {r["name"]: r for r in rows}
+    by["token-ideal"]["per_object"]["variation_mse"] = [
+        10 * x for x in by["token-basic"]["per_object"]["variation_mse"]]
+    by["graph-basic"]["per_object"] = {**by["direct-basic"]["per_object"]}
+    f = {x["claim"].split(" (")[0]: x for x in findings(rows)}
+    ideal = f["every non-Ideal model falls short of its Ideal model on Variation MSE"]
+    assert ideal["verdict"] == "reversed" and ideal["reversed"] == 3
+    embed = f["graph and token embeddings beat direct"]
+    tied = [c for c in embed["comparisons"] if c["better"] == "graph-basic"]
+    assert [c["verdict"] for c in tied] == ["inconclusive"] * 3 and embed["verdict"] == "inconclusive"
+    partial = findings(rows[9:])  # only the Ideal rows: nothing to compare
+    assert [x["verdict"] for x in partial] == [None] * 4
+
+
+def test_validation_split_selects_the_checkpoint(tmp_path):
+    d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
+                     grid=(3, 2, 8))
+    with BenchmarkData(d) as data:
+        model, config = train(TrainConfig(**{**TINY, "epochs": 4}), data, progress=False)
+        val, _ = benchmark_examples(data, "basic", False, data.scale_bins, split="val")
+    hist = config["history"]["train"]
+    sel = config["selection"]
+    assert sel["on"] == "val" and len(val) == 3
+    assert sel["val_mse"] == min(h["val_mse"] for h in hist) == hist[sel["epoch"]]["val_mse"]
+    from benchmark.train import validation_mse
+
+    # the returned weights are the selected epoch's: their val MSE is the recorded one
+    assert validation_mse(model, val, 4, torch.device("cpu")) == pytest.approx(sel["val_mse"], rel=1e-5)
+    with BenchmarkData(make_dataset(tmp_path / "nv", objects_per_class=3, n_test_per_class=1,
+                                    grid=(3, 2, 8))) as data:
+        _, config = train(TrainConfig(**TINY), data, progress=False)
+    assert config["selection"] == {"on": "last epoch (no val split)", "epoch": 1, "val_mse": None}
 
 
 def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
