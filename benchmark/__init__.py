@@ -5,3 +5,16 @@ torch Dataset import torch (lazily), so that scoring a predictions file never ne
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """``benchmark.BasicShapes`` and ``benchmark.Evaluator``, imported on first use."""
+    if name == "BasicShapes":
+        from benchmark.data import BasicShapes
+
+        return BasicShapes
+    if name == "Evaluator":
+        from benchmark.evaluate import Evaluator
+
+        return Evaluator
+    raise AttributeError(f"module 'benchmark' has no attribute {name!r}")

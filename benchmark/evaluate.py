@@ -182,3 +182,64 @@ def format_metrics(results: dict) -> str:
         where = "self-reported" if sp.get("self_reported") else f"on {sp['hardware']}"
         lines.append(f"speed {sp['ms_per_mesh']:.3f} ms/mesh {where}")
     return "\n".join(lines)
+
+
+class Evaluator:
+    """OGB-style evaluator of one labelled dataset: a dict of arrays in, a dict of metrics out.
+
+    ``Evaluator(root).eval({"mesh_uid": uids, "target_db": preds})`` scores predictions held in
+    memory through exactly the path of ``benchmark evaluate --predictions`` (the arrays are
+    written to a temporary predictions file, validated and scored), so the numbers are the
+    harness's: Simple/Complex/Variation MSE with 95% intervals, per class, the reference rows,
+    skill and the no-skill flag. ``expected_input_format`` says what to pass.
+    """
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+        with BenchmarkData(self.root) as data:
+            self.fingerprint = data.fingerprint
+            self.target_shape = data.target_shape
+            self.test_mesh_uid = data.meshes["uid"][data.mesh_rows("test")]
+
+    @property
+    def expected_input_format(self) -> str:
+        return (f"==== Expected input format of Evaluator({str(self.root)!r})\n"
+                f"{{'mesh_uid': mesh_uid, 'target_db': target_db}}\n"
+                f"- mesh_uid: int64 array (M,), every test-split mesh exactly once, any order "
+                f"(M = {len(self.test_mesh_uid)}; BasicShapes(root, split='test', "
+                f"variants='all') yields them as item['mesh_uid'])\n"
+                f"- target_db: real array (M, {', '.join(map(str, self.target_shape))}): the "
+                f"predicted dB response of each mesh (aspect, roll, range bin), row i for "
+                f"mesh_uid[i]; values below -80 dB are scored as -80 dB\n"
+                f"numpy arrays or torch tensors (moved to the CPU)")
+
+    @property
+    def expected_output_format(self) -> str:
+        return ("==== Expected output format\n"
+                "{'simple_mse', 'complex_mse', 'variation_mse' (dB², None without complex "
+                "meshes), each with '<name>_ci' [lo, hi] (95%, bootstrap over test objects), "
+                "'n_objects', 'n_meshes', 'per_class', 'no_skill', 'no_skill_test', "
+                "'references', 'skill'} (docs/BENCHMARK.md, \"Results JSON\")")
+
+    def eval(self, input_dict: dict) -> dict:
+        import numpy as np
+
+        from benchmark.protocol import PredictionsError, write_predictions
+
+        missing = {"mesh_uid", "target_db"} - set(input_dict)
+        if missing:
+            raise PredictionsError(f"Evaluator: input lacks {', '.join(sorted(missing))}; "
+                                   f"see expected_input_format")
+        arrays = {}
+        for k in ("mesh_uid", "target_db"):
+            v = input_dict[k]
+            v = v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
+            arrays[k] = v
+        if arrays["mesh_uid"].dtype.kind not in "iu" or arrays["target_db"].dtype.kind not in "fiu":
+            raise PredictionsError("Evaluator: mesh_uid must be integers and target_db real numbers")
+        with tempfile.TemporaryDirectory() as tmp, BenchmarkData(self.root) as data:
+            path = Path(tmp) / "predictions.h5"
+            write_predictions(path, self.fingerprint, arrays["mesh_uid"].astype(np.int64),
+                              arrays["target_db"].astype(np.float32))
+            with Predictions(path, data) as preds:
+                return score(data, preds)

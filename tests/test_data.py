@@ -199,3 +199,29 @@ def test_broken_mesh_is_named(tmp_path):
     rewrite_atomically(src / shard_name(0), lambda f: f["meshes/vertices"].__setitem__(0, [np.nan] * 3))
     with BenchmarkData(src) as d, pytest.raises(ShardError, match=r"shard-00000.h5: mesh_uid 0: .*non-finite"):
         d.batch(d.mesh_rows("test"))
+
+
+def test_evaluator_scores_arrays_through_the_harness_path(data, data_dir, tmp_path):
+    from benchmark import Evaluator
+    from benchmark.protocol import PredictionsError, score_predictions, write_predictions
+
+    test = BasicShapes(data, split="test", variants="all")
+    items = [test[i] for i in range(len(test))]
+    uid = torch.stack([it["mesh_uid"] for it in items])
+    oracle = torch.stack([it["target"] for it in items])
+    ev = Evaluator(data_dir)
+    assert f"(M = {len(test)}" in ev.expected_input_format and "7, 5, 16" in ev.expected_input_format
+    perfect = ev.eval({"mesh_uid": uid, "target_db": oracle})
+    assert perfect["simple_mse"] == perfect["complex_mse"] == perfect["variation_mse"] == 0.0
+    assert perfect["no_skill"] is False and perfect["simple_mse_ci"] == [0.0, 0.0]
+    # any order, numpy too; identical to scoring the same predictions file with the harness
+    rng = np.random.default_rng(0)
+    noisy = oracle.numpy() + rng.normal(0, 3, oracle.shape).astype(np.float32)
+    order = rng.permutation(len(uid))
+    got = ev.eval({"mesh_uid": uid.numpy()[order], "target_db": noisy[order]})
+    write_predictions(tmp_path / "p.h5", data.fingerprint, uid.numpy(), noisy)
+    assert got == score_predictions(data_dir, tmp_path / "p.h5")
+    with pytest.raises(PredictionsError, match="missing 1 of"):
+        ev.eval({"mesh_uid": uid[1:], "target_db": oracle[1:]})
+    with pytest.raises(PredictionsError, match="input lacks target_db"):
+        ev.eval({"mesh_uid": uid})
