@@ -17,7 +17,8 @@ import numpy as np
 
 from basic_shapes import __version__
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, sample_scales
-from basic_shapes.shards import ObjectRecord, Shard, ShardError, atomic_path, shard_name, write_shard
+from basic_shapes.infra import atomic_path
+from basic_shapes.shards import ObjectRecord, Shard, ShardError, shard_name, write_shard
 
 CONFIG_FILE = "dataset.json"
 TEST_FRACTION = 0.1

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path
 
 Mesh = tuple[np.ndarray, np.ndarray, int]
 

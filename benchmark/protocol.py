@@ -26,7 +26,7 @@ from typing import Protocol
 import h5py
 import numpy as np
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path
 from benchmark import __version__
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES, Scorer

@@ -17,7 +17,7 @@ from importlib import resources
 from pathlib import Path
 from string import Template
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path
 from leaderboard import figures
 from leaderboard.store import DEFAULT_ENTRIES, METRIC_NAMES, load_entries
 

@@ -13,7 +13,7 @@ import os
 import re
 from pathlib import Path
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path
 
 ENTRY_VERSION = 1
 DEFAULT_ENTRIES = Path(__file__).resolve().parent / "entries"
