@@ -109,7 +109,7 @@ def cli_boundary(tool: str, body, argv: list[str] | None = None):
             raise
         print(f"{tool}: interrupted", file=sys.stderr)
         raise SystemExit(130) from None
-    except BaseException as exc:  # noqa: BLE001 - this is the boundary
+    except BaseException as exc:
         if debug:
             raise
         raise SystemExit(f"{tool}: error: {describe(exc)}") from None
@@ -267,7 +267,7 @@ class _HDF5Check:
                 self.fail("", f"holds more than {MAX_HDF5_OBJECTS} objects")
             link = g.get(name, getlink=True)
             if not isinstance(link, h5py.HardLink):
-                self.fail(where, f"is a {type(link).__name__}; only plain datasets are allowed")
+                self.fail(where, f"is a link ({type(link).__name__}); only plain datasets are allowed")
             obj = g[name]
             addr = h5py.h5o.get_info(obj.id).addr
             if addr in self.seen:
