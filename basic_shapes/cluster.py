@@ -9,7 +9,7 @@ import socket
 import struct
 from urllib.parse import urlsplit
 
-CONNECT_TIMEOUT_S = 5.0
+CONNECT_TIMEOUT_S = 3.0
 MAX_HANDSHAKE_BYTES = 1 << 16
 
 

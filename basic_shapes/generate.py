@@ -185,9 +185,9 @@ def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
 
         check_scheduler(scheduler)
     out = Path(out)
+    _check_out_dir(out, cfg)
     if progress:
         print(plan_text(cfg, workers, scheduler), file=sys.stderr)
-    _check_out_dir(out, cfg)
     tasks = [(str(out / shard_name(i)), plans) for i, plans in enumerate(shard_plans(cfg))]
     for path, _ in tasks:  # only our own leftovers: never other files in the directory
         Path(path + ".tmp").unlink(missing_ok=True)

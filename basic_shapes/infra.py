@@ -60,7 +60,10 @@ def one_line(exc: BaseException) -> str:
     if isinstance(exc, OSError) and exc.strerror:
         where = exc.filename if exc.filename is not None else ""
         return f"{where}: {exc.strerror}" if where != "" else exc.strerror
-    lines = str(exc).strip().splitlines()
+    try:
+        lines = str(exc).strip().splitlines()
+    except Exception:  # noqa: BLE001 - a broken __str__ must not hide the error
+        lines = []
     return lines[0] if lines else exc.__class__.__name__
 
 
@@ -75,8 +78,8 @@ def describe(exc: BaseException) -> str:
     if isinstance(exc, MemoryError):
         return f"out of memory ({one_line(exc)})"
     if type(exc).__name__ == "KilledWorker":
-        return (f"a Dask worker died while running a task ({one_line(exc)}): out of memory "
-                f"or crashed; see the worker logs")
+        return (f"a Dask worker died while running task {getattr(exc, 'task', '?')!r} (out "
+                f"of memory or crashed); see the worker logs")
     if _is_expected(exc):
         return one_line(exc)
     return (f"internal error: {exc.__class__.__name__}: {one_line(exc)} "
