@@ -34,17 +34,22 @@ def build_parser() -> ArgumentParser:
     g.add_argument("--out", required=True, help="dataset directory (created; resumed if it exists)")
     g.add_argument("--classes", type=_positive_list, default=GenerateConfig.classes,
                    help="comma-separated primitives (default: cube,cylinder,sphere; also cone,torus)")
-    g.add_argument("--objects-per-class", type=number(int, minimum=1), default=GenerateConfig.objects_per_class,
+    g.add_argument("--objects-per-class", type=number(int, minimum=1),
+                   default=GenerateConfig.objects_per_class,
                    help="objects per class (default: %(default)s, the paper's scale)")
-    g.add_argument("--variants", type=number(int, minimum=0, maximum=999), default=GenerateConfig.variants,
+    g.add_argument("--variants", type=number(int, minimum=0, maximum=999),
+                   default=GenerateConfig.variants,
                    help="complex variants per object, besides the simple mesh (default: %(default)s)")
-    g.add_argument("--seed", type=number(int, minimum=0, maximum=2**63 - 1), default=0, help="dataset seed (default: %(default)s)")
+    g.add_argument("--seed", type=number(int, minimum=0, maximum=2**63 - 1), default=0,
+                   help="dataset seed (default: %(default)s)")
     g.add_argument("--workers", type=number(int, minimum=0), default=None,
                    help="local worker processes (default: one per core; 0 = no Dask, in-process)")
     g.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
-    g.add_argument("--objects-per-shard", type=number(int, minimum=1), default=GenerateConfig.objects_per_shard,
+    g.add_argument("--objects-per-shard", type=number(int, minimum=1),
+                   default=GenerateConfig.objects_per_shard,
                    help="objects per HDF5 shard (default: %(default)s)")
-    g.add_argument("--scale-range", type=number(above=0), nargs=2, default=SCALE_RANGE, metavar=("LOW", "HIGH"),
+    g.add_argument("--scale-range", type=number(above=0), nargs=2, default=SCALE_RANGE,
+                   metavar=("LOW", "HIGH"),
                    help="per-axis bbox extent range in metres (default: %(default)s)")
     g.add_argument("--min-scale-distance", type=number(above=0), default=MIN_DISTANCE,
                    help="minimum log-scale distance between objects of one class (default: %(default)s)")
@@ -56,13 +61,15 @@ def build_parser() -> ArgumentParser:
     s.add_argument("dir", help="dataset directory")
     s.add_argument("--object", type=number(int, minimum=0), required=True, help="object id")
     s.add_argument("--out", required=True, help="output PNG")
-    s.add_argument("--count", type=number(int, minimum=0, maximum=99), default=5, help="complex variants to show (default: %(default)s)")
+    s.add_argument("--count", type=number(int, minimum=0, maximum=99), default=5,
+                   help="complex variants to show (default: %(default)s)")
 
     e = sub.add_parser("export", help="write every mesh as a plain OBJ/PLY/STL file")
     e.add_argument("dir", help="dataset directory")
     e.add_argument("--format", choices=("obj", "ply", "stl"), default="obj")
     e.add_argument("--out", required=True, help="output directory")
-    e.add_argument("--object", type=number(int, minimum=0), default=None, help="only this object id")
+    e.add_argument("--object", type=number(int, minimum=0), default=None,
+                   help="only this object id")
     return p
 
 

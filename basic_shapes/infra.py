@@ -137,7 +137,8 @@ def number(kind=float, *, minimum=None, maximum=None, above=None, integer_ok=Tru
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+            what = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
         if not math.isfinite(value):
             raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
         if minimum is not None and value < minimum:
@@ -254,7 +255,8 @@ def open_hdf5(path: str | os.PathLike, error=InputError, what: str = "HDF5 file"
 
 class _HDF5Check:
     def __init__(self, path, file_size: int, error):
-        self.path, self.file_size, self.error, self.count, self.seen = path, file_size, error, 0, set()
+        self.path, self.file_size, self.error = path, file_size, error
+        self.count, self.seen = 0, set()
 
     def fail(self, where: str, problem: str):
         raise self.error(f"{self.path}: {where or '/'} {problem}")
@@ -270,7 +272,8 @@ class _HDF5Check:
                 self.fail("", f"holds more than {MAX_HDF5_OBJECTS} objects")
             link = g.get(name, getlink=True)
             if not isinstance(link, h5py.HardLink):
-                self.fail(where, f"is a link ({type(link).__name__}); only plain datasets are allowed")
+                self.fail(where, f"is a link ({type(link).__name__}); only plain datasets "
+                          f"are allowed")
             obj = g[name]
             addr = h5py.h5o.get_info(obj.id).addr
             if addr in self.seen:

@@ -160,7 +160,8 @@ class Shard:
     def _validate_tables(self) -> None:
         f, err, path = self.file, ShardError, self.path
         n_obj = len(require_dataset(f, "objects/id", "iu", 1, err, path))
-        for name, kinds, ndim, tail in (("objects/class", "iu", 1, ()), ("objects/scale", "f", 2, (3,)),
+        for name, kinds, ndim, tail in (("objects/class", "iu", 1, ()),
+                                        ("objects/scale", "f", 2, (3,)),
                                         ("objects/split", "SO", 1, ())):
             if len(require_dataset(f, name, kinds, ndim, err, path, tail)) != n_obj:
                 self._fail(f"/{name} has not one row per object ({n_obj})")
@@ -198,9 +199,9 @@ class Shard:
         for start in range(0, len(faces), chunk):
             block = faces[start:start + chunk]
             mesh = np.searchsorted(fo, np.arange(start, start + len(block)), side="right") - 1
-            if np.any(block < 0) or np.any(block >= n_vertices[mesh][:, None]):
-                row = start + int(np.flatnonzero(((block < 0) | (block >= n_vertices[mesh][:, None]))
-                                                 .any(axis=1))[0])
+            bad = ((block < 0) | (block >= n_vertices[mesh][:, None])).any(axis=1)
+            if bad.any():
+                row = start + int(np.flatnonzero(bad)[0])
                 self._fail(f"face row {row} indexes a vertex outside its mesh")
         if _fingerprint(self.file) != self.fingerprint:
             self._fail("content does not match its stored fingerprint (edited or corrupted)")

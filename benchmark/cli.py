@@ -62,13 +62,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     e.add_argument("--write-predictions", metavar="FILE", help="with --model: keep its predictions file")
     e.add_argument("--model-arg", metavar="KEY=VALUE", type=_key_value, action="append", default=[],
                    help="constructor argument for --model, as a string (repeatable)")
-    e.add_argument("--batch-size", type=number(int, minimum=1, maximum=1 << 16), default=16, help="meshes per predict call (default: %(default)s)")
+    e.add_argument("--batch-size", type=number(int, minimum=1, maximum=1 << 16), default=16,
+                   help="meshes per predict call (default: %(default)s)")
     e.add_argument("--name", help="model name for the results (default: the model's `name` "
                    "attribute, its class name, or the predictions file's stem)")
-    e.add_argument("--params", type=number(int, minimum=0, maximum=10**12), help="parameter count (default: the model's `params`)")
+    e.add_argument("--params", type=number(int, minimum=0, maximum=10**12),
+                   help="parameter count (default: the model's `params`)")
     e.add_argument("--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)")
     e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
-    e.add_argument("--train-seed", type=number(int, minimum=0, maximum=2**64 - 1), help="seed the model was trained with")
+    e.add_argument("--train-seed", type=number(int, minimum=0, maximum=2**64 - 1),
+                   help="seed the model was trained with")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     for name, (_, help_text) in DELEGATED.items():
         d = sub.add_parser(name, help=help_text, description=help_text)

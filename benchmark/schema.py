@@ -48,7 +48,8 @@ class Field:
         if self.kind in ("number", "int"):
             is_int = isinstance(value, int) and not isinstance(value, bool)
             if not (is_int or (self.kind == "number" and isinstance(value, float))):
-                raise SchemaError(f"{where} must be {'an integer' if self.kind == 'int' else 'a number'}")
+                what = "an integer" if self.kind == "int" else "a number"
+                raise SchemaError(f"{where} must be {what}")
             if (not is_int and not math.isfinite(value)) or not self.lo <= value <= self.hi:
                 raise SchemaError(f"{where} must be a finite number in [{self.lo:g}, {self.hi:g}]")
         elif self.kind == "bool":

@@ -56,19 +56,23 @@ def build_parser() -> ArgumentParser:
                        "timing radar_sim on the example object's meshes, or --ms-per-mesh.")
     m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     m.add_argument("--entries", **entries)
-    m.add_argument("--ms-per-mesh", type=number(minimum=0), help="record this speed instead of timing radar_sim")
+    m.add_argument("--ms-per-mesh", type=number(minimum=0),
+                   help="record this speed instead of timing radar_sim")
     m.add_argument("--hardware", help="hardware description (default: this machine's CPU)")
 
     r = sub.add_parser("render", help="build the static site and LEADERBOARD.md",
                        description="Render every entry into OUT/index.html (sortable tables, "
                        "per-class breakdowns, speed-vs-error chart, example predictions) and "
                        "OUT/LEADERBOARD.md. The site loads nothing from the network.")
-    r.add_argument("--out", type=Path, default=Path("site"), help="output folder (default: %(default)s)")
+    r.add_argument("--out", type=Path, default=Path("site"),
+                   help="output folder (default: %(default)s)")
     r.add_argument("--entries", **entries)
 
     v = sub.add_parser("serve", help="preview the rendered site locally (http.server)")
-    v.add_argument("--dir", type=Path, default=Path("site"), help="site folder (default: %(default)s)")
-    v.add_argument("--port", type=number(int, minimum=0, maximum=65535), default=8000, help="port (default: %(default)s; 0 = any free)")
+    v.add_argument("--dir", type=Path, default=Path("site"),
+                   help="site folder (default: %(default)s)")
+    v.add_argument("--port", type=number(int, minimum=0, maximum=65535), default=8000,
+                   help="port (default: %(default)s; 0 = any free)")
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default: %(default)s)")
     return p
 

@@ -143,7 +143,8 @@ def validate_entry(entry) -> dict:
     if unknown:
         raise EntryError(f"unknown field(s) {', '.join(unknown[:5])}")
     for k in ("test_objects", "test_meshes"):
-        _check_schema(schema.Field("int", 0, schema.MAX_COUNT).check, dataset.get(k), f"dataset.{k}")
+        _check_schema(schema.Field("int", 0, schema.MAX_COUNT).check, dataset.get(k),
+                      f"dataset.{k}")
     if "model" in entry:
         _check_schema(schema.check_fields, entry["model"], schema.MODEL, "model")
     check_metrics(entry.get("metrics"))

@@ -212,7 +212,8 @@ def build_parser() -> ArgumentParser:
                        description=f"Monostatic RCS of one OBJ/STL/PLY mesh. {CONVENTION}. Line "
                        "of sight (sin a cos r, sin a sin r, cos a) for aspect a, roll r.")
     q.add_argument("meshfile", help="OBJ, STL or PLY file")
-    q.add_argument("--freq", type=_frequencies, required=True, help="GHz: 10 or 8,10,12 or 8:12:0.5")
+    q.add_argument("--freq", type=_frequencies, required=True,
+                   help="GHz: 10 or 8,10,12 or 8:12:0.5")
     q.add_argument("--aspect", type=_numbers, required=True, help="degrees: 0,45,90 or 0:180:5")
     q.add_argument("--roll", type=number(), default=0.0, help="degrees (default 0)")
     q.add_argument("--units", choices=UNITS, default="m", help="units of the file (default m)")
@@ -223,9 +224,11 @@ def build_parser() -> ArgumentParser:
                        description="Plot |range profile| (dB) against range and aspect, and the "
                        "RCS (dBsm) against aspect at the band centre, at one roll angle.")
     q.add_argument("source", help="dataset directory (with --object) or a mesh file")
-    q.add_argument("--object", type=number(int, minimum=0), default=None, help="object id (dataset directories)")
+    q.add_argument("--object", type=number(int, minimum=0), default=None,
+                   help="object id (dataset directories)")
     q.add_argument("--out", type=_png_path, required=True, help="PNG file to write")
-    q.add_argument("--roll", type=number(), default=0.0, help="degrees; nearest grid roll (default 0)")
+    q.add_argument("--roll", type=number(), default=0.0,
+                   help="degrees; nearest grid roll (default 0)")
     q.add_argument("--config", default="xband-v1", help="config name or JSON file for simulation")
     q.add_argument("--units", choices=UNITS, default="m", help="units of a mesh file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")

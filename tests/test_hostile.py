@@ -13,9 +13,9 @@ from __future__ import annotations
 import http.server
 import json
 import os
+import re
 import resource
 import shutil
-import socket
 import socketserver
 import subprocess
 import sys
@@ -29,7 +29,8 @@ import pytest
 from benchmark_fixture import make_dataset
 
 from basic_shapes import infra
-from basic_shapes.shards import Shard, ShardError, iter_objects, mesh_uid, shard_name
+from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, ShardError, iter_objects,
+                                 mesh_uid, shard_name, write_shard)
 from benchmark.data import BenchmarkData
 from benchmark.protocol import write_predictions, write_results
 
@@ -37,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MEMORY_LIMIT = 3 << 30  # address space of one CLI process (imports alone take ~1 GiB virtual)
 TIMEOUT_S = 60
 RECORD: list[dict] = []
+PROGRESS = re.compile(r"^[\w ]+: +\d+%\|")  # a tqdm bar: progress, not an error line
 
 
 def _limit():
@@ -70,7 +72,7 @@ def cli(tool: str, *args, rc: int = 1, phrase: str, watch=(), env=None) -> str:
         raise AssertionError(f"{tool} {args}: no answer within {TIMEOUT_S} s") from None
     wall = time.perf_counter() - t0
     err = err.decode(errors="replace")
-    lines = [line for line in err.splitlines() if line.strip()]
+    lines = [line for line in err.splitlines() if line.strip() and not PROGRESS.match(line)]
     RECORD.append({"case": f"{tool} {' '.join(map(str, args))}"[:160], "rc": proc.returncode,
                    "seconds": round(wall, 3)})
     assert proc.returncode == rc, (proc.returncode, err)
@@ -253,7 +255,8 @@ def test_2_shard_declaring_a_billion_vertices_is_refused(ws):
 
 def test_2_radar_config_sizes_and_generate_capacity_are_bounded(ws, tmp_path):
     mesh = tmp_path / "box.obj"
-    mesh.write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    mesh.write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+                    "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     for fields, phrase in [({"n_aspect": 10**8}, "n_aspect <= 3601"),
                            ({"n_aspect": 3601, "n_roll": 7200}, "memory"),
                            ({"n_freq": 10**6, "n_range": 101}, "n_freq <= 65536")]:
@@ -443,6 +446,17 @@ def test_6_edited_shard_is_not_resumed_as_done(ws):
     label = cli("radar_sim", "label", d, "--overwrite", "--workers", "1",
                 phrase="does not match its stored fingerprint", watch=[d])
     assert str(d / shard_name(0)) in label
+
+
+def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
+    d = tmp_path / "bad"
+    d.mkdir()
+    v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]], np.float32) * 0.1  # collinear
+    obj = ObjectRecord(0, 0, np.array([0.3, 0.3, 0.3]), 1, "test",
+                       [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})])
+    write_shard(d / shard_name(0), [obj], ["cube"], {"fixture": True}, "0.1.0")
+    cli("radar_sim", "label", d, "--workers", "1", phrase="object 0: mesh row 0: mesh has no face",
+        watch=[d])
 
 
 # --- 7/10. one-line errors instead of tracebacks -------------------------------------------------

@@ -218,7 +218,8 @@ def test_results_json_round_trip_and_validation(model_run, tmp_path):
     write_results(path, results)
     assert load_results(path) == results
     cases = {
-        "missing": ({k: v for k, v in results.items() if k != "speed"}, "speed must be a JSON object"),
+        "missing": ({k: v for k, v in results.items() if k != "speed"},
+                    "speed must be a JSON object"),
         "fingerprint": ({**results, "dataset_fingerprint": "abc"}, "not a sha256"),
         "bool mse": ({**results, "metrics": {**results["metrics"], "simple_mse": True}}, "simple_mse must be"),
         "negative": ({**results, "metrics": {**results["metrics"], "variation_mse": -1.0}}, "variation_mse must be"),
