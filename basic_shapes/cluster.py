@@ -13,8 +13,9 @@ CONNECT_TIMEOUT_S = 3.0
 MAX_HANDSHAKE_BYTES = 1 << 16
 
 
-class SchedulerError(ValueError):
-    """``--scheduler`` does not point at a reachable Dask scheduler."""
+class SchedulerError(ConnectionError):
+    """``--scheduler`` does not point at a reachable Dask scheduler (an OSError, like Dask's own
+    connection errors, so callers that handle those handle this too)."""
 
 
 def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
@@ -47,6 +48,8 @@ def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
             if b"pickle-protocol" not in _read(sock, size):
                 raise SchedulerError(f"--scheduler {address}: not a Dask scheduler (its first "
                                      f"message is not a Dask handshake)")
+    except SchedulerError:
+        raise
     except TimeoutError:
         raise SchedulerError(f"--scheduler {address}: not a Dask scheduler (no Dask handshake "
                              f"within {timeout:g} s)") from None
