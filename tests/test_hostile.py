@@ -259,7 +259,9 @@ def test_2_radar_config_sizes_and_generate_capacity_are_bounded(ws, tmp_path):
                     "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     for fields, phrase in [({"n_aspect": 10**8}, "n_aspect <= 3601"),
                            ({"n_aspect": 3601, "n_roll": 7200}, "memory"),
-                           ({"n_freq": 10**6, "n_range": 101}, "n_freq <= 65536")]:
+                           ({"n_freq": 10**6, "n_range": 101}, "n_freq <= 65536"),
+                           ({"f_stop_hz": float("inf")}, "Infinity is not allowed"),
+                           ({"f_stop_hz": 1e13}, "f_stop_hz <= 1e+12")]:
         cfg = tmp_path / "cfg.json"
         cfg.write_text(json.dumps({"name": "huge", **fields}))
         cli("radar_sim", "plot", mesh, "--config", cfg, "--out", tmp_path / "x.png",
@@ -427,6 +429,13 @@ def test_6_inconsistent_shards_are_refused_by_evaluate(ws, tmp_path, case):
     out = tmp_path / "r.json"
     cli("benchmark", "evaluate", "--quiet", "--data", d, "--predictions", ws["pred"],
         "--out", out, phrase=phrase, watch=[tmp_path, d])
+
+
+def test_6_bad_offsets_are_refused_by_label_and_export(ws, tmp_path):
+    d = shard_copy(ws, "offsets-label", _set("meshes/vertex_offset", 2, 2**62))
+    cli("radar_sim", "label", d, "--overwrite", "--workers", "1", phrase="vertex_offset", watch=[d])
+    cli("basic_shapes", "export", d, "--out", tmp_path / "e", phrase="vertex_offset",
+        watch=[d, tmp_path])
 
 
 def test_6_edited_shard_is_not_resumed_as_done(ws):
