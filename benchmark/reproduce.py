@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import ShardError, atomic_path
+from basic_shapes.infra import atomic_path
+from basic_shapes.shards import ShardError
 
 EMBEDDINGS = ("direct", "graph", "token")
 ROWS: tuple[tuple[str, str], ...] = (

@@ -1,0 +1,248 @@
+"""The results and metrics schema: one table of fields, used by ``benchmark.protocol`` (results
+JSON) and ``leaderboard.store`` (entries), so that what `evaluate` writes and what `submit` and
+`render` accept cannot drift apart.
+
+Results and entries are untrusted: every number must be finite and inside a documented range
+(docs/BENCHMARK.md, "Results JSON"), every text one printable line of bounded length, and a
+field not in the table is refused (never copied onto the board). To add a field, add a row
+to the table it belongs to.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import re
+from dataclasses import dataclass
+
+MAX_MSE = 1e6          # dB²; the -80 dB floor bounds an honest MSE near 6400 dB²
+MAX_PARAMS = 10**12    # parameters of a model
+MAX_COUNT = 10**9      # objects or meshes
+MAX_MS = 1e9           # milliseconds per mesh
+MAX_TEXT = 200
+MAX_NAME = 80
+MAX_CLASSES = 64
+MAX_SEEDS = 16
+
+
+class SchemaError(ValueError):
+    """A record breaks the schema (the message names the field)."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One field: its kind ("number", "int", "bool", "text", "hex64", "time", "interval": a
+    [lo, hi] pair of numbers in the range with lo <= hi), its range or length, whether null
+    is allowed and whether it may be absent."""
+
+    kind: str
+    lo: float = 0
+    hi: float = math.inf
+    null: bool = False
+    required: bool = True
+
+    def check(self, value, where: str) -> None:
+        if value is None:
+            if not self.null:
+                raise SchemaError(f"{where} is missing or null")
+            return
+        if self.kind in ("number", "int"):
+            is_int = isinstance(value, int) and not isinstance(value, bool)
+            if not (is_int or (self.kind == "number" and isinstance(value, float))):
+                what = "an integer" if self.kind == "int" else "a number"
+                raise SchemaError(f"{where} must be {what}")
+            if (not is_int and not math.isfinite(value)) or not self.lo <= value <= self.hi:
+                raise SchemaError(f"{where} must be a finite number in [{self.lo:g}, {self.hi:g}]")
+        elif self.kind == "interval":
+            if not (isinstance(value, list) and len(value) == 2):
+                raise SchemaError(f"{where} must be an interval [lo, hi]")
+            for k, x in enumerate(value):
+                Field("number", self.lo, self.hi).check(x, f"{where}[{k}]")
+            if value[0] > value[1]:
+                raise SchemaError(f"{where} must have lo <= hi")
+        elif self.kind == "bool":
+            if not isinstance(value, bool):
+                raise SchemaError(f"{where} must be true or false")
+        else:
+            if not isinstance(value, str) or not value.strip() or len(value) > self.hi \
+                    or any(ord(c) < 32 for c in value):
+                raise SchemaError(f"{where} must be one printable line of at most "
+                                  f"{self.hi:g} characters")
+            if self.kind == "hex64" and not re.fullmatch(r"[0-9a-f]{64}", value):
+                raise SchemaError(f"{where} is not a sha256 hex digest")
+            if self.kind == "time":
+                try:
+                    datetime.datetime.strptime(value, "%Y-%m-%dT%H:%M:%SZ")
+                except ValueError:
+                    raise SchemaError(f"{where} is not a UTC timestamp like "
+                                      f"2026-01-31T12:00:00Z") from None
+
+
+def mse(null: bool = True) -> Field:
+    return Field("number", 0, MAX_MSE, null=null)
+
+
+def interval(lo: float = 0, hi: float = MAX_MSE) -> Field:
+    return Field("interval", lo, hi, null=True, required=False)
+
+
+# --- the tables ----------------------------------------------------------------------------
+METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
+METRIC_BLOCK = {  # overall, per class and per reference row; intervals absent in old entries
+    "simple_mse": mse(null=False),
+    "complex_mse": mse(),
+    "variation_mse": mse(),
+    **{name + "_ci": interval() for name in METRIC_NAMES},
+    "n_objects": Field("int", 1, MAX_COUNT),
+}
+METRICS = {  # overall only, besides METRIC_BLOCK, per_class, no_skill_test, references, skill
+    "no_skill": Field("bool", null=True, required=False),
+    "mode_collapse": Field("bool", required=False),  # entries made before no_skill replaced it
+    "spread_ratio": Field("number", 0, MAX_MSE, null=True, required=False),
+    "n_meshes": Field("int", 1, MAX_COUNT, required=False),
+}
+NO_SKILL_TEST = {  # benchmark.metrics.skill_test
+    "gain_vs_train_mean": Field("number", -MAX_MSE, MAX_MSE),
+    "gain_vs_train_mean_ci": interval(-MAX_MSE, MAX_MSE),
+    "truth_spread": Field("number", 0, MAX_MSE),
+    "prediction_spread": Field("number", 0, MAX_MSE),
+    "co_spread": Field("number", -MAX_MSE, MAX_MSE),
+    "correlation": Field("number", -1 - 1e-9, 1 + 1e-9),
+}
+REFERENCE_NAMES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
+REFERENCE = {**METRIC_BLOCK, "no_skill": Field("bool", null=True)}  # benchmark.references
+COMPARISON = {  # benchmark.references.compare, one metric
+    "diff": Field("number", -MAX_MSE, MAX_MSE),
+    "ci": interval(-MAX_MSE, MAX_MSE),
+    "half_width": Field("number", 0, MAX_MSE, null=True),
+    "skill": Field("number", -MAX_MSE, 1, null=True),
+    "verdict": Field("text", hi=20),
+}
+VERDICTS = ("holds", "reversed", "inconclusive")
+SKILL = {
+    "reference": Field("text", hi=MAX_NAME),
+    "explained_by_class": Field("bool"),
+}
+MODEL = {
+    "name": Field("text", hi=MAX_NAME),
+    "params": Field("int", 0, MAX_PARAMS, null=True, required=False),
+    "embedding": Field("text", hi=MAX_NAME, null=True, required=False),
+    "regime": Field("text", hi=MAX_NAME, null=True, required=False),
+}
+SPEED = {  # benchmark.evaluate.speed_block; the machine fields are absent when self-reported
+    "ms_per_mesh": Field("number", 0, MAX_MS, null=True),
+    "hardware": Field("text", hi=MAX_TEXT, null=True),
+    "cpu": Field("text", hi=MAX_TEXT, null=True, required=False),
+    "threads": Field("int", 1, 1 << 16, null=True, required=False),
+    "load_avg_1m": Field("number", 0, 1e6, null=True, required=False),
+    "gpu": Field("text", hi=MAX_TEXT, null=True, required=False),
+    "self_reported": Field("bool", required=False),
+}
+RESULTS = {
+    "benchmark_version": Field("text", hi=40),
+    "dataset_fingerprint": Field("hex64"),
+    "created": Field("time"),
+}
+SEED = Field("int", 0, 2**64 - 1, null=True)
+
+
+def check_fields(record, table: dict[str, Field], where: str, extra: tuple[str, ...] = ()) -> None:
+    """``record`` must be an object holding the table's fields (and ``extra`` names) only."""
+    if not isinstance(record, dict):
+        raise SchemaError(f"{where} must be a JSON object")
+    unknown = sorted(str(k)[:40] for k in set(record) - set(table) - set(extra))
+    if unknown:
+        raise SchemaError(f"{where} has unknown field(s) {', '.join(unknown[:5])}")
+    for name, spec in table.items():
+        if name not in record and not spec.required:
+            continue
+        spec.check(record.get(name), f"{where}.{name}")
+
+
+def check_metrics(m, where: str = "metrics") -> dict:
+    """The metrics block of a results record or an entry (``benchmark.protocol.score``)."""
+    check_fields(m, {**METRIC_BLOCK, **METRICS}, where,
+                 extra=("per_class", "no_skill_test", "references", "skill"))
+    if m.get("no_skill_test") is not None:
+        check_fields(m["no_skill_test"], NO_SKILL_TEST, f"{where}.no_skill_test")
+    if "references" in m:
+        refs = m["references"]
+        if not isinstance(refs, dict) or set(refs) - set(REFERENCE_NAMES):
+            raise SchemaError(f"{where}.references must map {', '.join(REFERENCE_NAMES)} to rows")
+        for name, block in refs.items():
+            check_fields(block, REFERENCE, f"{where}.references.{name}")
+    if "skill" in m:
+        check_skill(m["skill"], f"{where}.skill")
+    if "n_meshes" in m and m["n_meshes"] < m["n_objects"]:
+        raise SchemaError(f"{where}.n_meshes must be at least n_objects")
+    per_class = m.get("per_class")
+    if not isinstance(per_class, dict) or not per_class or len(per_class) > MAX_CLASSES:
+        raise SchemaError(f"{where}.per_class must be an object of 1..{MAX_CLASSES} classes")
+    for name, block in per_class.items():
+        Field("text", hi=MAX_NAME).check(name, f"{where}.per_class key")
+        check_fields(block, METRIC_BLOCK, f"{where}.per_class.{name}")
+    return m
+
+
+def check_skill(sk, where: str = "skill") -> dict:
+    """``benchmark.references.skill``: paired comparisons with the strongest reference and with
+    the class mean, per metric."""
+    check_fields(sk, SKILL, where, extra=("vs_reference", "vs_class_mean"))
+    if sk["reference"] not in REFERENCE_NAMES:
+        raise SchemaError(f"{where}.reference must be one of {', '.join(REFERENCE_NAMES)}")
+    for part in ("vs_reference", "vs_class_mean"):
+        block = sk.get(part)
+        if not isinstance(block, dict) or set(block) - set(METRIC_NAMES[:2]):
+            raise SchemaError(f"{where}.{part} must map simple_mse/complex_mse to comparisons")
+        for metric, comp in block.items():
+            check_fields(comp, COMPARISON, f"{where}.{part}.{metric}")
+            if comp["verdict"] not in VERDICTS:
+                raise SchemaError(f"{where}.{part}.{metric}.verdict must be one of "
+                                  f"{', '.join(VERDICTS)}")
+    return sk
+
+
+def check_seeds(seeds, where: str = "seeds") -> dict:
+    """Seed names to a seed, null, or a list of seeds (``train_all``: every training seed)."""
+    if not isinstance(seeds, dict) or len(seeds) > MAX_SEEDS:
+        raise SchemaError(f"{where} must be an object of at most {MAX_SEEDS} seeds")
+    for name, value in seeds.items():
+        Field("text", hi=40).check(name, f"{where} key")
+        if isinstance(value, list):
+            if not value or len(value) > MAX_SEEDS:
+                raise SchemaError(f"{where}.{name} must list 1..{MAX_SEEDS} seeds")
+            for k, v in enumerate(value):
+                Field("int", 0, 2**64 - 1).check(v, f"{where}.{name}[{k}]")
+        else:
+            SEED.check(value, f"{where}.{name}")
+    return seeds
+
+
+def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:
+    """Per-object errors (what paired comparisons resample): equal-length lists, one entry per
+    scored test object; errors may be null where an object has no complex meshes."""
+    keys = ("object_id", "class_index", *METRIC_NAMES)
+    if not isinstance(po, dict) or set(po) != set(keys):
+        raise SchemaError(f"{where} must hold exactly {', '.join(keys)}")
+    for k in keys:
+        if not isinstance(po[k], list) or len(po[k]) != n_objects:
+            raise SchemaError(f"{where}.{k} must be a list of {n_objects} values")
+    for k in ("object_id", "class_index"):
+        for i, v in enumerate(po[k]):
+            Field("int", 0, 2**63 - 1).check(v, f"{where}.{k}[{i}]")
+    for k in METRIC_NAMES:
+        for i, v in enumerate(po[k]):
+            Field("number", 0, MAX_MSE, null=k != "simple_mse").check(v, f"{where}.{k}[{i}]")
+    return po
+
+
+def check_results(r, where: str = "results") -> dict:
+    """A whole results record (docs/ARCHITECTURE.md, "Results JSON")."""
+    check_fields(r, RESULTS, where, extra=("model", "metrics", "speed", "seeds", "per_object"))
+    check_fields(r.get("model"), MODEL, f"{where}: model")
+    check_metrics(r.get("metrics"), f"{where}: metrics")
+    if "per_object" in r:
+        check_per_object(r["per_object"], r["metrics"]["n_objects"], f"{where}: per_object")
+    check_fields(r.get("speed"), SPEED, f"{where}: speed")
+    check_seeds(r.get("seeds"), f"{where}: seeds")
+    return r
