@@ -297,7 +297,8 @@ class BasicShapes:
         return len(self.rows)
 
     def __repr__(self) -> str:
-        return f"BasicShapes({self.data.directory}, split={self.split!r}, variants={self.variants!r}, n={len(self)})"
+        return (f"BasicShapes({self.data.directory}, split={self.split!r}, "
+                f"variants={self.variants!r}, n={len(self)})")
 
     def object_of(self, i: int) -> int:
         """Global object row of item ``i`` (items of one object are consecutive)."""

@@ -129,7 +129,8 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
                 path = Path(write_predictions) if write_predictions else Path(
                     stack.enter_context(tempfile.TemporaryDirectory(dir=scratch_dir))) / "predictions.h5"
                 who = str(overrides.get("name") or getattr(model, "name", None) or type(model).__name__)
-                speed = speed_block(predict_test_split(model, data, path, batch_size, who, progress))
+                ms = predict_test_split(model, data, path, batch_size, who, progress)
+                speed = speed_block(ms)
                 with Predictions(path, data) as preds:
                     metrics = score(data, preds, per_object=True)
         else:
@@ -139,7 +140,8 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
         dataset_seed = data.config.get("seed")
         seeds = {"dataset": dataset_seed if isinstance(dataset_seed, int) else None, "train": train_seed}
         per_object = metrics.pop("per_object")
-        results = make_results(data.fingerprint, metrics, model_info(model, overrides), speed, seeds)
+        results = make_results(data.fingerprint, metrics, model_info(model, overrides), speed,
+                               seeds)
         results["per_object"] = per_object
         return results
 
@@ -148,6 +150,9 @@ def _ci(x, ci) -> str:
     if x is None:
         return "-"
     return f"{x:.2f}" + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "")
+
+
+VERDICT_WORDS = {"holds": "better", "reversed": "worse", "inconclusive": "not distinguishable"}
 
 
 def format_metrics(results: dict) -> str:
@@ -169,13 +174,14 @@ def format_metrics(results: dict) -> str:
         for k, v in sk["vs_reference"].items():
             lines.append(f"vs strongest reference ({sk['reference']}), {k}: {v['diff']:+.2f} "
                          f"[{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] dB², skill {v['skill']:.3f}: "
-                         f"{'better' if v['verdict'] == 'holds' else 'worse' if v['verdict'] == 'reversed' else 'not distinguishable'}")
+                         f"{VERDICT_WORDS[v['verdict']]}")
         if sk["explained_by_class"] and not m.get("no_skill"):
             lines.append("no better than the per-class mean: its skill is explained by the class")
     t = m.get("no_skill_test")
     if t:
-        lines.append(f"gain over the training mean {_ci(t['gain_vs_train_mean'], t['gain_vs_train_mean_ci'])}"
-                     f" dB², correlation {t['correlation']:.3f}; no skill: "
+        gain = _ci(t["gain_vs_train_mean"], t["gain_vs_train_mean_ci"])
+        lines.append(f"gain over the training mean {gain} dB², correlation "
+                     f"{t['correlation']:.3f}; no skill: "
                      f"{'YES' if m['no_skill'] else 'no'}")
     sp = results["speed"]
     if sp["ms_per_mesh"] is not None:
@@ -236,7 +242,8 @@ class Evaluator:
             v = v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
             arrays[k] = v
         if arrays["mesh_uid"].dtype.kind not in "iu" or arrays["target_db"].dtype.kind not in "fiu":
-            raise PredictionsError("Evaluator: mesh_uid must be integers and target_db real numbers")
+            raise PredictionsError("Evaluator: mesh_uid must be integers and target_db real "
+                                   "numbers")
         with tempfile.TemporaryDirectory() as tmp, BenchmarkData(self.root) as data:
             path = Path(tmp) / "predictions.h5"
             write_predictions(path, self.fingerprint, arrays["mesh_uid"].astype(np.int64),

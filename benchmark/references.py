@@ -37,7 +37,8 @@ def _conditional_spread(n: np.ndarray, w: np.ndarray, k: int) -> float:
     b = np.minimum(((np.arctan2(v, u) + np.pi) / (2 * np.pi) * AZIMUTH_BINS).astype(int),
                    AZIMUTH_BINS - 1)
     wsum = np.bincount(b, w, AZIMUTH_BINS)
-    m1, m2 = np.bincount(b, w * n[:, k], AZIMUTH_BINS), np.bincount(b, w * n[:, k] ** 2, AZIMUTH_BINS)
+    m1 = np.bincount(b, w * n[:, k], AZIMUTH_BINS)
+    m2 = np.bincount(b, w * n[:, k] ** 2, AZIMUTH_BINS)
     ok = wsum > 0
     return float(np.sqrt(max((m2[ok] - m1[ok] ** 2 / wsum[ok]).sum() / wsum.sum(), 0.0)))
 
@@ -141,8 +142,9 @@ class References:
         scale_nn = self._target(self.nearest(obj))
         inferred = [self.classifier.predict(*self.data.mesh(int(r))) for r in rows]
         class_nn = {k: self._target(self.nearest(obj, k)) for k in set(inferred)}
-        return {"train-mean": np.broadcast_to(self.mean, (n, *self.mean.shape)),
-                "class-mean": np.broadcast_to(self.class_mean.get(c, self.mean), (n, *self.mean.shape)),
+        shape = (n, *self.mean.shape)
+        return {"train-mean": np.broadcast_to(self.mean, shape),
+                "class-mean": np.broadcast_to(self.class_mean.get(c, self.mean), shape),
                 "nearest-scale": np.broadcast_to(scale_nn, (n, *scale_nn.shape)),
                 "class-scale-nn": np.stack([class_nn[k] for k in inferred])}
 
@@ -178,7 +180,8 @@ def summary(scorer: Scorer) -> dict:
 
 def strongest(rows: dict[str, dict]) -> str:
     """The reference with the lowest Complex MSE (Simple MSE when there is none)."""
-    key = "complex_mse" if all(r["complex_mse"] is not None for r in rows.values()) else "simple_mse"
+    complete = all(r["complex_mse"] is not None for r in rows.values())
+    key = "complex_mse" if complete else "simple_mse"
     return min(rows, key=lambda name: (rows[name][key], REFERENCES.index(name)))
 
 

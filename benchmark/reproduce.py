@@ -188,8 +188,8 @@ def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
         results = load_results(results_path)
     except (OSError, ValueError, ResultsError):
         return None
-    if ck is None or results["dataset_fingerprint"] != fingerprint or not predictions_path.is_file() \
-            or "per_object" not in results:
+    if ck is None or results["dataset_fingerprint"] != fingerprint \
+            or not predictions_path.is_file() or "per_object" not in results:
         return None
     return {"results": results, "train_seconds": ck.get("train_seconds")}
 
@@ -273,7 +273,8 @@ def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
         t0 = time.perf_counter()
         for batch in batches:
             model.predict(batch)
-        _mark_timed_alone(out, cfg, record, 1000.0 * (time.perf_counter() - t0) / len(rows), threads)
+        ms = 1000.0 * (time.perf_counter() - t0) / len(rows)
+        _mark_timed_alone(out, cfg, record, ms, threads)
 
 
 def publish_row(out: Path, name: str, seeds: list[int]) -> None:
@@ -338,7 +339,8 @@ def table_rows(records: dict, ref_scorers: dict | None = None,
                **{k: block[k] for k in METRICS}, **{k + "_ci": block[k + "_ci"] for k in METRICS},
                **{k + "_std": _std([r["metrics"][k] for r in res]) for k in METRICS},
                "per_seed": {str(s): {**{k: r["metrics"][k] for k in METRICS},
-                                     "no_skill": r["metrics"]["no_skill"]} for s, r in zip(seeds, res)},
+                                     "no_skill": r["metrics"]["no_skill"]}
+                            for s, r in zip(seeds, res)},
                "no_skill_seeds": sum(bool(r["metrics"]["no_skill"]) for r in res),
                "params": res[0]["model"]["params"], "ms_per_mesh": res[0]["speed"]["ms_per_mesh"],
                "speed": res[0]["speed"],
@@ -372,7 +374,8 @@ def _mean(values: list) -> float | None:
 def _per_object(row: dict) -> dict:
     po = row["per_object"]
     return {"class_index": np.array(po["class_index"]),
-            **{m: np.array([np.nan if x is None else x for x in po[m]], np.float64) for m in METRICS}}
+            **{m: np.array([np.nan if x is None else x for x in po[m]], np.float64)
+               for m in METRICS}}
 
 
 def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
@@ -392,7 +395,8 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
             comps.append({"better": "-".join(a), "than": "-".join(b), "metric": m,
                           "diff": p["diff"], "ci": p["ci"], "half_width": p["half_width"],
                           "verdict": verdict(p["ci"])})
-    counts = {v: sum(c["verdict"] == v for c in comps) for v in ("holds", "reversed", "inconclusive")}
+    counts = {v: sum(c["verdict"] == v for c in comps)
+              for v in ("holds", "reversed", "inconclusive")}
     if not comps:
         overall = None
     elif counts["holds"] == len(comps):
@@ -412,7 +416,8 @@ def findings(rows: list[dict]) -> list[dict]:
     pre = ("basic", "classification", "autoencoder")
     out = [
         {"claim": "graph and token embeddings beat direct (same pretraining, all three metrics)",
-         **_decide([((e, r), ("direct", r)) for e in ("graph", "token") for r in pre], by, METRICS)},
+         **_decide([((e, r), ("direct", r)) for e in ("graph", "token") for r in pre], by,
+                   METRICS)},
         {"claim": "autoencoder pretraining beats classification pretraining and none "
                   "(same embedding, all three metrics)",
          **_decide([((e, "autoencoder"), (e, r)) for e in EMBEDDINGS
@@ -555,7 +560,8 @@ def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", choices=tuple(PRESETS), required=True,
                         help="; ".join(f"{k}: {v.objects_per_class} objects/class x "
-                                       f"{v.variants + 1} meshes, {len(v.seeds)} seed(s), {v.expected}"
+                                       f"{v.variants + 1} meshes, {len(v.seeds)} seed(s), "
+                                       f"{v.expected}"
                                        for k, v in PRESETS.items()))
     parser.add_argument("--out", required=True, help="output directory (table.md, table.json, "
                         "speed_vs_error.png, checkpoints/, results/, data/)")

@@ -3,8 +3,9 @@
 Speed against error puts every model of one dataset at (ms per mesh, Complex MSE) with its
 95% interval, the physics simulator as the reference point (a model is only useful left of it,
 and only as good as it is low) and the harness's reference rows as dashed lines (they cost
-nothing to run: a model must be below them). Self-reported speeds are drawn as diamonds. The example shows one test object's physics response beside the best models'
-predictions for its simple mesh and for a complex mesh of exactly the same shape.
+nothing to run: a model must be below them). Self-reported speeds are drawn as diamonds.
+The example shows one test object's physics response beside the best models' predictions for
+its simple mesh and for a complex mesh of exactly the same shape.
 """
 
 from __future__ import annotations
@@ -49,7 +50,8 @@ def speed_vs_error(models: list[dict], simulator: dict | None,
         flagged = bool(m.get("no_skill", m.get("mode_collapse")))
         ci = m.get("complex_mse_ci")
         if ci:
-            ax.errorbar([x], [y], yerr=[[y - ci[0]], [ci[1] - y]], fmt="none", ecolor="0.6", zorder=2)
+            ax.errorbar([x], [y], yerr=[[y - ci[0]], [ci[1] - y]], fmt="none", ecolor="0.6",
+                        zorder=2)
         own = e["speed"].get("self_reported")
         ax.scatter([x], [y], s=46, marker="D" if own else "o",
                    facecolors="none" if flagged else "tab:blue",

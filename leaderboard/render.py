@@ -82,7 +82,8 @@ def references(g: dict) -> dict:
     for e in g["models"]:
         refs = e["metrics"].get("references")
         if refs:  # entry files sort their keys: show them in the harness's order
-            order = [n for n in REFERENCE_NOTES if n in refs] + sorted(set(refs) - set(REFERENCE_NOTES))
+            order = [n for n in REFERENCE_NOTES if n in refs] \
+                + sorted(set(refs) - set(REFERENCE_NOTES))
             return {n: refs[n] for n in order}
     return {}
 
@@ -183,8 +184,9 @@ def html_table(g: dict) -> str:
         cells = ([_num(None, "ref"), f'<td data-value="{_e(name)}">reference: {_e(name)}'
                   f'<br><small class="note">{_e(REFERENCE_NOTES.get(name, ""))}</small></td>']
                  + [_num(r[k], fmt_ci(r, k)) for k in METRIC_NAMES]
-                 + [_num(None, "—"), '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
-                    _num(0, "0"), _num(None, "—"), "<td>—</td>", "<td>—</td>", "<td>—</td>"])
+                 + [_num(None, "—"),
+                    '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
+                    _num(0, "0"), _num(None, "—")] + ["<td>—</td>"] * 3)
         rows.append('<tr class="reference">' + "".join(cells) + "</tr>")
     return (f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'
             f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>")
@@ -267,8 +269,8 @@ def markdown(groups: list[dict]) -> str:
         short = g["short"]
         out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
         if g["models"]:
-            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | Skill | No skill | Params "
-                    "| ms / mesh | Hardware | Date |",
+            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | Skill | No skill "
+                    "| Params | ms / mesh | Hardware | Date |",
                     "|---:|---|---:|---:|---:|---:|---|---:|---:|---|---|"]
             for rank, e in enumerate(g["models"], 1):
                 m = e["metrics"]
@@ -282,7 +284,8 @@ def markdown(groups: list[dict]) -> str:
             for ref, r in references(g).items():
                 out.append(f"| ref | reference: {_md(ref)} | "
                            + " | ".join(fmt_ci(r, k) for k in METRIC_NAMES)
-                           + f" | — | {'**yes**' if r.get('no_skill') else 'no'} | 0 | — | — | — |")
+                           + f" | — | {'**yes**' if r.get('no_skill') else 'no'} "
+                           f"| 0 | — | — | — |")
             out += ["", _md(skill_note(g)), ""]
         notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
         out += [_md(notes), "",
@@ -290,7 +293,8 @@ def markdown(groups: list[dict]) -> str:
         if g["models"]:
             out += ["### Per class", "", "| Model | Class | Simple MSE | Complex MSE | Variation MSE |",
                     "|---|---|---:|---:|---:|"]
-            out += [f"| {_md(e['name'])} | {_md(c)} | " + " | ".join(fmt_ci(m, k) for k in METRIC_NAMES)
+            out += [f"| {_md(e['name'])} | {_md(c)} | "
+                    + " | ".join(fmt_ci(m, k) for k in METRIC_NAMES)
                     + " |" for e in g["models"] for c, m in sorted(e["metrics"]["per_class"].items())]
             out += [""]
         if g["example"]:
@@ -309,8 +313,8 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     groups = datasets(entries)
     files: dict[str, bytes] = {}
     for g in groups:
-        files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(g["models"], g["simulator"],
-                                                                            references(g))
+        files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(
+            g["models"], g["simulator"], references(g))
         if g["example"]:
             files[f"example-{g['short']}.png"] = figures.example(g["example"])
     sizes = {name: _png_size(data) for name, data in files.items()}

@@ -210,7 +210,8 @@ def test_evaluator_scores_arrays_through_the_harness_path(data, data_dir, tmp_pa
     uid = torch.stack([it["mesh_uid"] for it in items])
     oracle = torch.stack([it["target"] for it in items])
     ev = Evaluator(data_dir)
-    assert f"(M = {len(test)}" in ev.expected_input_format and "7, 5, 16" in ev.expected_input_format
+    fmt = ev.expected_input_format
+    assert f"(M = {len(test)}" in fmt and "7, 5, 16" in fmt
     perfect = ev.eval({"mesh_uid": uid, "target_db": oracle})
     assert perfect["simple_mse"] == perfect["complex_mse"] == perfect["variation_mse"] == 0.0
     assert perfect["no_skill"] is False and perfect["simple_mse_ci"] == [0.0, 0.0]

@@ -238,6 +238,14 @@ def test_results_json_round_trip_and_validation(model_run, tmp_path):
         "params": ({**results, "model": {**results["model"], "params": "many"}}, "model.params"),
         "per class": ({**results, "metrics": {**results["metrics"], "per_class": {"cube": {}}}}, "per_class.cube.simple_mse"),
         "created": ({**results, "created": "yesterday"}, "created is not a UTC timestamp"),
+        "interval": ({**results, "metrics": {**results["metrics"], "simple_mse_ci": [3.0, 1.0]}},
+                     "simple_mse_ci must have lo <= hi"),
+        "skill": ({**results, "metrics": {**results["metrics"], "skill": {
+            **results["metrics"]["skill"], "reference": "oracle"}}}, "skill.reference must be"),
+        "per object": ({**results, "per_object": {**results["per_object"], "simple_mse": [1.0]}},
+                       "per_object.simple_mse must be a list of 6"),
+        "self-reported": ({**results, "speed": {**results["speed"], "self_reported": "yes"}},
+                          "speed.self_reported must be true or false"),
     }
     for name, (bad, problem) in cases.items():
         p = tmp_path / f"{name}.json"

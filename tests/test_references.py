@@ -69,10 +69,10 @@ def test_reference_predictions_by_hand(tmp_path):
             c = data.objects["class_index"][obj]
             p = refs.predictions(int(obj))
             same = train[data.objects["class_index"][train] == c]
-            np.testing.assert_allclose(p["class-mean"][0], np.mean([data.target(o) for o in same], 0),
-                                       rtol=1e-6)
-            d = np.linalg.norm(np.log(data.objects["scale"][train]) - np.log(data.objects["scale"][obj]),
-                               axis=1)
+            np.testing.assert_allclose(p["class-mean"][0],
+                                       np.mean([data.target(o) for o in same], 0), rtol=1e-6)
+            log_scale = np.log(data.objects["scale"])
+            d = np.linalg.norm(log_scale[train] - log_scale[obj], axis=1)
             np.testing.assert_array_equal(p["nearest-scale"][0], data.target(train[np.argmin(d)]))
             # the fixture's meshes are boxes, cylinders and icospheres: the class is read right
             dc = np.where(data.objects["class_index"][train] == c, d, np.inf)

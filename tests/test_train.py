@@ -169,7 +169,8 @@ def test_tiny_preset_end_to_end(tmp_path):
         assert row["speed"]["threads"] >= 1 and "timed alone" in row["speed"]["hardware"]
     invariant = table["rows"][-1]
     assert invariant["name"] == "invariant-basic"
-    assert set(table["references"]) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
+    assert set(table["references"]) == {"train-mean", "class-mean", "nearest-scale",
+                                        "class-scale-nn"}
     md = (out / "table.md").read_text()
     assert md.count("\n| ") == 14 + 4 and table["command"] in md and "reference: train-mean" in md
     assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -199,7 +200,8 @@ def _paper_shaped_rows(n: int = 90, seed: int = 0) -> list[dict]:
     rows = []
 
     def row(e, r, simple, complex_, variation):
-        noisy = [list(x * (1 + 0.01 * rng.standard_normal(n))) for x in (simple, complex_, variation)]
+        noisy = [list(x * (1 + 0.01 * rng.standard_normal(n)))
+                 for x in (simple, complex_, variation)]
         return {"name": f"{e}-{r}", "embedding": e, "regime": r,
                 "per_object": {"class_index": cls.tolist(), "simple_mse": noisy[0],
                                "complex_mse": noisy[1], "variation_mse": noisy[2]}}
@@ -217,7 +219,8 @@ def test_findings_are_decided_by_paired_intervals():
     f = {x["claim"].split(" (")[0]: x for x in findings(rows)}
     embed = f["graph and token embeddings beat direct"]
     assert embed["verdict"] == "holds" and (embed["holds"], embed["of"]) == (18, 18)
-    assert f["autoencoder pretraining beats classification pretraining and none"]["verdict"] == "holds"
+    pretraining = f["autoencoder pretraining beats classification pretraining and none"]
+    assert pretraining["verdict"] == "holds"
     assert f["graph + autoencoder is best of the non-Ideal paper rows on all three metrics"]["of"] == 24
     ideal = f["every non-Ideal model falls short of its Ideal model on Variation MSE"]
     assert ideal["verdict"] == "holds" and ideal["of"] == 9
@@ -234,7 +237,8 @@ def test_findings_are_decided_by_paired_intervals():
     assert ideal["verdict"] == "reversed" and ideal["reversed"] == 3
     embed = f["graph and token embeddings beat direct"]
     tied = [c for c in embed["comparisons"] if c["better"] == "graph-basic"]
-    assert [c["verdict"] for c in tied] == ["inconclusive"] * 3 and embed["verdict"] == "inconclusive"
+    assert [c["verdict"] for c in tied] == ["inconclusive"] * 3
+    assert embed["verdict"] == "inconclusive"
     partial = findings(rows[9:])  # only the Ideal rows: nothing to compare
     assert [x["verdict"] for x in partial] == [None] * 4
 
@@ -252,7 +256,8 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     from benchmark.train import validation_mse
 
     # the returned weights are the selected epoch's: their val MSE is the recorded one
-    assert validation_mse(model, val, 4, torch.device("cpu")) == pytest.approx(sel["val_mse"], rel=1e-5)
+    again = validation_mse(model, val, 4, torch.device("cpu"))
+    assert again == pytest.approx(sel["val_mse"], rel=1e-5)
     with BenchmarkData(make_dataset(tmp_path / "nv", objects_per_class=3, n_test_per_class=1,
                                     grid=(3, 2, 8))) as data:
         _, config = train(TrainConfig(**TINY), data, progress=False)
