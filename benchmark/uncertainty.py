@@ -26,12 +26,18 @@ LEVEL = 0.95
 
 def resamples(strata: np.ndarray, n_boot: int = N_BOOT, seed: int = SEED) -> np.ndarray:
     """(n_boot, n) object indices: each row draws, within every class, as many objects as
-    the class has, with replacement."""
+    the class has, with replacement. Classes of a single test object are resampled together
+    as one stratum: alone, such an object would always be drawn and the interval would
+    pretend it is known without sampling error."""
     strata = np.asarray(strata)
     rng = np.random.default_rng(seed)
     out = np.empty((n_boot, len(strata)), np.int64)
-    for s in np.unique(strata):
-        members = np.flatnonzero(strata == s)
+    labels, counts = np.unique(strata, return_counts=True)
+    groups = [np.flatnonzero(strata == s) for s, c in zip(labels, counts) if c > 1]
+    single = np.flatnonzero(np.isin(strata, labels[counts == 1]))
+    if len(single):
+        groups.append(single)
+    for members in groups:
         out[:, members] = members[rng.integers(0, len(members), (n_boot, len(members)))]
     return out
 

@@ -38,7 +38,7 @@ def test_two_objects_by_hand():
                                       "n_objects": 1, "simple_mse_ci": [1.0, 1.0],
                                       "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0]}
     assert r["per_class"]["cylinder"]["complex_mse"] == 0.0
-    assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: no spread
+    assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: nothing to draw
     assert (r["n_objects"], r["n_meshes"]) == (2, 5)
     assert r["no_skill"] is None  # no training mean given: the rule cannot be applied
 
@@ -159,10 +159,12 @@ def test_bootstrap_interval_matches_normal_theory():
 
 
 def test_resamples_are_stratified_by_class():
-    strata = np.array([0] * 5 + [1] * 3 + [2] * 1)
+    strata = np.array([0] * 5 + [1] * 3 + [2] * 1 + [3] * 1)
     idx = resamples(strata, n_boot=200)
-    assert np.array_equal(strata[idx], np.broadcast_to(strata, idx.shape))
-    assert len(np.unique(idx[:, 8])) == 1  # a class of one object is always that object
+    assert np.array_equal(strata[idx[:, :8]], np.broadcast_to(strata[:8], (200, 8)))
+    # classes of one object are resampled together, so their interval is not zero-width
+    assert set(idx[:, 8:].ravel()) == {8, 9}
+    assert interval([1.0, 3.0], [0, 1])[1] > interval([1.0, 3.0], [0, 1])[0]
 
 
 def test_paired_interval_removes_shared_spread_and_verdicts():
