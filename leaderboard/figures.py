@@ -16,6 +16,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import FormatStrFormatter, SymmetricalLogLocator  # noqa: E402
 import numpy as np  # noqa: E402
 
 DPI = 100
@@ -72,6 +73,9 @@ def speed_vs_error(models: list[dict], simulator: dict | None,
                     fontsize=8, color="tab:orange")
     ax.set_xscale("log")
     ax.set_yscale("symlog", linthresh=1.0)  # spans 0 (the physics) to no-skill models' hundreds
+    # ticks at 1..9 x each decade, so a range inside one decade is still labelled
+    ax.yaxis.set_major_locator(SymmetricalLogLocator(base=10, linthresh=1.0, subs=range(1, 10)))
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
     ax.set_xlabel("ms per mesh (log scale; lower is faster)")
     ax.set_ylabel("Complex MSE (dB², 95% interval; symlog; lower is better)")
     ax.margins(x=0.25, y=0.1)  # room for the labels

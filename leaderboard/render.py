@@ -74,7 +74,8 @@ def skill_of(e: dict) -> tuple[float | None, str]:
     v = v.get("complex_mse") or v.get("simple_mse")
     if not v or v.get("skill") is None:
         return None, "—"
-    return v["skill"], f"{v['skill']:+.2f} ({v['verdict']})"
+    word = {"holds": "better", "reversed": "worse"}.get(v["verdict"], "not distinguishable")
+    return v["skill"], f"{v['skill']:+.2f} ({word})"
 
 
 def references(g: dict) -> dict:
@@ -204,8 +205,8 @@ def skill_note(g: dict) -> str:
     if not names:
         return ""
     return (f"Skill: 1 − Complex MSE / Complex MSE of the strongest reference "
-            f"({', '.join(sorted(names))}), with the verdict of the paired 95% interval of the "
-            f"difference (holds: better). No skill: not better than the training-set mean by a "
+            f"({', '.join(sorted(names))}), and whether the model is better, worse or not "
+            f"distinguishable from it by the paired 95% interval of the difference. No skill: not better than the training-set mean by a "
             f"paired 95% interval. Reference rows cost nothing to run and are not ranked.")
 
 
