@@ -57,7 +57,8 @@ def main() -> None:
               f"{r['paper_test_split_s']:>21.1f}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"grid": args.grid, "test_meshes": n, "rows": rows, "hardware": hardware(),
+    out.write_text(json.dumps({"grid": args.grid, "test_meshes": n, "rows": rows,
+                               "hardware": hardware()["text"],
                                "python": platform.python_version()}, indent=2) + "\n")
     print(f"written to {out}")
 

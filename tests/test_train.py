@@ -243,6 +243,31 @@ def test_findings_are_decided_by_paired_intervals():
     assert [x["verdict"] for x in partial] == [None] * 4
 
 
+def test_rows_average_seeds_per_object_with_std_and_interval():
+    from benchmark.reproduce import table_rows
+    from benchmark.uncertainty import interval
+
+    rng = np.random.default_rng(3)
+    n, cls = 30, np.arange(30) % 3
+    runs = {}
+    for seed in (0, 1, 2):
+        errs = {m: rng.gamma(2.0, 10.0, n) for m in ("simple_mse", "complex_mse", "variation_mse")}
+        metrics = {m: float(v.mean()) for m, v in errs.items()}
+        metrics.update(no_skill=seed == 0, per_class={"a": {}, "b": {}, "c": {}})
+        runs[seed] = {"train_seconds": 10.0 + seed, "results": {
+            "metrics": metrics, "model": {"params": 5}, "speed": {"ms_per_mesh": 1.0},
+            "per_object": {"object_id": list(range(n)), "class_index": cls.tolist(),
+                           **{m: v.tolist() for m, v in errs.items()}}}}
+    (row,) = table_rows({"graph-basic": runs})
+    per_seed = np.array([runs[s]["results"]["per_object"]["complex_mse"] for s in (0, 1, 2)])
+    assert row["seeds"] == [0, 1, 2] and row["train_seconds"] == 11.0
+    assert row["complex_mse"] == pytest.approx(per_seed.mean(), rel=1e-12)
+    assert row["complex_mse_std"] == pytest.approx(per_seed.mean(axis=1).std(ddof=1), rel=1e-12)
+    assert row["complex_mse_ci"] == interval(per_seed.mean(axis=0), cls)  # of the seed-mean
+    assert row["no_skill_seeds"] == 1 and row["no_skill"] is False  # one seed of three
+    assert row["per_class"]["b"]["complex_mse"] == pytest.approx(per_seed[:, cls == 1].mean())
+
+
 def test_validation_split_selects_the_checkpoint(tmp_path):
     d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
                      grid=(3, 2, 8))
