@@ -195,8 +195,9 @@ def html_table(g: dict) -> str:
 
 REFERENCE_NOTES = {"train-mean": "the training-set mean response, for every mesh",
                    "class-mean": "the training mean of the object's class (class given)",
-                   "nearest-scale": "the training object nearest in log scale",
-                   "class-scale-nn": "class read from the mesh's normals, then nearest in scale"}
+                   "nearest-scale": "the 3 training objects nearest in log scale",
+                   "class-scale-nn": "class read from the mesh's normals, then the 3 nearest "
+                                     "in scale"}
 
 
 def skill_note(g: dict) -> str:

@@ -68,15 +68,6 @@ def radar_attrs(data: BenchmarkData) -> dict:
         return dict(s.file["radar"].attrs)
 
 
-def physics_threads() -> int:
-    """Threads radar_sim may run on: Embree and numpy's BLAS use every core the process is
-    allowed, so that is the thread count of its timing."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
-
-
 def measure_ms_per_mesh(data: BenchmarkData, repeats: int = 3) -> float:
     """Median wall time of ``radar_sim.simulate`` over the example object's meshes.
 
@@ -117,7 +108,7 @@ def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT
         "entry_version": ENTRY_VERSION, "id": f"physics-{fingerprint[:12]}", "kind": "simulator",
         "name": name, "link": None, "params": None, "dataset": dataset, "metrics": metrics,
         "complex_mse_source": source,
-        "speed": {**(speed_block(ms_per_mesh, physics_threads()) if timed else
+        "speed": {**(speed_block(ms_per_mesh) if timed else
                      {**speed_block(ms_per_mesh, self_reported=True), "hardware": hardware_text}),
                   "source": "measured by leaderboard simulator" if timed else "given by hand"},
         "submitted": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),

@@ -128,8 +128,8 @@ def test_models_load_from_module_and_file(data_dir, model_file):
 def test_reference_rows_match_the_reference_models_and_the_mean_has_no_skill(data_dir):
     kw = {"data_dir": str(data_dir)}
     mean = evaluate(data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False)
-    near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", {**kw, "k": "1"}),
-                    progress=False)
+    near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw),
+                    progress=False)  # k = 3, as the reference
     refs = mean["metrics"]["references"]
     assert set(refs) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
     for model, name in ((mean, "train-mean"), (near, "nearest-scale")):  # two code paths, one number
