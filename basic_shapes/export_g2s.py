@@ -63,11 +63,10 @@ def read_labels(shard: Shard) -> RadarLabels:
     return RadarLabels(*(g[n][()] for n in LABELS), str(g.attrs.get("config", "")))
 
 
-def _mesh_counts(shard: Shard) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per mesh: (object index, variant, vertex count, face count), without reading geometry."""
+def _mesh_counts(shard: Shard) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per mesh: (variant, vertex count, face count), without reading geometry."""
     g = shard.file["meshes"]
-    return (g["object_index"][()], g["variant"][()], np.diff(g["vertex_offset"][()]),
-            np.diff(g["face_offset"][()]))
+    return g["variant"][()], np.diff(g["vertex_offset"][()]), np.diff(g["face_offset"][()])
 
 
 def padded_sizes(paths: list[Path]) -> tuple[int, int, int]:
@@ -75,7 +74,7 @@ def padded_sizes(paths: list[Path]) -> tuple[int, int, int]:
     n_var = n_v = n_f = 0
     for p in paths:
         with Shard(p) as s:
-            _, var, nv, nf = _mesh_counts(s)
+            var, nv, nf = _mesh_counts(s)
             n_var = max(n_var, int(var.max()) + 1 if len(var) else 0)
             n_v = max(n_v, int(nv.max(initial=0)))
             n_f = max(n_f, int(nf.max(initial=0)))
@@ -83,7 +82,7 @@ def padded_sizes(paths: list[Path]) -> tuple[int, int, int]:
 
 
 def shard_dataset(shard: Shard, sizes: tuple[int, int, int], fingerprint: str):
-    """The xarray Dataset of one shard in the g2s layout."""
+    """The xarray Dataset of one shard in the g2s layout (one shard in memory at a time)."""
     import xarray as xr
 
     labels = read_labels(shard)
@@ -105,7 +104,7 @@ def shard_dataset(shard: Shard, sizes: tuple[int, int, int], fingerprint: str):
     names = shard.class_names
     data = {
         "rti": (("sample", "aspect", "roll", "range", "complex"), rti, {
-            "long_name": "range profile of the object (simple-mesh label), (real, imag)",
+            "long_name": "range profile, the object's label (/radar/response), (real, imag)",
             "units": "m", "description": "complex amplitude A with sigma = |A|^2 in m^2; "
             "a point scatterer of 1 m^2 peaks at 1; last dimension (real, imag)"}),
         "rep_mesh_vertices": (("sample", "mesh_variant", "vertex", "xyz"), vertices, {
@@ -133,10 +132,11 @@ def shard_dataset(shard: Shard, sizes: tuple[int, int, int], fingerprint: str):
     }
     coords = {
         "aspect_rad": (("aspect",), np.radians(labels.aspect_deg), {
-            "long_name": "aspect angle theta: line of sight (sin t cos r, sin t sin r, cos t)",
+            "long_name": "aspect theta; line of sight (sin theta cos roll, "
+            "sin theta sin roll, cos theta)",
             "units": "rad"}),
         "roll_rad": (("roll",), np.radians(labels.roll_deg), {
-            "long_name": "roll angle r about the z axis", "units": "rad"}),
+            "long_name": "roll about the z axis", "units": "rad"}),
         "range": (("range",), labels.range_m, {
             "long_name": "relative range, positive away from the radar", "units": "m"}),
         "mesh_variant": (("mesh_variant",), np.arange(n_var, dtype=np.int32), {
