@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from basic_shapes.generate import GenerateConfig
+from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE
 
 EPILOG = """examples:
@@ -19,9 +20,10 @@ def _positive_list(text: str) -> tuple[str, ...]:
     return tuple(c.strip() for c in text.split(",") if c.strip())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="basic-shapes", description=__doc__, epilog=EPILOG,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> ArgumentParser:
+    p = ArgumentParser(prog="basic-shapes", description=__doc__, epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
 
     g = sub.add_parser("generate", help="generate a dataset of verified mesh variants (HDF5 shards)",
@@ -32,19 +34,24 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out", required=True, help="dataset directory (created; resumed if it exists)")
     g.add_argument("--classes", type=_positive_list, default=GenerateConfig.classes,
                    help="comma-separated primitives (default: cube,cylinder,sphere; also cone,torus)")
-    g.add_argument("--objects-per-class", type=int, default=GenerateConfig.objects_per_class,
+    g.add_argument("--objects-per-class", type=number(int, minimum=1),
+                   default=GenerateConfig.objects_per_class,
                    help="objects per class (default: %(default)s, the paper's scale)")
-    g.add_argument("--variants", type=int, default=GenerateConfig.variants,
+    g.add_argument("--variants", type=number(int, minimum=0, maximum=999),
+                   default=GenerateConfig.variants,
                    help="complex variants per object, besides the simple mesh (default: %(default)s)")
-    g.add_argument("--seed", type=int, default=0, help="dataset seed (default: %(default)s)")
-    g.add_argument("--workers", type=int, default=None,
+    g.add_argument("--seed", type=number(int, minimum=0, maximum=2**63 - 1), default=0,
+                   help="dataset seed (default: %(default)s)")
+    g.add_argument("--workers", type=number(int, minimum=0), default=None,
                    help="local worker processes (default: one per core; 0 = no Dask, in-process)")
     g.add_argument("--scheduler", default=None, help="address of a running Dask scheduler")
-    g.add_argument("--objects-per-shard", type=int, default=GenerateConfig.objects_per_shard,
+    g.add_argument("--objects-per-shard", type=number(int, minimum=1),
+                   default=GenerateConfig.objects_per_shard,
                    help="objects per HDF5 shard (default: %(default)s)")
-    g.add_argument("--scale-range", type=float, nargs=2, default=SCALE_RANGE, metavar=("LOW", "HIGH"),
+    g.add_argument("--scale-range", type=number(above=0), nargs=2, default=SCALE_RANGE,
+                   metavar=("LOW", "HIGH"),
                    help="per-axis bbox extent range in metres (default: %(default)s)")
-    g.add_argument("--min-scale-distance", type=float, default=MIN_DISTANCE,
+    g.add_argument("--min-scale-distance", type=number(above=0), default=MIN_DISTANCE,
                    help="minimum log-scale distance between objects of one class (default: %(default)s)")
 
     i = sub.add_parser("info", help="counts, face-count histograms and Hausdorff statistics")
@@ -52,9 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("show", help="render an object's simple mesh beside complex variants (PNG)")
     s.add_argument("dir", help="dataset directory")
-    s.add_argument("--object", type=int, required=True, help="object id")
+    s.add_argument("--object", type=number(int, minimum=0), required=True, help="object id")
     s.add_argument("--out", required=True, help="output PNG")
-    s.add_argument("--count", type=int, default=5, help="complex variants to show (default: %(default)s)")
+    s.add_argument("--count", type=number(int, minimum=0, maximum=99), default=5,
+                   help="complex variants to show (default: %(default)s)")
 
     e = sub.add_parser("export", help="write every mesh as a plain OBJ/PLY/STL file, or "
                        "labelled shards as NetCDF (g2s)")
@@ -63,44 +71,46 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mesh files, or g2s: one NetCDF per shard, meshes + radar labels in the "
                    "layout of the paper's group (docs/ARCHITECTURE.md, Formats)")
     e.add_argument("--out", required=True, help="output directory")
-    e.add_argument("--object", type=int, default=None, help="only this object id")
+    e.add_argument("--object", type=number(int, minimum=0), default=None,
+                   help="only this object id")
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
+def _main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        if args.command == "generate":
-            from basic_shapes.generate import generate
+    if args.command == "generate":
+        from basic_shapes.generate import generate
 
-            cfg = GenerateConfig(classes=args.classes, objects_per_class=args.objects_per_class,
-                                 variants=args.variants, seed=args.seed,
-                                 objects_per_shard=args.objects_per_shard,
-                                 scale_range=tuple(args.scale_range),
-                                 min_scale_distance=args.min_scale_distance)
-            stats = generate(args.out, cfg, workers=args.workers, scheduler=args.scheduler)
-            print(f"{args.out}: {stats['shards']} shards ({stats['skipped']} already done), "
-                  f"{stats['meshes']} meshes built in {stats['seconds']:.1f} s "
-                  f"({stats['meshes_per_second']:.1f} verified meshes/s)")
-        elif args.command == "info":
-            from basic_shapes.info import summary
+        cfg = GenerateConfig(classes=args.classes, objects_per_class=args.objects_per_class,
+                             variants=args.variants, seed=args.seed,
+                             objects_per_shard=args.objects_per_shard,
+                             scale_range=tuple(args.scale_range),
+                             min_scale_distance=args.min_scale_distance)
+        stats = generate(args.out, cfg, workers=args.workers, scheduler=args.scheduler)
+        print(f"{args.out}: {stats['shards']} shards ({stats['skipped']} already done), "
+              f"{stats['meshes']} meshes built in {stats['seconds']:.1f} s "
+              f"({stats['meshes_per_second']:.1f} verified meshes/s)")
+    elif args.command == "info":
+        from basic_shapes.info import summary
 
-            print(summary(args.dir))
-        elif args.command == "show":
-            from basic_shapes.render import show_object
+        print(summary(args.dir))
+    elif args.command == "show":
+        from basic_shapes.render import show_object
 
-            show_object(args.dir, args.object, args.out, args.count)
-            print(f"wrote {args.out}")
-        elif args.command == "export":
-            from basic_shapes.export import export
+        show_object(args.dir, args.object, args.out, args.count)
+        print(f"wrote {args.out}")
+    elif args.command == "export":
+        from basic_shapes.export import export
 
-            n = export(args.dir, args.out, args.format, args.object)
-            kind = "NetCDF (g2s)" if args.format == "g2s" else args.format.upper()
-            print(f"wrote {n} {kind} files to {args.out}")
-    except (ValueError, OSError) as exc:  # ShardError, ScaleError and config errors are ValueErrors
-        print(f"basic-shapes {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        n = export(args.dir, args.out, args.format, args.object)
+        kind = "NetCDF (g2s)" if args.format == "g2s" else args.format.upper()
+        print(f"wrote {n} {kind} files to {args.out}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point, behind the shared error boundary (docs/CLI.md)."""
+    return cli_boundary("basic-shapes", _main, argv)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import __version__
-from basic_shapes.shards import Shard, ShardError, atomic_path, dataset_fingerprint, list_shards
+from basic_shapes.infra import atomic_path
+from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, list_shards
 
 PAD = -10  # vertex coordinates (m) and face indices alike; the group's loaders' default
 NETCDF_GLOB = "shard-*.nc"

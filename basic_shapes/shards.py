@@ -7,7 +7,6 @@ leaves a file that reads as a valid shard. This module must not import bpy or to
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -19,8 +18,11 @@ from typing import Iterator
 import h5py
 import numpy as np
 
+from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
+
 SCHEMA_VERSION = 1
 SHARD_GLOB = "shard-*.h5"
+SPLITS = ("train", "test")
 TOOLKIT = "basic-shapes"
 
 
@@ -30,26 +32,6 @@ class ShardError(ValueError):
 
 def shard_name(index: int) -> str:
     return f"shard-{index:05d}.h5"
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path; on success fsync it and rename it onto ``path``."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.unlink(missing_ok=True)
-    try:
-        yield tmp
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _dataset(group: h5py.Group, name: str, data, **kw) -> h5py.Dataset:
@@ -131,34 +113,98 @@ class Shard:
                 "meshes/object_index", "meshes/variant", "meshes/vertex_offset",
                 "meshes/face_offset", "meshes/vertices", "meshes/faces")
 
-    def __init__(self, path: str | os.PathLike, mode: str = "r"):
+    def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        try:
-            self.file = h5py.File(self.path, mode)
-        except OSError as exc:
-            raise ShardError(f"{self.path}: not a readable HDF5 shard ({exc.__class__.__name__}: "
-                             f"{str(exc).splitlines()[0]})") from None
+        self.file = open_hdf5(self.path, ShardError, "HDF5 shard")
         try:
             self._validate()
         except Exception:
             self.file.close()
             raise
 
+    def _fail(self, problem: str):
+        raise ShardError(f"{self.path}: {problem}")
+
     def _validate(self) -> None:
+        """Structure and indices, all checked before any mesh is handed out.
+
+        The opener bounded every declared size by the file's bytes; here the offsets are
+        checked completely (start 0, non-decreasing, ending at the array lengths), object
+        and class indices are checked in range, and the JSON attributes must parse. Face
+        indices are checked per mesh as meshes are read (``mesh``), and for the whole shard,
+        with the fingerprint, by ``verify``.
+        """
         f = self.file
-        if f.attrs.get("toolkit") != TOOLKIT:
-            raise ShardError(f"{self.path}: not a basic-shapes shard (no toolkit attribute)")
-        if int(f.attrs.get("schema_version", -1)) != SCHEMA_VERSION:
-            raise ShardError(f"{self.path}: schema version {f.attrs.get('schema_version')} "
-                             f"is not the supported {SCHEMA_VERSION}")
+        if _text_attr(f, "toolkit") != TOOLKIT:
+            self._fail("not a basic-shapes shard (no toolkit attribute)")
+        if _text_attr(f, "schema_version") != str(SCHEMA_VERSION):
+            self._fail(f"schema version {_text_attr(f, 'schema_version')} is not the supported "
+                       f"{SCHEMA_VERSION}")
         missing = [n for n in self.REQUIRED if n not in f]
         if missing:
-            raise ShardError(f"{self.path}: truncated shard, missing {', '.join(missing)}")
-        vo, fo = f["meshes/vertex_offset"], f["meshes/face_offset"]
-        n = len(f["meshes/variant"])
-        if len(vo) != n + 1 or len(fo) != n + 1 or vo[-1] != len(f["meshes/vertices"]) \
-                or fo[-1] != len(f["meshes/faces"]):
-            raise ShardError(f"{self.path}: mesh offsets do not match the vertex/face arrays")
+            self._fail(f"truncated shard, missing {', '.join(missing)}")
+        for name in ("generator_config", "fingerprint"):
+            if _text_attr(f, name) is None:
+                self._fail(f"missing the {name} attribute")
+        self._config = load_json(_text_attr(f, "generator_config"), error=ShardError,
+                                 what=f"{self.path}: generator_config")
+        if not isinstance(self._config, dict):
+            self._fail("generator_config is not a JSON object")
+        self._class_names = load_json(_text_attr(f["objects/class"], "names") or "null",
+                                      error=ShardError, what=f"{self.path}: /objects/class names")
+        if not (isinstance(self._class_names, list) and self._class_names
+                and all(isinstance(c, str) for c in self._class_names)):
+            self._fail("/objects/class names is not a non-empty JSON list of strings")
+        self._validate_tables()
+
+    def _validate_tables(self) -> None:
+        f, err, path = self.file, ShardError, self.path
+        n_obj = len(require_dataset(f, "objects/id", "iu", 1, err, path))
+        for name, kinds, ndim, tail in (("objects/class", "iu", 1, ()),
+                                        ("objects/scale", "f", 2, (3,)),
+                                        ("objects/split", "SO", 1, ())):
+            if len(require_dataset(f, name, kinds, ndim, err, path, tail)) != n_obj:
+                self._fail(f"/{name} has not one row per object ({n_obj})")
+        n = len(require_dataset(f, "meshes/variant", "iu", 1, err, path))
+        if len(require_dataset(f, "meshes/object_index", "iu", 1, err, path)) != n:
+            self._fail(f"/meshes/object_index has not one row per mesh ({n})")
+        n_v = len(require_dataset(f, "meshes/vertices", "f", 2, err, path, (3,)))
+        n_f = len(require_dataset(f, "meshes/faces", "iu", 2, err, path, (3,)))
+        for name, total in (("vertex_offset", n_v), ("face_offset", n_f)):
+            off = require_dataset(f, f"meshes/{name}", "i", 1, err, path)[()]
+            if len(off) != n + 1 or off[0] != 0 or off[-1] != total or np.any(np.diff(off) < 0):
+                self._fail(f"/meshes/{name} is not a valid offset table (n+1 = {n + 1} entries "
+                           f"from 0, non-decreasing, ending at {total})")
+        cls = f["objects/class"][()]
+        if len(cls) and (cls.min() < 0 or cls.max() >= len(self._class_names)):
+            self._fail(f"/objects/class holds an index outside 0..{len(self._class_names) - 1}")
+        oi = f["meshes/object_index"][()]
+        if len(oi) and (oi.min() < 0 or oi.max() >= n_obj):
+            self._fail(f"/meshes/object_index holds an index outside 0..{n_obj - 1}")
+        var = f["meshes/variant"][()]
+        if len(var) and (var.min() < 0 or var.max() >= MAX_VARIANTS):
+            self._fail(f"/meshes/variant holds a value outside 0..{MAX_VARIANTS - 1}")
+
+    def verify(self, chunk: int = 1 << 20) -> None:
+        """Check every face index against its mesh's vertex count (in chunks of ``chunk``
+        faces, so memory stays bounded) and the stored fingerprint against the content.
+
+        Run wherever a job trusts a shard it did not just write (resume, scoring): a shard
+        edited with its fingerprint kept must not pass as "already done".
+        """
+        g = self.file["meshes"]
+        vo, fo = g["vertex_offset"][()], g["face_offset"][()]
+        n_vertices = np.diff(vo)
+        faces = g["faces"]
+        for start in range(0, len(faces), chunk):
+            block = faces[start:start + chunk]
+            mesh = np.searchsorted(fo, np.arange(start, start + len(block)), side="right") - 1
+            bad = ((block < 0) | (block >= n_vertices[mesh][:, None])).any(axis=1)
+            if bad.any():
+                row = start + int(np.flatnonzero(bad)[0])
+                self._fail(f"face row {row} indexes a vertex outside its mesh")
+        if _fingerprint(self.file) != self.fingerprint:
+            self._fail("content does not match its stored fingerprint (edited or corrupted)")
 
     def close(self) -> None:
         self.file.close()
@@ -172,15 +218,15 @@ class Shard:
     # --- metadata ---------------------------------------------------------------------
     @property
     def config(self) -> dict:
-        return json.loads(self.file.attrs["generator_config"])
+        return dict(self._config)
 
     @property
     def fingerprint(self) -> str:
-        return str(self.file.attrs["fingerprint"])
+        return _text_attr(self.file, "fingerprint")
 
     @property
     def class_names(self) -> list[str]:
-        return json.loads(self.file["objects/class"].attrs["names"])
+        return list(self._class_names)
 
     @property
     def n_objects(self) -> int:
@@ -207,7 +253,10 @@ class Shard:
         g = self.file["meshes"]
         v0, v1 = g["vertex_offset"][i:i + 2]
         f0, f1 = g["face_offset"][i:i + 2]
-        return g["vertices"][v0:v1], g["faces"][f0:f1]
+        vertices, faces = g["vertices"][v0:v1], g["faces"][f0:f1]
+        if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+            self._fail(f"mesh {i} has a face index outside its {len(vertices)} vertices")
+        return vertices, faces
 
     def mesh_params(self, i: int) -> dict:
         return json.loads(self.file["meshes/params"][i])
@@ -235,6 +284,13 @@ class Shard:
         return "radar/response" in self.file
 
 
+def _text_attr(obj, name: str) -> str | None:
+    value = obj.attrs.get(name)
+    if isinstance(value, bytes):
+        value = value.decode(errors="replace")
+    return None if value is None else str(value)
+
+
 def list_shards(directory: str | os.PathLike) -> list[Path]:
     d = Path(directory)
     if not d.is_dir():
@@ -246,10 +302,12 @@ def list_shards(directory: str | os.PathLike) -> list[Path]:
 
 
 def dataset_fingerprint(directory: str | os.PathLike) -> str:
-    """sha256 over the shards' own fingerprints, in shard order."""
+    """sha256 over the shards' own fingerprints, in shard order, each verified (``Shard.verify``)
+    against its shard's content: scoring and submission rely on this identity."""
     h = hashlib.sha256()
     for p in list_shards(directory):
         with Shard(p) as s:
+            s.verify()
             h.update(s.fingerprint.encode())
     return h.hexdigest()
 
@@ -266,8 +324,10 @@ def _object(s: Shard, objs: dict, k: int, oi: np.ndarray, var: np.ndarray):
 def iter_objects(directory: str | os.PathLike, split: str | None = None):
     """Yield (shard path, object dict, list of (variant, vertices, faces)) per object.
 
-    Only one object's meshes are in memory at a time.
+    Only one object's meshes are in memory at a time. ``split`` must be one of ``SPLITS``.
     """
+    if split is not None and split not in SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)} (or None), got {split!r}")
     for p in list_shards(directory):
         with Shard(p) as s:
             objs = s.objects()
@@ -307,4 +367,6 @@ def mesh_uid(object_id: int, variant: int) -> int:
     """Global mesh id used to key predictions files: object_id * 1000 + variant."""
     if not 0 <= variant < MAX_VARIANTS:
         raise ValueError(f"variant {variant} outside 0..{MAX_VARIANTS - 1}")
+    if object_id < 0:
+        raise ValueError(f"object id {object_id} is negative")
     return int(object_id) * MAX_VARIANTS + int(variant)

@@ -11,6 +11,8 @@ import importlib
 import sys
 from pathlib import Path
 
+from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
+
 EPILOG = """examples:
   benchmark evaluate --data data/bs --predictions preds.h5 --out results.json
   benchmark evaluate --data data/bs --model benchmark.protocol:MeanResponseModel \\
@@ -42,8 +44,9 @@ def _delegate(command: str):
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser; the arguments of a delegated subcommand are added only if it is ``command``."""
-    p = argparse.ArgumentParser(prog="benchmark", description=__doc__, epilog=EPILOG,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(prog="benchmark", description=__doc__, epilog=EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     e = sub.add_parser(
         "evaluate", help="score a model or a predictions file on the test split -> results JSON",
@@ -59,13 +62,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     e.add_argument("--write-predictions", metavar="FILE", help="with --model: keep its predictions file")
     e.add_argument("--model-arg", metavar="KEY=VALUE", type=_key_value, action="append", default=[],
                    help="constructor argument for --model, as a string (repeatable)")
-    e.add_argument("--batch-size", type=int, default=16, help="meshes per predict call (default: %(default)s)")
+    e.add_argument("--batch-size", type=number(int, minimum=1, maximum=1 << 16), default=16,
+                   help="meshes per predict call (default: %(default)s)")
     e.add_argument("--name", help="model name for the results (default: the model's `name` "
                    "attribute, its class name, or the predictions file's stem)")
-    e.add_argument("--params", type=int, help="parameter count (default: the model's `params`)")
+    e.add_argument("--params", type=number(int, minimum=0, maximum=10**12),
+                   help="parameter count (default: the model's `params`)")
     e.add_argument("--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)")
     e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
-    e.add_argument("--train-seed", type=int, help="seed the model was trained with")
+    e.add_argument("--train-seed", type=number(int, minimum=0, maximum=2**64 - 1),
+                   help="seed the model was trained with")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     for name, (_, help_text) in DELEGATED.items():
         d = sub.add_parser(name, help=help_text, description=help_text)
@@ -75,14 +81,13 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
+    from basic_shapes.infra import one_line
     from basic_shapes.shards import ShardError
     from benchmark.evaluate import evaluate, format_metrics
     from benchmark.protocol import ModelError, PredictionsError, ResultsError, load_model, write_results
 
     if args.write_predictions and not args.model:
-        raise SystemExit("benchmark evaluate: --write-predictions needs --model")
-    if args.batch_size < 1:
-        raise SystemExit("benchmark evaluate: --batch-size must be at least 1")
+        raise SystemExit("benchmark evaluate: error: --write-predictions needs --model")
     out = Path(args.out)
     overrides = {"name": args.name, "params": args.params, "embedding": args.embedding,
                  "regime": args.regime}
@@ -95,19 +100,23 @@ def evaluate_command(args: argparse.Namespace) -> int:
                            progress=not args.quiet, scratch_dir=out.parent)
         write_results(out, results)
     except (ShardError, ModelError, PredictionsError, ResultsError, OSError) as exc:
-        raise SystemExit(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+        raise SystemExit(f"benchmark evaluate: error: {one_line(exc)}") from None
     print(format_metrics(results))
     print(f"results written to {out}")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
+def _main(argv: list[str]) -> int:
     command = next((a for a in argv if not a.startswith("-")), None)
     args = build_parser(command).parse_args(argv)
     if args.command == "evaluate":
         return evaluate_command(args)
     return _delegate(args.command).run(args) or 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point, behind the shared error boundary (docs/CLI.md)."""
+    return cli_boundary("benchmark", _main, argv)
 
 
 if __name__ == "__main__":

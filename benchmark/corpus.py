@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path, open_hdf5
 
 Mesh = tuple[np.ndarray, np.ndarray, int]
 
@@ -420,10 +420,8 @@ def _corpus_header(h5: h5py.File, path: Path) -> tuple[list[str], dict]:
 
 
 def _open(path: Path) -> h5py.File:
-    try:
-        return h5py.File(path, "r")
-    except OSError as exc:
-        raise CorpusError(f"{path}: unreadable corpus file ({exc})") from None
+    """Through the hardened opener: a corpus file may come from anywhere (docs/CLI.md)."""
+    return open_hdf5(path, CorpusError, "corpus file")
 
 
 def read_corpus_file(path: str | Path) -> tuple[list[Mesh], list[str], dict]:

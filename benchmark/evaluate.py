@@ -56,7 +56,7 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
                 t0 = time.perf_counter()
                 try:
                     out = model.predict(batch)
-                except Exception as exc:
+                except (Exception, SystemExit) as exc:  # sys.exit(0) in a model is no success
                     raise ModelError(f"{who}: predict failed: {why(exc)}") from exc
                 elapsed += time.perf_counter() - t0
                 writer.write(data.meshes["uid"][chunk],

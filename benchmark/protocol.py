@@ -13,10 +13,10 @@ only (never unpickled) and validated, with one-line errors naming the file.
 from __future__ import annotations
 
 import datetime
+import hashlib
 import importlib
 import importlib.util
 import json
-import math
 import os
 import re
 import sys
@@ -26,10 +26,13 @@ from typing import Protocol
 import h5py
 import numpy as np
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
 from benchmark import __version__
 from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, Scorer
+from benchmark.metrics import Scorer
+from benchmark.schema import SchemaError, check_results
+
+RESULTS_MAX_BYTES = 1 << 20
 
 PREDICTIONS_FORMAT = "basic-shapes-predictions"
 PREDICTIONS_VERSION = 1
@@ -76,7 +79,7 @@ def load_model(spec: str, kwargs: dict | None = None) -> Model:
         sys.modules[mod_name] = module  # dataclasses and typing look their module up there
         try:
             module_spec.loader.exec_module(module)
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:
             sys.modules.pop(mod_name, None)
             raise ModelError(f"{spec}: importing {path} failed: {why(exc)}") from None
     else:
@@ -84,12 +87,14 @@ def load_model(spec: str, kwargs: dict | None = None) -> Model:
             module = importlib.import_module(target)
         except ImportError as exc:
             raise ModelError(f"{spec}: cannot import module {target} ({why(exc)})") from None
+        except (Exception, SystemExit) as exc:
+            raise ModelError(f"{spec}: importing {target} failed: {why(exc)}") from None
     cls = getattr(module, cls_name, None)
     if cls is None:
         raise ModelError(f"{spec}: module {target} has no {cls_name}")
     try:
         model = cls(**(kwargs or {}))
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:
         raise ModelError(f"{spec}: constructing {cls_name} failed: {why(exc)}") from None
     if not callable(getattr(model, "predict", None)):
         raise ModelError(f"{spec}: {cls_name} has no predict(batch) method")
@@ -207,11 +212,7 @@ class Predictions:
 
     def __init__(self, path: str | os.PathLike, data: BenchmarkData):
         self.path = Path(path)
-        try:
-            self.file = h5py.File(self.path, "r")
-        except (OSError, ValueError) as exc:
-            raise PredictionsError(f"{self.path}: not a readable HDF5 file "
-                                   f"({str(exc).splitlines()[0]})") from None
+        self.file = open_hdf5(self.path, PredictionsError)
         try:
             self._validate(data)
         except Exception:
@@ -222,17 +223,18 @@ class Predictions:
         raise PredictionsError(f"{self.path}: {problem}")
 
     def _validate(self, data: BenchmarkData) -> None:
+        """Attributes, layout, then the uids; ``open_hdf5`` already refused external storage,
+        links and declared sizes the file does not store."""
         f = self.file
         if _attr(f, "format") != PREDICTIONS_FORMAT:
             self._fail(f"not a predictions file (format attribute is not {PREDICTIONS_FORMAT!r})")
         if _attr(f, "version") != str(PREDICTIONS_VERSION):
             self._fail(f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}")
         if _attr(f, "dataset_fingerprint") != data.fingerprint:
-            self._fail(f"made for dataset {_attr(f, 'dataset_fingerprint')}, not for "
+            self._fail(f"made for dataset {str(_attr(f, 'dataset_fingerprint'))[:64]}, not for "
                        f"{data.directory} ({data.fingerprint})")
         for name in ("mesh_uid", "target_db"):
-            if not isinstance(f.get(name, getlink=True), h5py.HardLink) \
-                    or not isinstance(f[name], h5py.Dataset) or f[name].is_virtual:
+            if not isinstance(f.get(name), h5py.Dataset):
                 self._fail(f"/{name} is missing or not a plain dataset")
         uid, tgt = f["mesh_uid"], f["target_db"]
         if uid.ndim != 1 or uid.dtype != np.int64:
@@ -240,13 +242,15 @@ class Predictions:
         expected = (len(uid), *data.target_shape)
         if tgt.shape != expected or tgt.dtype != np.float32:
             self._fail(f"/target_db is {tgt.dtype}{tgt.shape}, expected float32{expected}")
-        uids = uid[()]
+        test = data.meshes["uid"][data.mesh_rows("test")]
+        if len(uid) > 2 * len(test) + 1:  # never read more uids than could be meant
+            self._fail(f"{len(uid)} rows for {len(test)} test meshes")
+        uids = require_dataset(f, "mesh_uid", "i", 1, PredictionsError, self.path)[()]
         self.order = np.argsort(uids, kind="stable")
         self.sorted_uids = uids[self.order]
         dup = self.sorted_uids[1:][self.sorted_uids[1:] == self.sorted_uids[:-1]]
         if len(dup):
             self._fail(f"{len(dup)} duplicated mesh_uid rows (first {dup[0]})")
-        test = data.meshes["uid"][data.mesh_rows("test")]
         missing = np.setdiff1d(test, self.sorted_uids)
         if len(missing):
             self._fail(f"missing {len(missing)} of {len(test)} test meshes (first mesh_uid {missing[0]})")
@@ -265,6 +269,17 @@ class Predictions:
         if bad.any():
             self._fail(f"non-finite prediction for mesh_uid {uids[np.flatnonzero(bad)[0]]}")
         return out
+
+    def content_sha256(self, chunk: int = 64) -> str:
+        """sha256 of the data scored: the uids in increasing order, then their target rows in
+        that order. Attributes, layout, chunking and row order of the container do not change
+        it, so the same predictions re-packaged are recognised as the same."""
+        h = hashlib.sha256(f"{PREDICTIONS_FORMAT}-{PREDICTIONS_VERSION}".encode())
+        h.update(self.sorted_uids.astype("<i8").tobytes())
+        for start in range(0, len(self.sorted_uids), chunk):
+            block = self.read(self.sorted_uids[start:start + chunk]) + np.float32(0)  # -0 -> 0
+            h.update(block.astype("<f4").tobytes())
+        return h.hexdigest()
 
     def close(self) -> None:
         self.file.close()
@@ -318,76 +333,18 @@ def write_results(path: str | os.PathLike, results: dict) -> None:
 
 
 def load_results(path: str | os.PathLike) -> dict:
-    """Read and validate a results JSON; ``ResultsError`` (one line) if anything is wrong."""
-    try:
-        text = Path(path).read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ResultsError(f"{path}: cannot read ({exc.__class__.__name__})") from None
-    try:
-        results = json.loads(text, parse_constant=_reject_constant)
-    except ValueError as exc:
-        raise ResultsError(f"{path}: not valid JSON ({str(exc).splitlines()[0]})") from None
+    """Read and validate a results JSON; ``ResultsError`` (one line) if anything is wrong.
+
+    Bounded: at most ``RESULTS_MAX_BYTES``, nesting of at most 32, no NaN/Infinity.
+    """
+    results = load_json(Path(path), max_bytes=RESULTS_MAX_BYTES, error=ResultsError)
     validate_results(results, str(path))
     return results
 
 
-def _reject_constant(name: str):
-    raise ValueError(f"{name} is not allowed")
-
-
-def _is_number(x, allow_none: bool = False) -> bool:
-    if x is None:
-        return allow_none
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
 def validate_results(r, source: str) -> None:
-    """Check the structure and types of a results record; raise ``ResultsError`` naming ``source``."""
-    def need(cond: bool, problem: str):
-        if not cond:
-            raise ResultsError(f"{source}: {problem}")
-
-    need(isinstance(r, dict), "results must be a JSON object")
-    for key, kind in (("benchmark_version", str), ("dataset_fingerprint", str), ("model", dict),
-                      ("metrics", dict), ("speed", dict), ("seeds", dict), ("created", str)):
-        need(isinstance(r.get(key), kind), f"field {key!r} missing or not a {kind.__name__}")
-    need(re.fullmatch(r"[0-9a-f]{64}", r["dataset_fingerprint"]) is not None,
-         "dataset_fingerprint is not a sha256 hex digest")
-    m = r["model"]
-    need(isinstance(m.get("name"), str) and m["name"] != "", "model.name missing or empty")
-    need(m.get("params") is None or (isinstance(m["params"], int) and not isinstance(m["params"], bool)
-                                     and m["params"] >= 0), "model.params must be a count or null")
-    for key in ("embedding", "regime"):
-        need(m.get(key) is None or isinstance(m[key], str), f"model.{key} must be a string or null")
-    _validate_metrics(r["metrics"], need)
-    s = r["speed"]
-    need(_is_number(s.get("ms_per_mesh"), allow_none=True) and (s.get("ms_per_mesh") or 0) >= 0,
-         "speed.ms_per_mesh must be a non-negative number or null")
-    need(s.get("hardware") is None or isinstance(s["hardware"], str), "speed.hardware must be a string or null")
-    need(all(v is None or (isinstance(v, int) and not isinstance(v, bool)) for v in r["seeds"].values()),
-         "seeds must map names to integers or null")
+    """Check a results record against ``benchmark.schema``; ``ResultsError`` naming ``source``."""
     try:
-        datetime.datetime.strptime(r["created"], "%Y-%m-%dT%H:%M:%SZ")
-    except ValueError:
-        need(False, "created is not a UTC timestamp like 2026-01-31T12:00:00Z")
-
-
-def _validate_metrics(met: dict, need) -> None:
-    def check_block(block, where: str):
-        need(isinstance(block, dict), f"{where} must be an object")
-        need(_is_number(block.get("simple_mse")) and block["simple_mse"] >= 0,
-             f"{where}.simple_mse must be a non-negative number")
-        for name in METRIC_NAMES[1:]:
-            need(_is_number(block.get(name), allow_none=True) and (block.get(name) or 0) >= 0,
-                 f"{where}.{name} must be a non-negative number or null")
-        need(isinstance(block.get("n_objects"), int) and block["n_objects"] > 0,
-             f"{where}.n_objects must be a positive integer")
-
-    check_block(met, "metrics")
-    need(isinstance(met.get("mode_collapse"), bool), "metrics.mode_collapse must be true or false")
-    need(_is_number(met.get("spread_ratio"), allow_none=True), "metrics.spread_ratio must be a number or null")
-    need(isinstance(met.get("n_meshes"), int) and met["n_meshes"] >= met["n_objects"],
-         "metrics.n_meshes must be an integer at least n_objects")
-    need(isinstance(met.get("per_class"), dict) and met["per_class"], "metrics.per_class must be a non-empty object")
-    for name, block in met["per_class"].items():
-        check_block(block, f"metrics.per_class.{name}")
+        check_results(r, source)
+    except SchemaError as exc:
+        raise ResultsError(str(exc)) from None

@@ -21,7 +21,8 @@ import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from basic_shapes.shards import ShardError, atomic_path
+from basic_shapes.infra import atomic_path
+from basic_shapes.shards import ShardError
 
 EMBEDDINGS = ("direct", "graph", "token")
 ROWS: tuple[tuple[str, str], ...] = (

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
+from argparse import RawDescriptionHelpFormatter
 from pathlib import Path
 
+from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
 from leaderboard.store import DEFAULT_ENTRIES
 
 EPILOG = """examples:
@@ -20,9 +21,10 @@ Entries are JSON files in the entries folder (default: the repository's leaderbo
 publish a new one by pull request (docs/SUBMITTING.md)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="leaderboard", description=__doc__, epilog=EPILOG,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> ArgumentParser:
+    p = ArgumentParser(prog="leaderboard", description=__doc__, epilog=EPILOG,
+                       formatter_class=RawDescriptionHelpFormatter)
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     entries = {"default": DEFAULT_ENTRIES, "type": Path,
                "help": "entries folder (default: %(default)s)"}
@@ -54,19 +56,23 @@ def build_parser() -> argparse.ArgumentParser:
                        "timing radar_sim on the example object's meshes, or --ms-per-mesh.")
     m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     m.add_argument("--entries", **entries)
-    m.add_argument("--ms-per-mesh", type=float, help="record this speed instead of timing radar_sim")
+    m.add_argument("--ms-per-mesh", type=number(minimum=0),
+                   help="record this speed instead of timing radar_sim")
     m.add_argument("--hardware", help="hardware description (default: this machine's CPU)")
 
     r = sub.add_parser("render", help="build the static site and LEADERBOARD.md",
                        description="Render every entry into OUT/index.html (sortable tables, "
                        "per-class breakdowns, speed-vs-error chart, example predictions) and "
                        "OUT/LEADERBOARD.md. The site loads nothing from the network.")
-    r.add_argument("--out", type=Path, default=Path("site"), help="output folder (default: %(default)s)")
+    r.add_argument("--out", type=Path, default=Path("site"),
+                   help="output folder (default: %(default)s)")
     r.add_argument("--entries", **entries)
 
     v = sub.add_parser("serve", help="preview the rendered site locally (http.server)")
-    v.add_argument("--dir", type=Path, default=Path("site"), help="site folder (default: %(default)s)")
-    v.add_argument("--port", type=int, default=8000, help="port (default: %(default)s; 0 = any free)")
+    v.add_argument("--dir", type=Path, default=Path("site"),
+                   help="site folder (default: %(default)s)")
+    v.add_argument("--port", type=number(int, minimum=0, maximum=65535), default=8000,
+                   help="port (default: %(default)s; 0 = any free)")
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default: %(default)s)")
     return p
 
@@ -97,20 +103,26 @@ def run(args) -> None:
         print(f"recorded: {path}")
     elif args.command == "render":
         from leaderboard.render import render
-        files = render(args.out, args.entries)
+        files = render(args.out, args.entries, warn=lambda msg: print(
+            f"leaderboard render: warning: {msg}; entry skipped", file=sys.stderr))
         print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
     elif args.command == "serve":
         from leaderboard.serve import serve
         serve(args.dir, args.port, args.host)
 
 
-def main(argv: list[str] | None = None) -> None:
+def _main(argv: list[str]) -> None:
     args = build_parser().parse_args(argv)
     try:
         run(args)
     except (ValueError, OSError) as exc:
         lines = str(exc).strip().splitlines() or [repr(exc)]
-        raise SystemExit(f"leaderboard {args.command}: {lines[0]}") from None
+        raise SystemExit(f"leaderboard {args.command}: error: {lines[0]}") from None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point, behind the shared error boundary (docs/CLI.md)."""
+    cli_boundary("leaderboard", _main, argv)
 
 
 if __name__ == "__main__":

@@ -4,20 +4,24 @@ Entries are grouped by dataset fingerprint, because numbers on different dataset
 comparable; each dataset gets its table (sorted by Complex MSE; sortable in the browser),
 per-class breakdown, speed-vs-error chart and example figure. Every text from an entry is
 escaped; the page loads nothing but its own files (a Content-Security-Policy says so), so it
-works offline and from any static host. Everything is built in memory and validated first,
-then each file is written atomically, so a bad entry leaves a previous site untouched.
+works offline and from any static host. Everything is built in memory first, then the site
+is published as a whole (a new directory swapped in), so a kill mid-render leaves the previous
+site intact.
 """
 
 from __future__ import annotations
 
+import ctypes
+import fnmatch
 import html
 import os
 import re
+import shutil
 from importlib import resources
 from pathlib import Path
 from string import Template
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import fsync_dir
 from leaderboard import figures
 from leaderboard.store import DEFAULT_ENTRIES, METRIC_NAMES, load_entries
 
@@ -245,16 +249,62 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     return files
 
 
-def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES) -> dict[str, bytes]:
-    """Validate every entry, build the site in memory, then write each file atomically."""
-    files = build(load_entries(entries_dir))
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    for name, data in files.items():
-        with atomic_path(out / name) as tmp:
-            tmp.write_bytes(data)
-    for pattern in FIGURES:  # figures of datasets no longer on the board
-        for stale in out.glob(pattern):
-            if stale.name not in files:
-                stale.unlink()
+def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
+           warn=None) -> dict[str, bytes]:
+    """Validate every entry, build the site in memory, then publish it as a whole.
+
+    A bad entry file is skipped, reported through ``warn(message)`` (one broken file must not
+    take the board down). The site is written into a new sibling directory and swapped in
+    (``publish``), so a reader or a kill never sees a mix of old and new files.
+    """
+    files = build(load_entries(entries_dir, on_error=warn or (lambda msg: None)))
+    publish(Path(out_dir), files)
     return files
+
+
+def publish(out: Path, files: dict[str, bytes]) -> None:
+    """Write ``files`` into a fresh directory beside ``out`` and swap it with ``out``.
+
+    Files in ``out`` that the site does not produce (a CNAME, notes) are carried over, except
+    figures of datasets no longer on the board. The swap is one atomic renameat2 exchange
+    where the kernel has it; otherwise two renames (the old site stays whole as ``.old``
+    until the new one is in place).
+    """
+    out = out.absolute()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    new = out.with_name(f".{out.name}.new-{os.getpid()}")
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    shutil.rmtree(new, ignore_errors=True)
+    new.mkdir()
+    try:
+        if out.is_dir():
+            for item in out.iterdir():
+                stale = any(fnmatch.fnmatch(item.name, pat) for pat in FIGURES)
+                if item.name not in files and not stale:
+                    (shutil.copytree if item.is_dir() else shutil.copy2)(item, new / item.name)
+        for name, data in files.items():
+            (new / name).write_bytes(data)
+            with open(new / name, "rb") as fh:
+                os.fsync(fh.fileno())
+        fsync_dir(new)
+        if out.is_dir() and _exchange(new, out):
+            shutil.rmtree(new)  # now holds the old site
+        else:
+            if out.exists():
+                os.replace(out, old)
+            os.replace(new, out)
+            shutil.rmtree(old, ignore_errors=True)
+        fsync_dir(out.parent)
+    finally:
+        shutil.rmtree(new, ignore_errors=True)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two directories (Linux renameat2 RENAME_EXCHANGE); False if unsupported."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    return renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0

@@ -13,14 +13,22 @@ import os
 import re
 from pathlib import Path
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path, load_json
+from benchmark import schema
 
 ENTRY_VERSION = 1
 DEFAULT_ENTRIES = Path(__file__).resolve().parent / "entries"
 KINDS = ("model", "simulator")
 METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
-MAX_NAME = 80
-MAX_TEXT = 200
+MAX_NAME = schema.MAX_NAME
+MAX_TEXT = schema.MAX_TEXT
+ENTRY_MAX_BYTES = 4 << 20
+# predictions_content_sha256 covers the data scored (``benchmark.protocol.content_sha256``);
+# predictions_sha256 is the container's, kept for entries made before it existed
+FILE_HASHES = ("results_sha256", "predictions_sha256", "predictions_content_sha256")
+ENTRY_FIELDS = ("entry_version", "id", "kind", "name", "link", "model", "params",
+                "benchmark_version", "dataset", "metrics", "speed", "seeds", "created",
+                "submitted", "files", "sample", "complex_mse_source")
 
 
 class EntryError(ValueError):
@@ -61,26 +69,19 @@ def check_number(value, what: str, minimum: float = 0.0, optional: bool = False)
     return float(value)
 
 
-def _check_block(block, what: str) -> None:
-    """Simple MSE, and Complex/Variation MSE (null when no test object has complex meshes)."""
-    if not isinstance(block, dict):
-        raise EntryError(f"{what} must be an object")
-    for k in METRIC_NAMES:
-        check_number(block.get(k), f"{what}.{k}", optional=k != "simple_mse")
-
-
 def check_metrics(m, what: str = "metrics") -> dict:
-    """The ``metrics`` structure of the results JSON (docs/ARCHITECTURE.md)."""
-    _check_block(m, what)
-    if not isinstance(m.get("mode_collapse"), bool):
-        raise EntryError(f"{what}.mode_collapse must be true or false")
-    per_class = m.get("per_class")
-    if not isinstance(per_class, dict) or not per_class:
-        raise EntryError(f"{what}.per_class must be a non-empty object")
-    for name, block in per_class.items():
-        check_text(name, f"{what}.per_class key", MAX_NAME)
-        _check_block(block, f"{what}.per_class.{name}")
-    return m
+    """The ``metrics`` structure of the results JSON (``benchmark.schema``)."""
+    try:
+        return schema.check_metrics(m, what)
+    except schema.SchemaError as exc:
+        raise EntryError(str(exc)) from None
+
+
+def _check_schema(check, *args) -> None:
+    try:
+        check(*args)
+    except schema.SchemaError as exc:
+        raise EntryError(str(exc)) from None
 
 
 def _check_image(img, rows: int, cols: int, what: str) -> None:
@@ -133,23 +134,33 @@ def validate_entry(entry) -> dict:
                                                          str(dataset.get("fingerprint", ""))):
         raise EntryError("dataset.fingerprint must be a sha256 hex digest")
     classes = dataset.get("classes")
-    if not isinstance(classes, list) or not all(isinstance(c, str) for c in classes):
+    if not isinstance(classes, list) or len(classes) > schema.MAX_CLASSES \
+            or not all(isinstance(c, str) and len(c) <= MAX_NAME for c in classes):
         raise EntryError("dataset.classes must be a list of class names")
+    if set(dataset) - {"fingerprint", "classes", "test_objects", "test_meshes"}:
+        raise EntryError("dataset has unknown fields")
+    unknown = sorted(str(k)[:40] for k in set(entry) - set(ENTRY_FIELDS))
+    if unknown:
+        raise EntryError(f"unknown field(s) {', '.join(unknown[:5])}")
     for k in ("test_objects", "test_meshes"):
-        if isinstance(dataset.get(k), bool) or not isinstance(dataset.get(k), int) or dataset[k] < 0:
-            raise EntryError(f"dataset.{k} must be a non-negative integer")
-    if not isinstance(entry.get("model", {}), dict):
-        raise EntryError("model must be an object")
+        _check_schema(schema.Field("int", 0, schema.MAX_COUNT).check, dataset.get(k),
+                      f"dataset.{k}")
+    if "model" in entry:
+        _check_schema(schema.check_fields, entry["model"], schema.MODEL, "model")
     check_metrics(entry.get("metrics"))
-    speed = entry.get("speed")
-    if not isinstance(speed, dict):
-        raise EntryError("speed must be an object")
-    check_number(speed.get("ms_per_mesh"), "speed.ms_per_mesh", optional=True)
-    if speed.get("hardware") is not None:
-        check_text(speed["hardware"], "speed.hardware")
-    params = entry.get("params")
-    if params is not None and (isinstance(params, bool) or not isinstance(params, int) or params < 0):
-        raise EntryError("params must be a non-negative integer or null")
+    _check_schema(schema.check_fields, entry.get("speed"), schema.SPEED, "speed", ("source",))
+    if entry["speed"].get("source") is not None:
+        check_text(entry["speed"]["source"], "speed.source")
+    _check_schema(schema.MODEL["params"].check, entry.get("params"), "params")
+    if entry.get("seeds") is not None:
+        _check_schema(schema.check_seeds, entry["seeds"])
+    for k in ("benchmark_version", "complex_mse_source"):
+        if entry.get(k) is not None:
+            check_text(entry[k], k)
+    files = entry.get("files", {})
+    if not isinstance(files, dict) or set(files) - set(FILE_HASHES) \
+            or not all(re.fullmatch(r"[0-9a-f]{64}", str(v)) for v in files.values()):
+        raise EntryError(f"files must map {'/'.join(FILE_HASHES)} to sha256 digests")
     if not re.fullmatch(r"\d{4}-\d\d-\d\d(T[\d:.]+Z)?", str(entry.get("submitted", ""))):
         raise EntryError("submitted must be an ISO date (YYYY-MM-DD or YYYY-MM-DDTHH:MM:SSZ)")
     if entry.get("sample") is not None:
@@ -157,22 +168,34 @@ def validate_entry(entry) -> dict:
     return entry
 
 
-def load_entries(directory: str | os.PathLike = DEFAULT_ENTRIES) -> list[dict]:
-    """Every ``*.json`` entry of ``directory``, validated, in file-name order."""
+def load_entry(path: Path) -> dict:
+    """One entry file, validated (bounded JSON); EntryError naming the file."""
+    try:
+        entry = validate_entry(load_json(path, max_bytes=ENTRY_MAX_BYTES, error=EntryError))
+    except EntryError as exc:
+        raise EntryError(str(exc) if str(exc).startswith(str(path)) else f"{path}: {exc}") from None
+    if path.stem != entry["id"]:
+        raise EntryError(f"{path}: file name does not match the entry id {entry['id']!r}")
+    return entry
+
+
+def load_entries(directory: str | os.PathLike = DEFAULT_ENTRIES, on_error=None) -> list[dict]:
+    """Every ``*.json`` entry of ``directory``, validated, in file-name order.
+
+    A bad entry raises EntryError, or, with ``on_error``, is passed to ``on_error(message)``
+    and skipped: one broken file must not take the whole board down.
+    """
     d = Path(directory)
     if not d.is_dir():
         raise EntryError(f"{d}: no such entries directory")
     entries = []
     for p in sorted(d.glob("*.json")):
         try:
-            entry = validate_entry(json.loads(p.read_text(encoding="utf-8")))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise EntryError(f"{p}: not valid JSON ({exc})") from None
+            entries.append(load_entry(p))
         except EntryError as exc:
-            raise EntryError(f"{p}: {exc}") from None
-        if p.stem != entry["id"]:
-            raise EntryError(f"{p}: file name does not match the entry id {entry['id']!r}")
-        entries.append(entry)
+            if on_error is None:
+                raise
+            on_error(str(exc))
     return entries
 
 

@@ -110,16 +110,14 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         raise SubmissionError(f"{results_path}: {diffs[0]}{more}")
 
     pred_sha = sha256_file(predictions_path)
-    if Path(entries_dir).is_dir():
-        for e in load_entries(entries_dir):
-            if e.get("files", {}).get("predictions_sha256") == pred_sha:
-                raise DuplicateSubmission(f"{predictions_path}: already on the board as {e['id']}")
     with data, Predictions(predictions_path, data) as preds:
+        content_sha = preds.content_sha256()
+        _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)
         sample = example.sample(data, preds)
         test_objects, test_meshes = len(data.object_rows("test")), len(data.mesh_rows("test"))
     entry = {
         "entry_version": ENTRY_VERSION,
-        "id": f"{slug(name)}-{pred_sha[:10]}",
+        "id": f"{slug(name)}-{content_sha[:10]}",
         "kind": "model",
         "name": name,
         "link": link,
@@ -134,13 +132,27 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         "seeds": results["seeds"],
         "created": results["created"],
         "submitted": _now(),
-        "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha},
+        "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha,
+                  "predictions_content_sha256": content_sha},
         "sample": sample,
     }
     try:
         return write_entry(entries_dir, entry)
     except EntryError as exc:  # e.g. a hardware text too long to show
         raise _refuse(results_path, exc) from None
+
+
+def _check_duplicate(entries_dir, predictions_path, container_sha: str, content_sha: str) -> None:
+    """Refuse predictions already on the board: same content (any container), or, for entries
+    made before content hashes, the same file. Unreadable entries are skipped here (render
+    reports them)."""
+    if not Path(entries_dir).is_dir():
+        return
+    for e in load_entries(entries_dir, on_error=lambda msg: None):
+        files = e.get("files", {})
+        if content_sha == files.get("predictions_content_sha256") \
+                or container_sha == files.get("predictions_sha256"):
+            raise DuplicateSubmission(f"{predictions_path}: already on the board as {e['id']}")
 
 
 def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,

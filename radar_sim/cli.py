@@ -14,29 +14,50 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
 from basic_shapes.shards import Shard, ShardError, find_object
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_variants
-from radar_sim.meshio import UNITS, MeshFileError, load_mesh
+from radar_sim.meshio import UNITS, load_mesh
 
 CONVENTION = "dB = 20 log10|A| = 10 log10 sigma (sigma in m^2, dBsm)"
 
 
-def _numbers(text: str) -> np.ndarray:
-    """'8,10,12' or 'start:stop:step' (stop included) -> floats."""
+MAX_VALUES = 100_000  # numbers in one --freq/--aspect list: the field is values x faces
+
+
+def _numbers(text: str, positive: bool = False) -> np.ndarray:
+    """'8,10,12' or 'start:stop:step' (stop included) -> finite floats (> 0 if ``positive``)."""
     try:
         if ":" in text:
             start, stop, step = (float(x) for x in text.split(":"))
-            if step <= 0:
-                raise ValueError
+            count = (stop - start) / step if step > 0 else -1
+            if not 0 <= count < MAX_VALUES:  # also NaN and inf
+                raise argparse.ArgumentTypeError(
+                    f"{text!r}: start:stop:step needs step > 0, stop >= start and at most "
+                    f"{MAX_VALUES} values")
             values = np.arange(start, stop + step / 2, step)
         else:
             values = np.array([float(x) for x in text.split(",")])
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: expected numbers like 8,10,12 or "
                                          f"start:stop:step") from None
-    if len(values) == 0 or not np.isfinite(values).all():
-        raise argparse.ArgumentTypeError(f"{text!r}: expected finite numbers")
+    if len(values) == 0 or len(values) > MAX_VALUES or not np.isfinite(values).all():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 1 to {MAX_VALUES} finite numbers")
+    if positive and not (values > 0).all():
+        raise argparse.ArgumentTypeError(f"{text!r}: frequencies must be > 0 GHz")
     return values
+
+
+def _frequencies(text: str) -> np.ndarray:
+    return _numbers(text, positive=True)
+
+
+def _png_path(text: str) -> str:
+    """An output file whose directory exists (checked before any simulation runs)."""
+    parent = Path(text).parent
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: directory {str(parent)!r} does not exist")
+    return text
 
 
 def _positive(text: str) -> int:
@@ -172,10 +193,11 @@ def cmd_plot(args) -> None:
     print(f"wrote {args.out}")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="radar-sim", description=(
+def build_parser() -> ArgumentParser:
+    p = ArgumentParser(prog="radar-sim", description=(
         "Exact physical-optics radar simulator: label Basic Shapes shards, print the RCS of a "
         f"mesh file, plot an object's signature. Units are metres; {CONVENTION}."))
+    add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
 
     q = sub.add_parser("label", help="add /radar labels to every shard of a dataset, in place",
@@ -201,9 +223,10 @@ def build_parser() -> argparse.ArgumentParser:
                        description=f"Monostatic RCS of one OBJ/STL/PLY mesh. {CONVENTION}. Line "
                        "of sight (sin a cos r, sin a sin r, cos a) for aspect a, roll r.")
     q.add_argument("meshfile", help="OBJ, STL or PLY file")
-    q.add_argument("--freq", type=_numbers, required=True, help="GHz: 10 or 8,10,12 or 8:12:0.5")
+    q.add_argument("--freq", type=_frequencies, required=True,
+                   help="GHz: 10 or 8,10,12 or 8:12:0.5")
     q.add_argument("--aspect", type=_numbers, required=True, help="degrees: 0,45,90 or 0:180:5")
-    q.add_argument("--roll", type=float, default=0.0, help="degrees (default 0)")
+    q.add_argument("--roll", type=number(), default=0.0, help="degrees (default 0)")
     q.add_argument("--units", choices=UNITS, default="m", help="units of the file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")
     q.set_defaults(run=cmd_rcs)
@@ -213,11 +236,14 @@ def build_parser() -> argparse.ArgumentParser:
                        "RCS (dBsm) against aspect at the frequency sample nearest the band centre "
                        "(named in the title), at one roll angle.")
     q.add_argument("source", help="dataset directory (with --object) or a mesh file")
-    q.add_argument("--object", type=int, default=None, help="object id (dataset directories)")
-    q.add_argument("--variant", type=int, default=None, help="mesh of the object: 0 = simple "
-                   "(stored labels if any), 1.. = a complex variant, simulated (default 0)")
-    q.add_argument("--out", required=True, help="PNG file to write")
-    q.add_argument("--roll", type=float, default=0.0, help="degrees; nearest grid roll (default 0)")
+    q.add_argument("--object", type=number(int, minimum=0), default=None,
+                   help="object id (dataset directories)")
+    q.add_argument("--variant", type=number(int, minimum=0), default=None,
+                   help="mesh of the object: 0 = simple (stored labels if any), 1.. = a complex "
+                   "variant, simulated (default 0)")
+    q.add_argument("--out", type=_png_path, required=True, help="PNG file to write")
+    q.add_argument("--roll", type=number(), default=0.0,
+                   help="degrees; nearest grid roll (default 0)")
     q.add_argument("--config", default="xband-v1", help="config name or JSON file for simulation")
     q.add_argument("--units", choices=UNITS, default="m", help="units of a mesh file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")
@@ -225,17 +251,20 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> None:
+def _main(argv: list[str]) -> None:
     from radar_sim import MeshError
 
     args = build_parser().parse_args(argv)
     try:
         args.run(args)
-    except (ShardError, LabelError, MeshFileError) as exc:
-        raise SystemExit(f"radar-sim: {exc}") from None
     except MeshError as exc:
         source = getattr(args, "meshfile", None) or getattr(args, "source", None) or args.directory
-        raise SystemExit(f"radar-sim: {source}: {exc}") from None
+        raise SystemExit(f"radar-sim: error: {source}: {exc}") from None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point, behind the shared error boundary (docs/CLI.md)."""
+    cli_boundary("radar-sim", _main, argv)
 
 
 if __name__ == "__main__":

@@ -15,10 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.infra import load_json
 from radar_sim.field import C0, DEFAULT_TOL, mesh_field, resolve_mode, wavenumbers
 from radar_sim.geometry import MILLIMETRE_RADIUS, MeshError, check_units, prepare
 
 WINDOWS = ("hann", "none")
+# Size bounds (docs/RADAR.md, "Config bounds"): simulate holds the frequency response and two
+# FFT temporaries, about 48 bytes per grid sample (complex128 x 3), so MAX_GRID_SAMPLES keeps a
+# worker under ~0.8 GB whatever the mesh; per-axis bounds keep each list sane on its own.
+MAX_GRID_SAMPLES = 1 << 24          # n_aspect * n_roll * n_freq
+MAX_AXIS = {"n_aspect": 3601, "n_roll": 7200, "n_freq": 65536}
+MAX_FREQUENCY_HZ = 1e12
+CONFIG_MAX_BYTES = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -40,10 +48,14 @@ class RadarConfig:
         problems = []
         if not (self.n_aspect >= 1 and self.n_roll >= 1 and self.n_freq >= 2):
             problems.append("n_aspect, n_roll >= 1 and n_freq >= 2")
+        too_big = [f"{k} <= {v}" for k, v in MAX_AXIS.items() if getattr(self, k) > v]
+        problems += too_big
+        if not too_big and self.n_aspect * self.n_roll * self.n_freq > MAX_GRID_SAMPLES:
+            problems.append(f"n_aspect * n_roll * n_freq <= {MAX_GRID_SAMPLES} (memory)")
         if not (0.0 <= self.aspect_start_deg <= self.aspect_stop_deg <= 180.0):
             problems.append("0 <= aspect_start_deg <= aspect_stop_deg <= 180")
-        if not (0.0 < self.f_start_hz < self.f_stop_hz):
-            problems.append("0 < f_start_hz < f_stop_hz")
+        if not (0.0 < self.f_start_hz < self.f_stop_hz <= MAX_FREQUENCY_HZ):
+            problems.append(f"0 < f_start_hz < f_stop_hz <= {MAX_FREQUENCY_HZ:g} (finite)")
         if self.window not in WINDOWS:
             problems.append(f"window in {WINDOWS}")
         if not (1 <= self.n_range <= self.n_freq and self.n_range % 2 == 1):
@@ -63,10 +75,8 @@ class RadarConfig:
     def from_file(cls, path) -> "RadarConfig":
         """A JSON object with the fields of RadarConfig (missing fields take the defaults)."""
         path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{path}: cannot read radar config: {exc}") from None
+        data = load_json(path, max_bytes=CONFIG_MAX_BYTES, max_depth=2,
+                         what=f"{path}: radar config")
         if not isinstance(data, dict):
             raise ValueError(f"{path}: radar config must be a JSON object")
         known = {f.name: f.type for f in fields(cls)}
@@ -76,6 +86,8 @@ class RadarConfig:
         if "name" not in data:
             raise ValueError(f"{path}: radar config must have a \"name\"")
         try:
+            if any(isinstance(v, (bool, list, dict)) or v is None for v in data.values()):
+                raise ValueError("fields must be numbers or strings")
             kwargs = {k: (str(v) if k in ("name", "window") else
                           int(v) if k.startswith("n_") else float(v)) for k, v in data.items()}
             if any(k.startswith("n_") and v != data[k] for k, v in kwargs.items()):

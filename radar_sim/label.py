@@ -110,6 +110,7 @@ class ShardPlan:
 def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan | None:
     """Validate one shard; None if it already holds labels for this very request."""
     with Shard(path) as s:
+        s.verify()  # labels computed from edited meshes must not pass as done, nor be made
         if "radar" in s.file:
             differ = _differences(s.file["radar"], request.attrs())
             if not differ:

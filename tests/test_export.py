@@ -132,19 +132,22 @@ def test_same_dataset_same_bytes(labelled, exported, tmp_path):
     assert digests(again) == digests(exported)  # re-export in place: same files, no *.tmp
 
 
-def test_unlabelled_dataset_is_refused(raw, tmp_path, capsys):
+def test_unlabelled_dataset_is_refused(raw, tmp_path):
     out = tmp_path / "nc"
-    assert cli.main(["export", str(raw), "--format", "g2s", "--out", str(out)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "shard-00000.h5: has no radar labels" in err and "\n" not in err
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["export", str(raw), "--format", "g2s", "--out", str(out)])
+    err = str(exc.value.code)
+    assert err.startswith("basic-shapes: error:") and "\n" not in err
+    assert "shard-00000.h5: has no radar labels" in err
     assert not out.exists()
 
 
-def test_foreign_files_in_out_are_kept(labelled, tmp_path, capsys):
+def test_foreign_files_in_out_are_kept(labelled, tmp_path):
     out = tmp_path / "nc"
     out.mkdir()
     (out / "shard-00009.nc").write_bytes(b"someone else's")
-    assert cli.main(["export", str(labelled), "--format", "g2s", "--out", str(out)]) == 2
-    assert "shard-00009.nc, not part of this export" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["export", str(labelled), "--format", "g2s", "--out", str(out)])
+    assert "shard-00009.nc, not part of this export" in str(exc.value.code)
     assert [p.name for p in out.iterdir()] == ["shard-00009.nc"]
     assert (out / "shard-00009.nc").read_bytes() == b"someone else's"

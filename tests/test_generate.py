@@ -98,8 +98,8 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["--classes", "cube,pyramid"], "unknown class pyramid"),
-    (["--objects-per-class", "0"], "objects_per_class must be >= 1"),
-    (["--variants", "-1"], "variants must be >= 0"),
+    (["--objects-per-class", "0"], "argument --objects-per-class: '0' must be >= 1"),
+    (["--variants", "-1"], "argument --variants: '-1' must be >= 0"),
     (["--objects-per-class", "100000", "--scale-range", "1.0", "1.1"], "dissimilar scales"),
 ])
 def test_bad_generate_arguments(tmp_path, args, message):

@@ -78,7 +78,14 @@ def test_radar_config_files(tmp_path):
              "even": json.dumps({"name": "x", "n_range": 100}),
              "fraction": json.dumps({"name": "x", "n_roll": 2.5}),
              "nameless": json.dumps({"n_roll": 4}),
-             "reserved": json.dumps({"name": "xband-v1", "n_roll": 4})}
+             "reserved": json.dumps({"name": "xband-v1", "n_roll": 4}),
+             "huge grid": json.dumps({"name": "x", "n_aspect": 3601, "n_roll": 7200}),
+             "huge axis": json.dumps({"name": "x", "n_aspect": 10**8}),
+             "infinite band": '{"name": "x", "f_stop_hz": Infinity}',
+             "overflow": '{"name": "x", "f_stop_hz": 1e999}',
+             "terahertz": json.dumps({"name": "x", "f_stop_hz": 2e12}),
+             "null": json.dumps({"name": "x", "n_roll": None}),
+             "deep": '{"name": ' + "[" * 5000 + "]" * 5000 + "}"}
     for name, text in cases.items():
         path = tmp_path / f"{name}.json"
         path.write_text(text)
@@ -87,6 +94,17 @@ def test_radar_config_files(tmp_path):
         assert str(path) in str(info.value) and "\n" not in str(info.value)
     with pytest.raises(ValueError, match="unknown radar config"):
         RadarConfig.named("nope")
+
+
+def test_radar_config_size_bounds_follow_memory():
+    """docs/RADAR.md "Config bounds": at most MAX_GRID_SAMPLES grid samples (48 B each)."""
+    from radar_sim.config import MAX_GRID_SAMPLES
+    assert RadarConfig(name="big", n_aspect=2048, n_roll=64, n_freq=128).n_aspect == 2048
+    assert 2048 * 64 * 128 == MAX_GRID_SAMPLES
+    with pytest.raises(ValueError, match="memory"):
+        RadarConfig(name="big", n_aspect=2048, n_roll=65, n_freq=128)
+    with pytest.raises(ValueError, match="f_stop_hz"):
+        RadarConfig(name="inf", f_stop_hz=float("inf"))
 
 
 # --- documented behaviours -------------------------------------------------------------------

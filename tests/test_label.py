@@ -265,5 +265,5 @@ def test_cli_exit_status_and_stderr(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "label", str(tmp_path / "nope")],
                           capture_output=True, text=True)
     assert proc.returncode != 0
-    assert proc.stderr.strip().splitlines() == [f"radar-sim: {tmp_path / 'nope'}: no such dataset "
-                                                f"directory"]
+    assert proc.stderr.strip().splitlines() == [f"radar-sim: error: {tmp_path / 'nope'}: no such "
+                                                f"dataset directory"]

@@ -374,7 +374,7 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     assert f"250 ms per mesh on cpu: test; Complex MSE {VARIANT_DB ** 2:.2f} dB²" in md
 
 
-def test_render_refuses_a_bad_entry_file(data, submission, tmp_path):
+def test_render_skips_a_bad_entry_file_with_a_warning(data, submission, tmp_path, capsys):
     results, pred = submission
     entries = tmp_path / "entries"
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
@@ -383,9 +383,12 @@ def test_render_refuses_a_bad_entry_file(data, submission, tmp_path):
     entry["link"] = "javascript:alert(1)"
     path.write_text(json.dumps(entry))
     site = tmp_path / "site"
-    msg = refused("render", "--out", site, "--entries", entries)
-    assert path.name in msg and "link" in msg
-    assert not site.exists()
+    capsys.readouterr()
+    run("render", "--out", site, "--entries", entries)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and path.name in err[0] and "link" in err[0] and "skipped" in err[0]
+    html = (site / "index.html").read_text()
+    assert "javascript:" not in html and entry["name"] not in html
 
 
 def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_path):

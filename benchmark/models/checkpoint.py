@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from basic_shapes.shards import atomic_path
+from basic_shapes.infra import atomic_path
 from benchmark.models import MeshSimulator, build_model, collate, count_parameters, featurize
 
 CHECKPOINT_FORMAT = "basic-shapes-checkpoint"

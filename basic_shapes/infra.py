@@ -1,0 +1,338 @@
+"""Infrastructure the four packages share: atomic writes, one-line errors, the CLI error
+boundary, bounded JSON and the hardened HDF5 opener (docs/CLI.md).
+
+Every file a user hands the toolkit (shards, predictions, results, entries, configs) is
+untrusted: it is read through ``load_json`` or ``open_hdf5``, which refuse anything whose
+declared size is not backed by the file's own bytes *before* reading it, so a small hostile
+file cannot cost more memory or time than its own size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import re
+import stat
+import sys
+from pathlib import Path
+
+import numpy as np
+
+DEBUG_ENV = "BASIC_SHAPES_DEBUG"
+
+
+class InputError(ValueError):
+    """An input file is unreadable, malformed or hostile (one line naming the file)."""
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike):
+    """Yield a temporary path; on success fsync it and rename it onto ``path``."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+        fsync_dir(path.parent)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def fsync_dir(directory: str | os.PathLike) -> None:
+    """Make a rename in ``directory`` durable."""
+    dir_fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+# --- one-line errors and the CLI boundary ----------------------------------------------------
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line: ``file: problem`` for OS errors, else its first message line."""
+    if isinstance(exc, OSError) and exc.strerror:
+        where = exc.filename if exc.filename is not None else ""
+        return f"{where}: {exc.strerror}" if where != "" else exc.strerror
+    try:
+        lines = str(exc).strip().splitlines()
+    except Exception:  # noqa: BLE001 - a broken __str__ must not hide the error
+        lines = []
+    return lines[0] if lines else exc.__class__.__name__
+
+
+def _is_expected(exc: BaseException) -> bool:
+    """Errors of the input or the environment (not bugs): they get a plain one-line message."""
+    return isinstance(exc, (ValueError, OSError, MemoryError)) \
+        or type(exc).__name__ in ("KilledWorker", "CancelledError", "FutureCancelledError")
+
+
+def describe(exc: BaseException) -> str:
+    """The one line a user sees for ``exc``."""
+    if isinstance(exc, MemoryError):
+        return f"out of memory ({one_line(exc)})"
+    if type(exc).__name__ == "KilledWorker":
+        return (f"a Dask worker died while running task {getattr(exc, 'task', '?')!r} (out "
+                f"of memory or crashed); see the worker logs")
+    if _is_expected(exc):
+        return one_line(exc)
+    return (f"internal error: {exc.__class__.__name__}: {one_line(exc)} "
+            f"(rerun with --debug for the traceback)")
+
+
+def debug_requested(argv: list[str]) -> bool:
+    return "--debug" in argv or os.environ.get(DEBUG_ENV, "") not in ("", "0")
+
+
+def cli_boundary(tool: str, body, argv: list[str] | None = None):
+    """Run ``body(argv)`` behind the single top-level error boundary of the four CLIs.
+
+    Any exception becomes ``<tool>: error: <one line>`` on stderr and exit status 1;
+    argparse refusals (flags) exit with 2 (``ArgumentParser``). ``--debug`` anywhere on the
+    command line (removed before parsing) or ``BASIC_SHAPES_DEBUG=1`` shows tracebacks.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = debug_requested(argv)
+    argv = [a for a in argv if a != "--debug"]
+    try:
+        return body(argv)
+    except SystemExit as exc:
+        if debug or exc.code is None or isinstance(exc.code, int):
+            raise
+        msg = one_line(Exception(str(exc.code)))
+        raise SystemExit(msg if msg.startswith(f"{tool}") else f"{tool}: error: {msg}") from None
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"{tool}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
+    except BaseException as exc:
+        if debug:
+            raise
+        raise SystemExit(f"{tool}: error: {describe(exc)}") from None
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with one-line refusals (``prog: error: ...``, exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def add_debug_flag(parser: argparse.ArgumentParser) -> None:
+    """Document ``--debug`` (``cli_boundary`` removes it before parsing, wherever it is)."""
+    parser.add_argument("--debug", action="store_true",
+                        help=f"show Python tracebacks (also {DEBUG_ENV}=1)")
+
+
+def number(kind=float, *, minimum=None, maximum=None, above=None, integer_ok=True):
+    """An argparse ``type`` for finite numbers in a range, naming the bound it breaks."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            what = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"{text!r} must be >= {minimum:g}")
+        if above is not None and value <= above:
+            raise argparse.ArgumentTypeError(f"{text!r} must be > {above:g}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"{text!r} must be <= {maximum:g}")
+        return value
+    parse.__name__ = kind.__name__
+    return parse
+
+
+# --- files and bounded JSON --------------------------------------------------------------------
+
+def regular_file(path: str | os.PathLike, error=InputError) -> os.stat_result:
+    """``stat`` of ``path``, refusing anything but a regular file (a FIFO would hang a read)."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise error(f"{path}: {exc.strerror or exc.__class__.__name__}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{path}: not a regular file")
+    return st
+
+
+JSON_MAX_BYTES = 4 << 20
+JSON_MAX_DEPTH = 32
+_JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+def json_depth(raw: bytes) -> int:
+    """Nesting depth of JSON text, without recursion (strings removed, brackets counted)."""
+    arr = np.frombuffer(_JSON_STRING.sub(b'""', raw), np.uint8)
+    step = np.isin(arr, (ord("["), ord("{"))).astype(np.int64) \
+        - np.isin(arr, (ord("]"), ord("}"))).astype(np.int64)
+    return int(np.cumsum(step).max(initial=0))
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {text[:20]} is out of range")
+    return value
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not allowed")
+
+
+def load_json(source: str | bytes | os.PathLike, *, what: str | None = None,
+              max_bytes: int = JSON_MAX_BYTES, max_depth: int = JSON_MAX_DEPTH,
+              error=InputError):
+    """Parse JSON from a file path (``os.PathLike``) or from text/bytes, bounded.
+
+    Refused with ``error`` naming ``what`` (default: the path): more than ``max_bytes``,
+    nesting deeper than ``max_depth`` (checked before parsing, so no RecursionError),
+    NaN/Infinity constants, numbers that overflow a float, integers of over 4300 digits.
+    """
+    if isinstance(source, os.PathLike):
+        what = what or str(source)
+        regular_file(source, error)
+        try:
+            with open(source, "rb") as fh:
+                raw = fh.read(max_bytes + 1)
+        except OSError as exc:
+            raise error(f"{what}: cannot read ({one_line(exc)})") from None
+    else:
+        what = what or "JSON text"
+        raw = source.encode() if isinstance(source, str) else bytes(source)
+    if len(raw) > max_bytes:
+        raise error(f"{what}: larger than the {max_bytes} bytes allowed")
+    depth = json_depth(raw)
+    if depth > max_depth:
+        raise error(f"{what}: JSON nested {depth} deep, more than the {max_depth} allowed")
+    try:
+        return json.loads(raw.decode("utf-8"), parse_constant=_no_constant,
+                          parse_float=_finite_float)
+    except (ValueError, RecursionError) as exc:
+        raise error(f"{what}: not valid JSON ({one_line(exc)})") from None
+
+
+# --- the hardened HDF5 opener ----------------------------------------------------------------
+
+MAX_HDF5_OBJECTS = 4096
+# deflate cannot expand more than ~1032x; anything beyond is not a real compressed dataset
+MAX_COMPRESSION = 1100
+
+
+def open_hdf5(path: str | os.PathLike, error=InputError, what: str = "HDF5 file"):
+    """Open an untrusted HDF5 file read-only after checking everything in it is plain.
+
+    Refused before any data is read: non-regular files (FIFOs, devices), links other than
+    hard links (external or soft), virtual datasets, external storage (``dset.external``,
+    which reads other files of this machine), layouts other than contiguous / chunked /
+    compact, unknown filters, named datatypes, and any dataset or attribute whose declared
+    size is not backed by stored bytes (a 6 KB file declaring 1e9 rows) or whose stored
+    bytes exceed the file's size.
+    """
+    import h5py
+
+    size = regular_file(path, error).st_size
+    try:
+        f = h5py.File(path, "r")
+    except (OSError, ValueError) as exc:
+        raise error(f"{path}: not a readable {what} ({one_line(exc)})") from None
+    try:
+        _HDF5Check(path, size, error).group(f, "")
+    except BaseException:
+        f.close()
+        raise
+    return f
+
+
+class _HDF5Check:
+    def __init__(self, path, file_size: int, error):
+        self.path, self.file_size, self.error = path, file_size, error
+        self.count, self.seen = 0, set()
+
+    def fail(self, where: str, problem: str):
+        raise self.error(f"{self.path}: {where or '/'} {problem}")
+
+    def group(self, g, prefix: str) -> None:
+        import h5py
+
+        self.attrs(g, prefix)
+        for name in g:
+            where = f"{prefix}/{name}"
+            self.count += 1
+            if self.count > MAX_HDF5_OBJECTS:
+                self.fail("", f"holds more than {MAX_HDF5_OBJECTS} objects")
+            link = g.get(name, getlink=True)
+            if not isinstance(link, h5py.HardLink):
+                self.fail(where, f"is a link ({type(link).__name__}); only plain datasets "
+                          f"are allowed")
+            obj = g[name]
+            addr = h5py.h5o.get_info(obj.id).addr
+            if addr in self.seen:
+                self.fail(where, "is linked twice (only a tree of plain objects is allowed)")
+            self.seen.add(addr)
+            if isinstance(obj, h5py.Group):
+                self.group(obj, where)
+            elif isinstance(obj, h5py.Dataset):
+                self.dataset(obj, where)
+            else:
+                self.fail(where, f"is a {type(obj).__name__}; only groups and datasets are allowed")
+
+    def declared(self, shape, type_id) -> int:
+        n = math.prod(int(s) for s in shape) if shape else 1
+        return n * type_id.get_size()
+
+    def attrs(self, obj, where: str) -> None:
+        import h5py
+
+        for name in obj.attrs:
+            a = h5py.h5a.open(obj.id, name.encode())
+            need = self.declared(a.shape, a.get_type())
+            stored = a.get_storage_size()
+            if stored > self.file_size or need > stored:
+                self.fail(where, f"attribute {name!r} declares {need} bytes but stores {stored}")
+
+    def dataset(self, d, where: str) -> None:
+        from h5py import h5d, h5z
+
+        self.attrs(d, where)
+        if d.is_virtual:
+            self.fail(where, "is a virtual dataset (reads other files)")
+        plist = d.id.get_create_plist()
+        if plist.get_external_count():
+            self.fail(where, "uses external storage (reads other files); only data stored in "
+                      "the file is allowed")
+        layout = plist.get_layout()
+        if layout not in (h5d.CONTIGUOUS, h5d.CHUNKED, h5d.COMPACT):
+            self.fail(where, f"has an unsupported storage layout ({layout})")
+        filters = [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
+        if set(filters) - {h5z.FILTER_DEFLATE, h5z.FILTER_SHUFFLE, h5z.FILTER_FLETCHER32}:
+            self.fail(where, f"uses an unsupported filter {filters}")
+        need = self.declared(d.shape, d.id.get_type())
+        stored = d.id.get_storage_size()
+        compressed = h5z.FILTER_DEFLATE in filters
+        if stored > self.file_size or need > stored * (MAX_COMPRESSION if compressed else 1):
+            self.fail(where, f"declares {d.shape} ({need} bytes) but the file stores {stored} "
+                      f"bytes for it ({self.file_size} in all)")
+
+
+def require_dataset(f, name: str, kinds: str, ndim: int, error, path, tail: tuple = ()):
+    """``f[name]`` if it is a dataset of dtype kind in ``kinds`` with ``ndim`` dims ending in
+    ``tail``; else ``error`` naming the file and the dataset."""
+    import h5py
+
+    d = f.get(name)
+    if not isinstance(d, h5py.Dataset):
+        raise error(f"{path}: /{name} is missing or not a dataset")
+    if d.dtype.kind not in kinds or d.ndim != ndim or tuple(d.shape[ndim - len(tail):]) != tail:
+        raise error(f"{path}: /{name} is {d.dtype}{d.shape}, expected kind {kinds!r} with "
+                    f"{ndim} dimension(s){' ending in ' + str(tail) if tail else ''}")
+    return d
