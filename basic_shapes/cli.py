@@ -64,9 +64,12 @@ def build_parser() -> ArgumentParser:
     s.add_argument("--count", type=number(int, minimum=0, maximum=99), default=5,
                    help="complex variants to show (default: %(default)s)")
 
-    e = sub.add_parser("export", help="write every mesh as a plain OBJ/PLY/STL file")
+    e = sub.add_parser("export", help="write every mesh as a plain OBJ/PLY/STL file, or "
+                       "labelled shards as NetCDF (g2s)")
     e.add_argument("dir", help="dataset directory")
-    e.add_argument("--format", choices=("obj", "ply", "stl"), default="obj")
+    e.add_argument("--format", choices=("obj", "ply", "stl", "g2s"), default="obj",
+                   help="mesh files, or g2s: one NetCDF per shard, meshes + radar labels in the "
+                   "layout of the paper's group (docs/ARCHITECTURE.md, Formats)")
     e.add_argument("--out", required=True, help="output directory")
     e.add_argument("--object", type=number(int, minimum=0), default=None,
                    help="only this object id")
@@ -100,7 +103,8 @@ def _main(argv: list[str]) -> int:
         from basic_shapes.export import export
 
         n = export(args.dir, args.out, args.format, args.object)
-        print(f"wrote {n} {args.format.upper()} files to {args.out}")
+        kind = "NetCDF (g2s)" if args.format == "g2s" else args.format.upper()
+        print(f"wrote {n} {kind} files to {args.out}")
     return 0
 
 

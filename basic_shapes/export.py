@@ -1,4 +1,8 @@
-"""`basic-shapes export`: every mesh as a plain file, for tools that do not read HDF5."""
+"""`basic-shapes export`: every mesh as a plain file, for tools that do not read HDF5.
+
+``--format g2s`` instead writes labelled shards as NetCDF for the paper group's loaders
+(``basic_shapes.export_g2s``).
+"""
 
 from __future__ import annotations
 
@@ -11,8 +15,15 @@ from basic_shapes.shards import find_object, iter_objects
 
 def export(directory: str | Path, out: str | Path, fmt: str, object_id: int | None = None) -> int:
     """Write ``out/<class>/<object id>/v<variant>.<fmt>`` (metres); return the file count."""
+    if fmt == "g2s":
+        if object_id is not None:
+            raise ValueError("--object: not supported with --format g2s, which writes whole shards")
+        from basic_shapes.export_g2s import export_g2s
+
+        return export_g2s(directory, out)
     out = Path(out)
-    objects = [find_object(directory, object_id)] if object_id is not None else iter_objects(directory)
+    objects = ([find_object(directory, object_id)] if object_id is not None
+               else iter_objects(directory))
     n = 0
     for _, obj, meshes in objects:
         folder = out / obj["class"] / f"{obj['id']:06d}"

@@ -218,7 +218,7 @@ def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -
     n = 1 if workers == 0 else workers or (os.cpu_count() or 1)
     where = f"the cluster at {scheduler}" if scheduler else f"{n} local worker(s)"
     hours = meshes / (MESHES_PER_SECOND_PER_WORKER * n) / 3600
-    eta = f"{hours:.1f} h" if hours >= 1 else f"{hours * 60:.0f} min"
+    eta = f"{hours:.1f} h" if hours >= 1 else f"{max(1, round(hours * 60))} min"
     return (f"generate: {objects} objects ({len(cfg.classes)} classes x {cfg.objects_per_class}), "
             f"{meshes} meshes, {shards} shards on {where}; about {eta} if nothing is done yet "
             f"(at {MESHES_PER_SECOND_PER_WORKER:.0f} meshes/s per worker)")
@@ -236,9 +236,8 @@ def _run(todo, cfg_json, workers, scheduler, progress):
             yield r
         bar.close()
         return
-    from distributed import as_completed
-
     from basic_shapes.cluster import dask_client
+    from distributed import as_completed
 
     with dask_client(workers, scheduler) as client:
         futures = [client.submit(build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}",

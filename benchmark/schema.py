@@ -147,16 +147,17 @@ SEED = Field("int", 0, 2**64 - 1, null=True)
 
 
 def check_fields(record, table: dict[str, Field], where: str, extra: tuple[str, ...] = ()) -> None:
-    """``record`` must be an object holding the table's fields (and ``extra`` names) only."""
+    """``record`` (at dotted path ``where``; "" for the top level) must be an object holding
+    the table's fields (and ``extra`` names) only."""
     if not isinstance(record, dict):
-        raise SchemaError(f"{where} must be a JSON object")
+        raise SchemaError(f"{where or 'the record'} must be a JSON object")
     unknown = sorted(str(k)[:40] for k in set(record) - set(table) - set(extra))
     if unknown:
-        raise SchemaError(f"{where} has unknown field(s) {', '.join(unknown[:5])}")
+        raise SchemaError(f"{where or 'the record'} has unknown field(s) {', '.join(unknown[:5])}")
     for name, spec in table.items():
         if name not in record and not spec.required:
             continue
-        spec.check(record.get(name), f"{where}.{name}")
+        spec.check(record.get(name), f"{where}.{name}" if where else name)
 
 
 def check_metrics(m, where: str = "metrics") -> dict:
@@ -236,13 +237,16 @@ def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:
     return po
 
 
-def check_results(r, where: str = "results") -> dict:
-    """A whole results record (docs/ARCHITECTURE.md, "Results JSON")."""
-    check_fields(r, RESULTS, where, extra=("model", "metrics", "speed", "seeds", "per_object"))
-    check_fields(r.get("model"), MODEL, f"{where}: model")
-    check_metrics(r.get("metrics"), f"{where}: metrics")
-    if "per_object" in r:
-        check_per_object(r["per_object"], r["metrics"]["n_objects"], f"{where}: per_object")
-    check_fields(r.get("speed"), SPEED, f"{where}: speed")
-    check_seeds(r.get("seeds"), f"{where}: seeds")
+def check_results(r, source: str = "results") -> dict:
+    """A whole results record (docs/ARCHITECTURE.md, "Results JSON"); errors name ``source``."""
+    try:
+        check_fields(r, RESULTS, "", extra=("model", "metrics", "speed", "seeds", "per_object"))
+        check_fields(r.get("model"), MODEL, "model")
+        check_metrics(r.get("metrics"), "metrics")
+        if "per_object" in r:
+            check_per_object(r["per_object"], r["metrics"]["n_objects"], "per_object")
+        check_fields(r.get("speed"), SPEED, "speed")
+        check_seeds(r.get("seeds"), "seeds")
+    except SchemaError as exc:
+        raise SchemaError(f"{source}: {exc}") from None
     return r

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
-from basic_shapes.shards import Shard, find_object
+from basic_shapes.shards import Shard, ShardError, find_object
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_variants
 from radar_sim.meshio import UNITS, load_mesh
 
@@ -136,20 +136,27 @@ def cmd_rcs(args) -> None:
         print(f"{aspect:>10.4g} " + " ".join(f"{v:>13.4f}" for v in row))
 
 
-def dataset_signature(directory, object_id: int, config: str, mode: str = "auto"):
-    """(coordinates, profiles, frequency response, title) of one object of a dataset.
+def dataset_signature(directory, object_id: int, config: str, mode: str = "auto",
+                      variant: int = 0):
+    """(coordinates, profiles, frequency response, title) of one mesh of a dataset object.
 
-    Uses the stored labels when they include the frequency response; otherwise simulates the
-    object's simple mesh with ``config`` (the same computation as ``radar-sim label``).
+    The simple mesh (variant 0) uses the stored labels when they include the frequency
+    response; otherwise, and for complex variants, the mesh is simulated with ``config`` (the
+    same computation as ``radar-sim label``).
     """
     path, obj, meshes = find_object(directory, object_id)
-    title = f"object {obj['id']} ({obj['class']}, simple mesh)"
+    by_variant = {v: (vertices, faces) for v, vertices, faces in meshes}
+    if variant not in by_variant:
+        raise ShardError(f"{path}: object {obj['id']} has no variant {variant} "
+                         f"(--variant 0..{max(by_variant)})")
+    name = "simple mesh" if variant == 0 else f"variant {variant}"
+    title = f"object {obj['id']} ({obj['class']}, {name})"
     with Shard(path) as s:
-        if "radar/frequency_response" in s.file:
+        if variant == 0 and "radar/frequency_response" in s.file:
             g, k = s.file["radar"], obj["shard_object_index"]
             coords = {n: g[n][()] for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
             return coords, g["response"][k], g["frequency_response"][k], f"{title}, stored labels"
-    vertices, faces = next((v, f) for variant, v, f in meshes if variant == 0)
+    vertices, faces = by_variant[variant]
     return simulated_signature(vertices, faces, config, mode, title)
 
 
@@ -170,8 +177,12 @@ def cmd_plot(args) -> None:
     if Path(args.source).is_dir():
         if args.object is None:
             raise SystemExit(f"radar-sim: {args.source} is a dataset directory: pass --object ID")
-        signature = dataset_signature(args.source, args.object, args.config, args.mode)
+        signature = dataset_signature(args.source, args.object, args.config, args.mode,
+                                      args.variant or 0)
     else:
+        if args.variant is not None:
+            raise SystemExit(f"radar-sim: {args.source} is a mesh file: --variant needs a "
+                             f"dataset directory")
         vertices, faces = load_mesh(args.source, args.units)
         with units_hint(args.source):
             signature = simulated_signature(vertices, faces, args.config, args.mode,
@@ -222,10 +233,14 @@ def build_parser() -> ArgumentParser:
 
     q = sub.add_parser("plot", help="range-aspect image and RCS polar plot of one object (PNG)",
                        description="Plot |range profile| (dB) against range and aspect, and the "
-                       "RCS (dBsm) against aspect at the band centre, at one roll angle.")
+                       "RCS (dBsm) against aspect at the frequency sample nearest the band centre "
+                       "(named in the title), at one roll angle.")
     q.add_argument("source", help="dataset directory (with --object) or a mesh file")
     q.add_argument("--object", type=number(int, minimum=0), default=None,
                    help="object id (dataset directories)")
+    q.add_argument("--variant", type=number(int, minimum=0), default=None,
+                   help="mesh of the object: 0 = simple (stored labels if any), 1.. = a complex "
+                   "variant, simulated (default 0)")
     q.add_argument("--out", type=_png_path, required=True, help="PNG file to write")
     q.add_argument("--roll", type=number(), default=0.0,
                    help="degrees; nearest grid roll (default 0)")

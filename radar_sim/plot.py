@@ -2,7 +2,8 @@
 
 The two views a radar engineer checks first: where along the line of sight the object
 scatters (|range profile| in dB against aspect) and how strong it is (σ in dBsm against aspect
-at the band centre). dB = 20·log10|A| = 10·log10 σ.
+at the frequency sample nearest the band centre, named in the title).
+dB = 20·log10|A| = 10·log10 σ.
 """
 
 from __future__ import annotations
@@ -24,6 +25,19 @@ def nearest_roll(roll_deg: np.ndarray, roll: float) -> int:
     return int(np.argmin(gap))
 
 
+def band_centre_sample(frequency_hz) -> tuple[int, str]:
+    """(index, title text) of the frequency sample the RCS panel shows: the one nearest the band
+    centre. With an even number of uniform samples (xband-v1: 128 over 8-12 GHz) the centre,
+    10 GHz, lies midway between two samples, so the title names the sample actually shown."""
+    frequency_hz = np.asarray(frequency_hz, dtype=np.float64)
+    centre = (frequency_hz.min() + frequency_hz.max()) / 2
+    f = int(np.argmin(np.abs(frequency_hz - centre)))
+    shown = f"{frequency_hz[f] / 1e9:.4g} GHz"
+    if np.isclose(frequency_hz[f], centre, rtol=1e-9, atol=0):
+        return f, f"{shown} (band centre)"
+    return f, f"{shown}\n(the sample nearest the {centre / 1e9:.4g} GHz band centre)"
+
+
 def plot_signature(out: str | os.PathLike, *, aspect_deg, roll_deg, range_m, frequency_hz,
                    range_profiles: np.ndarray, frequency_response: np.ndarray,
                    roll: float = 0.0, title: str = "") -> None:
@@ -35,7 +49,7 @@ def plot_signature(out: str | os.PathLike, *, aspect_deg, roll_deg, range_m, fre
 
     aspect_deg, range_m, frequency_hz = map(np.asarray, (aspect_deg, range_m, frequency_hz))
     r = nearest_roll(roll_deg, roll)
-    f = int(np.argmin(np.abs(frequency_hz - frequency_hz.mean())))
+    f, shown = band_centre_sample(frequency_hz)
     image = _db(range_profiles[:, r, :])
     rcs = _db(frequency_response[:, r, f])
     top = max(image.max(), rcs.max())
@@ -57,7 +71,7 @@ def plot_signature(out: str | os.PathLike, *, aspect_deg, roll_deg, range_m, fre
     ax.set_thetamin(float(aspect_deg.min()))
     ax.set_thetamax(float(aspect_deg.max()))
     ax.set_ylim(np.ceil(rcs.max() + 5) - DYNAMIC_RANGE_DB, np.ceil(rcs.max() + 5))
-    ax.set_title(f"RCS (dBsm) vs aspect at {frequency_hz[f] / 1e9:.4g} GHz", pad=18)
+    ax.set_title(f"RCS (dBsm) vs aspect at {shown}", pad=18)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
