@@ -73,7 +73,7 @@ class ScaleBins:
     n: int = 32
 
     @classmethod
-    def for_config(cls, generator_config: dict, n: int = 32) -> "ScaleBins":
+    def for_config(cls, generator_config: dict, n: int = 32) -> ScaleBins:
         lo, hi = generator_config.get("scale_range", SCALE_RANGE)
         return cls(float(lo), float(hi), n)
 
@@ -254,7 +254,7 @@ class BenchmarkData:
             s.close()
         self._handles = {}
 
-    def __enter__(self) -> "BenchmarkData":
+    def __enter__(self) -> BenchmarkData:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -92,7 +92,7 @@ class MeshClassifier:
         self.descriptors, self.classes = np.asarray(descriptors), np.asarray(classes)
 
     @classmethod
-    def fit(cls, data: BenchmarkData, objects: np.ndarray) -> "MeshClassifier":
+    def fit(cls, data: BenchmarkData, objects: np.ndarray) -> MeshClassifier:
         desc = [normal_descriptor(*data.mesh(int(data.meshes_of(o)[0]))) for o in objects]
         return cls(np.stack(desc), data.objects["class_index"][objects])
 

@@ -207,8 +207,9 @@ def skill_note(g: dict) -> str:
         return ""
     return (f"Skill: 1 − Complex MSE / Complex MSE of the strongest reference "
             f"({', '.join(sorted(names))}), and whether the model is better, worse or not "
-            f"distinguishable from it by the paired 95% interval of the difference. No skill: not better than the training-set mean by a "
-            f"paired 95% interval. Reference rows cost nothing to run and are not ranked.")
+            f"distinguishable from it by the paired 95% interval of the difference. No skill: "
+            f"not better than the training-set mean by a paired 95% interval. Reference rows "
+            f"cost nothing to run and are not ranked.")
 
 
 def html_per_class(g: dict) -> str:
