@@ -76,8 +76,8 @@ PRESETS = {
         train=dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
                    codebook_size=64, epochs=30, batch_size=8, pretrain_meshes=1500,
                    pretrain_epochs=8, pretrain_max_faces=400),
-        expected="about 60 minutes on 2 idle CPU cores (3 seeds; 29 minutes per seed measured "
-                 "on the shared machine)"),
+        expected="estimated (not measured) 60-90 minutes on 2 CPU cores: 3 seeds, one seed "
+                 "took 20 minutes idle and 29 on the shared machine"),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
         objects_per_class=1000, variants=99, workers=None, radar={},
