@@ -19,11 +19,15 @@ EPILOG = """examples:
       --model-arg data_dir=data/bs --out results.json --write-predictions preds.h5
   benchmark evaluate --data data/bs --model my_model.py:MyModel --out results.json
   benchmark train --help
-  benchmark reproduce --preset tiny --out out/tiny"""
+  benchmark reproduce --preset tiny --out out/tiny
+  benchmark dataset --list
+  benchmark dataset cpu-v1 --out data/cpu-v1"""
 
 DELEGATED = {
     "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
     "reproduce": ("benchmark.reproduce", "run a preset (tiny|small|paper) and write the paper's table"),
+    "dataset": ("benchmark.versions", "build a named dataset version (generate + label) and "
+                "check its fingerprints"),
 }
 
 

@@ -1,0 +1,192 @@
+"""Named dataset versions: each defined here once, built by one command, identified by content.
+
+A version fixes everything its meshes and labels depend on: the generator's sizes and seed
+(splits, variants and OOD meshes follow from them), the radar grid (``xband-v1`` with some
+axes coarsened) and the per-mesh physics asked for; the simulation-mesh rule comes with the
+toolkit. ``benchmark dataset NAME --out DIR`` builds it with the toolkit's own CLIs
+(resumable, byte-deterministic) and compares the fingerprints with the ones recorded here
+from a reference build. ``leaderboard submit`` accepts only datasets that are a registered
+version (same generator config and radar config), and the board names the version.
+
+Adding a version is one entry in VERSIONS; record ``fingerprints`` after its first build.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from basic_shapes.infra import atomic_path
+
+
+class VersionError(ValueError):
+    """An unknown version name, or a directory that is not a registered version."""
+
+
+@dataclass(frozen=True)
+class DatasetVersion:
+    """One named dataset: generator sizes, radar grid, mesh labels, recorded fingerprints."""
+
+    name: str
+    summary: str
+    objects_per_class: int
+    variants: int
+    classes: tuple[str, ...] = ("cube", "cylinder", "sphere")
+    seed: int = 0
+    radar: dict = field(default_factory=dict)  # changes to the "xband-v1" RadarConfig
+    mesh_labels: str = "none"  # radar-sim label --mesh-labels
+    fingerprints: dict = field(default_factory=dict)  # {"mesh": sha256, "label": sha256}
+
+    def radar_config(self):
+        """The version's RadarConfig: ``xband-v1``, renamed when a grid axis is coarsened."""
+        from radar_sim import RadarConfig
+
+        config = RadarConfig.named("xband-v1")
+        if not self.radar:
+            return config
+        grid = "x".join(str(self.radar.get(k, getattr(config, k)))
+                        for k in ("n_aspect", "n_roll", "n_range"))
+        return dataclasses.replace(config, name=f"xband-v1-{grid}", **self.radar)
+
+    def grid(self) -> str:
+        c = self.radar_config()
+        return f"{c.n_aspect} aspects x {c.n_roll} rolls x {c.n_range} range bins"
+
+    def describe(self) -> dict:
+        """What the board shows about the version."""
+        return {"name": self.name, "summary": self.summary, "classes": list(self.classes),
+                "objects_per_class": self.objects_per_class, "variants": self.variants,
+                "seed": self.seed, "grid": self.grid(), "radar_config": self.radar_config().name}
+
+
+VERSIONS: dict[str, DatasetVersion] = {v.name: v for v in (
+    DatasetVersion(
+        "tiny-v1", "the test suite's dataset: 2 objects per class, 3 meshes each",
+        objects_per_class=2, variants=2, radar={"n_aspect": 7, "n_roll": 3}),
+    DatasetVersion(
+        "demo-v1", "the README demo: 4 objects per class, 10 meshes each, every mesh labelled",
+        objects_per_class=4, variants=9, radar={"n_aspect": 31, "n_roll": 7},
+        mesh_labels="all"),
+    DatasetVersion(
+        "cpu-v1", "the CPU benchmark: 500 objects per class (150 test objects), 10 meshes "
+        "each plus OOD test meshes, 31 x 7 grid",
+        objects_per_class=500, variants=9, radar={"n_aspect": 31, "n_roll": 7},
+        mesh_labels="sample:1"),
+    DatasetVersion(
+        "paper-v1", "the paper's scale: 1000 objects per class, 100 meshes each, full grid",
+        objects_per_class=1000, variants=99),
+)}
+
+
+def get(name: str) -> DatasetVersion:
+    try:
+        return VERSIONS[name]
+    except KeyError:
+        raise VersionError(f"unknown dataset version {name!r}; known: "
+                           f"{', '.join(VERSIONS)}") from None
+
+
+def _tool(name: str, module: str) -> list[str]:
+    """The console script next to this interpreter, else ``python -m module``."""
+    script = Path(sys.executable).with_name(name)
+    return [str(script)] if script.exists() else [sys.executable, "-m", module]
+
+
+def run_tool(cmd: list[str], what: str, quiet: bool) -> float:
+    """Run one of the toolkit's CLIs; its one-line error becomes ours. Returns seconds."""
+    t0 = time.perf_counter()
+    result = subprocess.run(cmd, stdout=subprocess.PIPE if quiet else None,
+                            stderr=subprocess.PIPE, text=True)
+    if result.returncode != 0:
+        tail = (result.stderr or "").strip().splitlines()
+        raise VersionError(f"{what} failed: "
+                           f"{tail[-1] if tail else 'exit code ' + str(result.returncode)}")
+    return time.perf_counter() - t0
+
+
+def build(version: DatasetVersion, directory: str | Path, *, workers: int | None = None,
+          scheduler: str | None = None, quiet: bool = False) -> dict:
+    """Generate and label ``version`` into ``directory`` (both steps resume); return timings
+    and the fingerprints, with whether they match the recorded ones."""
+    directory = Path(directory)
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    radar = directory.parent / f"{directory.name}.radar.json"
+    with atomic_path(radar) as tmp:
+        tmp.write_text(version.radar_config().to_json())
+    cluster = ["--scheduler", scheduler] if scheduler else []
+    gen_workers = [] if workers is None else ["--workers", str(workers)]
+    t_gen = run_tool([*_tool("basic-shapes", "basic_shapes.cli"), "generate", "--out",
+                      str(directory), "--classes", ",".join(version.classes),
+                      "--objects-per-class", str(version.objects_per_class),
+                      "--variants", str(version.variants), "--seed", str(version.seed),
+                      *gen_workers, *cluster], "basic-shapes generate", quiet)
+    label_workers = [] if workers is None else ["--workers", str(max(1, workers))]
+    t_label = run_tool([*_tool("radar-sim", "radar_sim.cli"), "label", str(directory),
+                        "--config", str(radar), "--mesh-labels", version.mesh_labels,
+                        *label_workers, *cluster], "radar-sim label", quiet)
+    found = fingerprints(directory)
+    expected = version.fingerprints
+    return {"version": version.name, "generate_s": t_gen, "label_s": t_label, **found,
+            "matches_recorded": None if not expected else found == expected}
+
+
+def fingerprints(directory: str | Path) -> dict:
+    """{"mesh": ..., "label": ...} of a dataset directory."""
+    from basic_shapes.shards import dataset_fingerprint, dataset_label_fingerprint
+
+    return {"mesh": dataset_fingerprint(directory), "label": dataset_label_fingerprint(directory)}
+
+
+def identify(directory: str | Path) -> DatasetVersion:
+    """The registered version a dataset directory was built as, by its generator and radar
+    configs (not by its name); VersionError if it is none of them."""
+    from basic_shapes.shards import Shard, list_shards
+
+    with Shard(list_shards(directory)[0]) as s:
+        gen = s.config
+        radar = s.radar.config_json if s.has_labels else None
+    if radar is None:
+        raise VersionError(f"{directory}: not labelled, so not a registered dataset version")
+    for v in VERSIONS.values():
+        if (gen.get("classes") == list(v.classes)
+                and gen.get("objects_per_class") == v.objects_per_class
+                and gen.get("variants") == v.variants and gen.get("seed") == v.seed
+                and json.loads(radar) == json.loads(v.radar_config().to_json())):
+            return v
+    raise VersionError(f"{directory}: not a registered dataset version (benchmark dataset "
+                       f"--list names them; build one with benchmark dataset NAME --out DIR)")
+
+
+def add_arguments(p) -> None:
+    from basic_shapes.infra import number
+
+    p.add_argument("name", nargs="?", help="dataset version (see --list)")
+    p.add_argument("--out", help="dataset directory to build into (resumes if it exists)")
+    p.add_argument("--list", action="store_true", help="list the registered versions and exit")
+    p.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
+                   help="Dask worker processes (default: one per core)")
+    p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
+    p.add_argument("--quiet", action="store_true", help="no progress output from the tools")
+
+
+def run(args) -> int:
+    if args.list or not args.name:
+        for v in VERSIONS.values():
+            recorded = "fingerprints recorded" if v.fingerprints else "no fingerprints recorded"
+            print(f"{v.name:10s} {v.grid():42s} {recorded}\n{'':10s} {v.summary}")
+        return 0
+    if not args.out:
+        raise VersionError("benchmark dataset: --out DIR is required to build a version")
+    version = get(args.name)
+    report = build(version, args.out, workers=args.workers, scheduler=args.scheduler,
+                   quiet=args.quiet)
+    print(json.dumps(report, indent=2))
+    if report["matches_recorded"] is False:
+        raise VersionError(f"{args.out}: fingerprints differ from those recorded for "
+                           f"{version.name} (see docs/DATASETS.md)")
+    return 0
