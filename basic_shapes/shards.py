@@ -8,6 +8,7 @@ leaves a file that reads as a valid shard. This module must not import bpy or to
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -234,9 +235,9 @@ class Shard:
     def has_labels(self) -> bool:
         return "radar/response" in self.file
 
-    @property
+    @functools.cached_property
     def radar(self) -> "RadarGroup":
-        """The ``/radar`` group (labels), validated; ``ShardError`` if absent or malformed."""
+        """The ``/radar`` group (labels), validated once; ``ShardError`` if absent or malformed."""
         return RadarGroup(self)
 
 

@@ -48,7 +48,8 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
     data.test_objects()  # refuses a dataset without a test split
     rows = data.mesh_rows("test")
     elapsed = 0.0
-    with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape) as writer:
+    with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape,
+                           label_fingerprint=data.label_fingerprint) as writer:
         with tqdm(total=len(rows), desc="predict", unit="mesh", disable=not progress) as bar:
             for start in range(0, len(rows), batch_size):
                 chunk = rows[start:start + batch_size]
@@ -104,7 +105,8 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
                 metrics = score(data, preds)
         dataset_seed = data.config.get("seed")
         seeds = {"dataset": dataset_seed if isinstance(dataset_seed, int) else None, "train": train_seed}
-        return make_results(data.fingerprint, metrics, model_info(model, overrides), speed, seeds)
+        return make_results(data.fingerprint, metrics, model_info(model, overrides), speed, seeds,
+                            label_fingerprint=data.label_fingerprint)
 
 
 def format_metrics(results: dict) -> str:
