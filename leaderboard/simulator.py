@@ -59,10 +59,10 @@ def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
     return scorer.result(), len(scorer.rows)
 
 
-def radar_config(data: BenchmarkData) -> tuple[dict, dict]:
-    """(radar config, labelling options) of the dataset's labels."""
+def radar_config(data: BenchmarkData, options: bool = False) -> dict:
+    """The radar config of the dataset's labels (or the labelling options: mode, ...)."""
     with Shard(data.paths[0]) as s:
-        return s.radar.config, s.radar.options
+        return s.radar.options if options else s.radar.config
 
 
 def hardware() -> str:
@@ -77,9 +77,8 @@ def measure_ms_per_mesh(data: BenchmarkData, repeats: int = 3) -> float:
     """
     from radar_sim import RadarConfig, simulate
 
-    fields, options = radar_config(data)
-    config = RadarConfig(**fields)
-    mode = options.get("mode", "auto")
+    config = RadarConfig(**radar_config(data))
+    mode = radar_config(data, options=True).get("mode", "auto")
     meshes = [data.mesh(int(r)) for r in data.meshes_of(example.example_object(data))]
     simulate(*meshes[0], config, mode=mode)
     times = []
@@ -100,7 +99,7 @@ def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT
         timed = ms_per_mesh is None
         if timed:
             ms_per_mesh = measure_ms_per_mesh(data)
-        config, _ = radar_config(data)
+        config = radar_config(data)
         dataset = {"fingerprint": fingerprint, "label_fingerprint": data.label_fingerprint,
                    "classes": data.class_names,
                    "test_objects": len(data.object_rows("test")),

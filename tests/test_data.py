@@ -155,7 +155,7 @@ def test_unlabelled_and_inconsistent_shards_are_refused(tmp_path):
     rewrite_atomically(plain / shard_name(0), lambda f: f.__delitem__("radar"))
     with pytest.raises(ShardError, match=r"shard-00000.h5: no radar labels"):
         BenchmarkData(plain)
-    rewrite_atomically(src / shard_name(1), lambda f: f["radar/range_m"].__setitem__(0, -9.0))
+    rewrite_atomically(src / shard_name(1), lambda f: f["radar/range"].__setitem__(0, -9.0))
     with pytest.raises(ShardError, match="radar grid differs"):
         BenchmarkData(src)
     with pytest.raises(ShardError, match="no such dataset directory"):
