@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, label_fingerprint, list_shards
+from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, label_fingerprint,
+                                 list_shards)
 
 BAR = 40
 

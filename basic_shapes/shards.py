@@ -386,7 +386,8 @@ class RadarGroup:
                     raise ShardError(f"{self.path}: /radar/{name} is {d.dtype}{d.shape}, expected "
                                      f"{'complex' if complex_ else ''}{expected}")
         n_meshes = len(f["meshes/variant"])
-        if len(self.mesh_index) and (self.mesh_index.min() < 0 or self.mesh_index.max() >= n_meshes):
+        rows = self.mesh_index
+        if len(rows) and (rows.min() < 0 or rows.max() >= n_meshes):
             raise ShardError(f"{self.path}: /radar/mesh holds rows outside 0..{n_meshes - 1}")
 
     # attributes -----------------------------------------------------------------------------
@@ -394,7 +395,8 @@ class RadarGroup:
         try:
             return json.loads(self.group.attrs[name])
         except (KeyError, TypeError, ValueError):
-            raise ShardError(f"{self.path}: /radar attribute {name!r} missing or not JSON") from None
+            raise ShardError(f"{self.path}: /radar attribute {name!r} missing or not "
+                             f"JSON") from None
 
     @property
     def config(self) -> dict:

@@ -101,8 +101,9 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         raise SubmissionError(f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
                               f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)")
     if results["label_fingerprint"] != labels:
-        raise SubmissionError(f"{results_path}: label fingerprint {results['label_fingerprint'][:16]}..."
-                              f" belongs to other labels ({data_dir} is {labels[:16]}...: relabelled?)")
+        raise SubmissionError(f"{results_path}: label fingerprint "
+                              f"{results['label_fingerprint'][:16]}... belongs to other labels "
+                              f"({data_dir} is {labels[:16]}...: relabelled?)")
     try:
         rescored = score_predictions(data_dir, predictions_path)
     except (OSError, ValueError) as exc:

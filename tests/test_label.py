@@ -77,8 +77,8 @@ def write_dataset(directory, n_objects=6, objects_per_shard=1, corrupt=None):
             meshes.append(MeshRecord(variant, v, np.array(m.faces, np.int32), 0.0, {"n": variant}))
         objects.append(ObjectRecord(oid, cls, scale, 1000 + oid, "train", meshes))
     for i in range(0, n_objects, objects_per_shard):
-        write_shard(directory / shard_name(i // objects_per_shard), objects[i:i + objects_per_shard],
-                    CLASSES, {"test": True}, "0.1.0")
+        write_shard(directory / shard_name(i // objects_per_shard),
+                    objects[i:i + objects_per_shard], CLASSES, {"seed": 0, "variants": 2}, "0.1.0")
     return directory
 
 
@@ -368,3 +368,13 @@ def test_cli_exit_status_and_stderr(tmp_path):
     assert proc.returncode != 0
     assert proc.stderr.strip().splitlines() == [f"radar-sim: {tmp_path / 'nope'}: no such dataset "
                                                 f"directory"]
+
+
+def test_info_prints_both_fingerprints(dataset, labelled, capsys):
+    from basic_shapes.info import summary
+
+    text = summary(labelled)
+    assert f"mesh fingerprint  {dataset_fingerprint(labelled)}" in text
+    assert f"label fingerprint {label_fingerprint(labelled)} (radar config 'test-lband')" in text
+    assert dataset_fingerprint(labelled) == dataset_fingerprint(dataset)
+    assert "label fingerprint (not every shard is labelled" in summary(dataset)
