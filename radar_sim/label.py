@@ -342,6 +342,10 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
 
     paths = list_shards(directory)
     plans = {p: plan_shard(p, request, overwrite) for p in paths}
+    for path in [p for p, plan in plans.items() if plan is None]:  # killed after its merge
+        shutil.rmtree(path.parent / SIDECAR / path.stem, ignore_errors=True)
+        with contextlib.suppress(OSError):
+            (path.parent / SIDECAR).rmdir()
     todo = [plan for plan in plans.values() if plan is not None]
     summary = LabelSummary([], [p for p, plan in plans.items() if plan is None],
                            sum(plan.n_objects for plan in todo),
