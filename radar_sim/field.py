@@ -27,7 +27,7 @@ from radar_sim.geometry import Mesh, RayCaster, check_units, mode_of, prepare
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
 DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular magnitude P k/√π
-BATCH = 16              # directions per group with shadow rays (bounds the ray batches)
+GROUP = 64              # directions per kernel call (same in every mode: same bytes)
 PHASE_ERROR = 64 * facet.EPS   # bound on a vertex phasor's absolute phase error (radians)
 MOMENT_EPS = facet.EPS / 16    # Taylor remainder of a vertex phasor in the binned sums
 MOMENT_BUDGET = 64 << 20       # bytes of moments (or contraction matrix) held at a time
@@ -108,7 +108,7 @@ class _Geometry:
         self.v = np.ascontiguousarray(mesh.vertices)
         self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.area, self.area_lo = facet.area_vectors_split(self.v[self.f])
-        self.area_l1 = np.abs(self.area).sum(axis=1)
+        self.area_split = np.concatenate(facet.split(self.area), axis=1)    # (F, 6)
         self.two_sided = not mesh.closed
         self.centroids = mesh.centroids
         self.normals = self.area / np.linalg.norm(self.area, axis=1, keepdims=True)
@@ -140,6 +140,7 @@ class _Moments:
         self.width = self.n_bins * terms
         m = np.arange(terms)
         fact = np.cumprod(np.r_[1.0, np.arange(1.0, terms)])
+        self.two_dk = _uniform_step(k) * 2.0
         self.taylor = (1j * kappa[None, :] * self.h) ** m[:, None] / fact[:, None]   # (M, n_k)
         self.chunk = max(1, MOMENT_BUDGET // (terms * len(k) * 16))   # bins per matrix block
         self._matrix = self._block(0, self.n_bins) if self.n_bins <= self.chunk else None
@@ -161,14 +162,23 @@ class _Moments:
         return out
 
 
+def _uniform_step(k: np.ndarray) -> float:
+    """Δk of a uniform grid, k_n = k_0 + nΔk to 4 ulp (the phase error that leaves in the
+    series facets' phasors is within the 8·eps·2kR term of docs/RADAR.md), else 0."""
+    if len(k) < 2:
+        return 0.0
+    dk = (k[-1] - k[0]) / (len(k) - 1)
+    grid = k[0] + dk * np.arange(len(k))
+    return float(dk) if dk > 0 and np.all(np.abs(grid - k) <= 4 * facet.EPS * k) else 0.0
+
+
 def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | None,
               tol: float) -> np.ndarray:
-    """First-bounce PO by ``po_kernel`` in groups of directions (memory of the moments)."""
+    """First-bounce PO by ``po_kernel`` in groups of directions (memory of the moments and
+    shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too."""
     geo = _Geometry(mesh)
     plan = _Moments(k, mesh.radius)
-    group = max(1, MOMENT_BUDGET // (16 * plan.width))
-    if caster is not None:
-        group = min(group, BATCH)
+    group = max(1, min(GROUP, MOMENT_BUDGET // (16 * plan.width)))
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
     no_shadow = np.zeros((0, 0), dtype=np.uint8)
     for lo in range(0, len(dirs), group):
@@ -177,8 +187,8 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
         mom = np.zeros((len(r), plan.width), dtype=np.complex128)
         part = out[lo:lo + group]
         idx, val = po_kernel.first_bounce(
-            geo.v, geo.f, geo.area, geo.area_lo, geo.area_l1, r, blocked, geo.two_sided, k,
-            tol, PHASE_ERROR, 1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid, mom, part)
+            geo.v, geo.f, geo.area, geo.area_lo, geo.area_split, r, blocked, geo.two_sided, k,
+            plan.two_dk, tol, PHASE_ERROR, 1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid, mom, part)
         part += plan.contract(mom) / k
         if len(idx):
             x = 2.0 * val[:, 1:, None] * k

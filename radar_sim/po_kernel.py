@@ -35,8 +35,6 @@ _TAN = np.array(facet.TAN_SERIES)
 _TAN_NEXT = facet.TAN_NEXT
 _SERIES_N = facet.SERIES_N
 _SERIES_NEXT = facet.SERIES_NEXT
-# |P| below this fraction of Σ|A_i| (grazing): P from the double-double area vector
-GRAZING = 0.125
 
 
 @njit(cache=True, inline="always")
@@ -87,14 +85,20 @@ def _cis_of_product(s, two_k):
 
 
 @njit(cache=True, inline="always")
-def _projected(area, area_lo, area_l1, f, r0, r1, r2):
-    """r̂·A: plain, or from the double-double area vector when grazing (relative ~eps)."""
-    p = area[f, 0] * r0 + area[f, 1] * r1 + area[f, 2] * r2
-    if abs(p) > GRAZING * area_l1[f]:
+def _projected(area, area_lo, area_split, f, r0, r1, r2, r_split):
+    """r̂·A to relative error <= 42 eps (1e-14): plain when |r̂·A| >= Σ|A_i r_i|/12, else from
+    the double-double area vector by exact products (grazing incidence)."""
+    a0, a1, a2 = area[f, 0], area[f, 1], area[f, 2]
+    p0, p1, p2 = a0 * r0, a1 * r1, a2 * r2
+    p = p0 + p1 + p2
+    if 12.0 * abs(p) >= abs(p0) + abs(p1) + abs(p2):
         return p
-    p0, e0 = _two_product(area[f, 0], r0)
-    p1, e1 = _two_product(area[f, 1], r1)
-    p2, e2 = _two_product(area[f, 2], r2)
+    e0 = ((area_split[f, 0] * r_split[0] - p0) + area_split[f, 0] * r_split[3]
+          + area_split[f, 3] * r_split[0]) + area_split[f, 3] * r_split[3]
+    e1 = ((area_split[f, 1] * r_split[1] - p1) + area_split[f, 1] * r_split[4]
+          + area_split[f, 4] * r_split[1]) + area_split[f, 4] * r_split[4]
+    e2 = ((area_split[f, 2] * r_split[2] - p2) + area_split[f, 2] * r_split[5]
+          + area_split[f, 5] * r_split[2]) + area_split[f, 5] * r_split[5]
     t, c1 = _two_sum(p0, p1)
     t, c2 = _two_sum(t, p2)
     low = area_lo[f, 0] * r0 + area_lo[f, 1] * r1 + area_lo[f, 2] * r2
@@ -102,8 +106,25 @@ def _projected(area, area_lo, area_l1, f, r0, r1, r2):
 
 
 @njit(cache=True)
-def _add_series(row, k, proj, s0, s1, s2):
-    """Near-specular facet: e^{j2k s_mid} Σ_n (2/√π) P (2jk)^n h_n(σ_lo, σ_hi)/(n+2)! · k."""
+def _phasors(s, k, two_dk, re, im):
+    """e^{j2k_n s} into (re, im): accurate (two-product and table) at every 16th frequency
+    and multiplied on by e^{j2Δk s} in between on a uniform grid (two_dk > 0): error below
+    40 eps, far inside the tolerance of the series facets (not amplified by weights)."""
+    if two_dk > 0.0:
+        sr, si = _cis_of_product(s, two_dk)
+    for n in range(len(k)):
+        if two_dk <= 0.0 or n % 16 == 0:
+            c, sn = _cis_of_product(s, 2.0 * k[n])
+        else:
+            c, sn = c * sr - sn * si, c * si + sn * sr
+        re[n] = c
+        im[n] = sn
+
+
+@njit(cache=True)
+def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im):
+    """Near-specular facet: e^{j2k s_mid} Σ_n (2/√π) P (2jk)^n h_n(σ_lo, σ_hi)/(n+2)! · k,
+    truncated where (2k_max d)^N (N+1)/(N+2)! <= tol/2 (at most 16 terms)."""
     if s0 > s1:
         s0, s1 = s1, s0
     if s1 > s2:
@@ -112,11 +133,14 @@ def _add_series(row, k, proj, s0, s1, s2):
         s0, s1 = s1, s0
     lo = s0 - s1
     hi = s2 - s1
+    x = 2.0 * k.max() * (hi - lo)
     coef = np.empty(_SERIES_N)         # real parts of (2/√π) P 2^n h_n/(n+2)!, sign of j^n in
     h = 1.0
     lo_pow = 1.0
     fact = 2.0
     scale = _TWO_OVER_SQRT_PI * proj
+    bound = 1.0                        # x^n (n+1)/(n+2)! of the next term
+    terms = _SERIES_N
     for n in range(_SERIES_N):
         if n:
             lo_pow *= lo
@@ -125,46 +149,61 @@ def _add_series(row, k, proj, s0, s1, s2):
             scale *= 2.0
         sign = 1.0 if (n % 4) < 2 else -1.0
         coef[n] = sign * scale * h / fact
+        bound *= x * (n + 2) / ((n + 1) * (n + 3)) if n else x / 3.0
+        if bound <= 0.5 * tol:
+            terms = n + 1
+            break
+    _phasors(s1, k, two_dk, re, im)
     for i in range(len(k)):
         kk = k[i]
-        re = 0.0
-        im = 0.0
-        for n in range(_SERIES_N - 1, -1, -1):     # Horner in k: even n real, odd n imaginary
+        pr = 0.0
+        pi = 0.0
+        for n in range(terms - 1, -1, -1):        # Horner in k: even n real, odd n imaginary
             if n % 2:
-                im = im * kk + coef[n]
-                re = re * kk
+                pi = pi * kk + coef[n]
+                pr = pr * kk
             else:
-                re = re * kk + coef[n]
-                im = im * kk
-        re *= kk
-        im *= kk
-        c, s = _cis_of_product(s1, 2.0 * kk)
-        row[i] += complex(re * c - im * s, re * s + im * c)
+                pr = pr * kk + coef[n]
+                pi = pi * kk
+        pr *= kk
+        pi *= kk
+        row[i] += complex(pr * re[i] - pi * im[i], pr * im[i] + pi * re[i])
 
 
 @njit(cache=True)
-def _add_pair_tan(row, k, d, e, g, si, sj):
-    """The k⁰⁺ part of a near pair: −j e D T(kg) (e^{j2ks_i} + e^{j2ks_j}), T = tan(y)/y."""
+def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
+    """The k⁰⁺ part of a near pair: −j e D T(kg) (e^{j2ks_i} + e^{j2ks_j}), T = tan(y)/y
+    truncated where TAN_m (k_max g)^{2m}/(k_min e) <= tol/2 (at most 8 terms)."""
     n_tan = len(_TAN)
+    y2_max = (k.max() * g) ** 2
+    bound = 1.0 / abs(k.min() * e)
+    terms = n_tan
+    for m in range(1, n_tan):
+        bound *= y2_max
+        if _TAN[m] * bound <= 0.5 * tol:
+            terms = m
+            break
+    _phasors(si, k, two_dk, re, im)
+    _phasors(sj, k, two_dk, re2, im2)
     for i in range(len(k)):
         kk = k[i]
         y2 = (kk * g) * (kk * g)
-        t = _TAN[n_tan - 1]
-        for m in range(n_tan - 2, -1, -1):
+        t = _TAN[terms - 1]
+        for m in range(terms - 2, -1, -1):
             t = t * y2 + _TAN[m]
         amp = -e * d * t                            # times j
-        ci, sni = _cis_of_product(si, 2.0 * kk)
-        cj, snj = _cis_of_product(sj, 2.0 * kk)
-        row[i] += complex(-amp * (sni + snj), amp * (ci + cj))
+        row[i] += complex(-amp * (im[i] + im2[i]), amp * (re[i] + re2[i]))
 
 
 @njit(cache=True)
-def first_bounce(v, faces, area, area_lo, area_l1, dirs, blocked, two_sided, k, tol,
-                 phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out):
+def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, k, two_dk,
+                 tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out):
     """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights, series facets
     added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
     (face, direction) index pairs, their projected areas and their three positions r̂·r_i.
-    ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none)."""
+    ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none); ``area_split``
+    holds the Veltkamp halves of ``area`` (hi parts, then lo parts); ``two_dk`` is 2Δk of a
+    uniform frequency grid (0: not uniform)."""
     n_v = len(v)
     n_f = len(faces)
     k_lo = k.min()
@@ -174,18 +213,22 @@ def first_bounce(v, faces, area, area_lo, area_l1, dirs, blocked, two_sided, k, 
     shadowed = blocked.size > 0
     s = np.empty(n_v)
     w = np.empty(n_v)
+    r_split = np.empty(6)
+    scratch = np.empty((4, len(k)))
     cap = 64
     st_idx = np.empty((cap, 2), dtype=np.int64)
     st_val = np.empty((cap, 4))
     n_st = 0
     for d in range(len(dirs)):
         r0, r1, r2 = dirs[d, 0], dirs[d, 1], dirs[d, 2]
+        for c in range(3):
+            r_split[c], r_split[3 + c] = _split(dirs[d, c])
         for i in range(n_v):
             s[i] = v[i, 0] * r0 + v[i, 1] * r1 + v[i, 2] * r2
             w[i] = 0.0
         row = out[d]
         for f in range(n_f):
-            p = _projected(area, area_lo, area_l1, f, r0, r1, r2)
+            p = _projected(area, area_lo, area_split, f, r0, r1, r2, r_split)
             if two_sided:
                 p = abs(p)
             if not p > 0.0 or (shadowed and blocked[f, d]):
@@ -205,7 +248,7 @@ def first_bounce(v, faces, area, area_lo, area_l1, dirs, blocked, two_sided, k, 
                 w[i2] += q * a
                 continue
             if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
-                _add_series(row, k, p, s0, s1, s2)
+                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1])
                 continue
             d_min = min(aa, bb, cc)
             ke = k_lo * d_max
@@ -226,7 +269,8 @@ def first_bounce(v, faces, area, area_lo, area_l1, dirs, blocked, two_sided, k, 
                 w[pi_] += 0.5 * dd
                 w[pj] += 0.5 * dd
                 w[pm] -= dd
-                _add_pair_tan(row, k, dd, e, g, si, sj)
+                _add_pair_tan(row, k, two_dk, tol, dd, e, g, si, sj, scratch[0], scratch[1],
+                              scratch[2], scratch[3])
                 continue
             if n_st == cap:
                 cap *= 2
