@@ -28,7 +28,7 @@ C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
 DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular magnitude P k/√π
 GROUP = 64              # directions per kernel call (same in every mode: same bytes)
-PHASE_ERROR = 64 * facet.EPS   # bound on a vertex phasor's absolute phase error (radians)
+VERTEX_TERM_COST = 8.0        # one moment update per vertex / one multiply-add of the contraction
 MOMENT_EPS = facet.EPS / 16    # Taylor remainder of a vertex phasor in the binned sums
 MOMENT_BUDGET = 64 << 20       # bytes of moments (or contraction matrix) held at a time
 
@@ -117,32 +117,44 @@ class _Geometry:
 class _Moments:
     """Bins and Taylor terms of ``po_kernel``'s frequency sums, and their contraction.
 
-    Bin width h: the largest power of two with κ_max·h <= 1/2 (κ = k − k_mid); M terms, the
-    fewest with (κ_max h)^M/M! <= eps/16 (14 for 8-12 GHz). Bins cover |r̂·r| <= R."""
+    Bin width h, a power of two with x = κ_max·h <= 2 (κ = k − k_mid), and M terms, the
+    fewest with x^M/M! <= eps/16: the h that minimizes the estimated work per direction,
+    M updates per lit vertex (cost VERTEX_TERM_COST each) + n_bins·M·n_k multiply-adds of
+    the contraction. Bins cover |r̂·r| <= R. ``phase_error`` bounds the absolute phase error
+    of a vertex phasor so represented: (9 + 1.5x)·e^x ulps of rounding (docs/RADAR.md), twice
+    over, and at least that of the special facets' phasors (16 eps)."""
 
-    def __init__(self, k: np.ndarray, radius: float):
+    def __init__(self, k: np.ndarray, radius: float, n_vertices: int):
         self.k = k
         self.k_mid = 0.5 * (float(k.min()) + float(k.max()))
         kappa = k - self.k_mid
         spread = float(np.abs(kappa).max())
         h = 2.0 ** np.ceil(np.log2(2.0 * radius))           # one bin suffices without spread
         if spread > 0:
-            h = min(h, 2.0 ** np.floor(np.log2(0.5 / spread)))
-        self.h = float(h)
-        x = spread * self.h
-        terms, bound = 1, x
-        while bound > MOMENT_EPS:
-            terms += 1
-            bound *= x / terms
-        self.terms = terms
-        b_max = int(np.ceil(radius / self.h)) + 1
-        self.b_min, self.n_bins = -b_max, 2 * b_max + 1
-        self.width = self.n_bins * terms
-        m = np.arange(terms)
-        fact = np.cumprod(np.r_[1.0, np.arange(1.0, terms)])
+            h = min(h, 2.0 ** np.floor(np.log2(2.0 / spread)))
+        best = None
+        for _ in range(8):                                   # x = 2, 1, 1/2, ... 1/128
+            x = spread * h
+            terms, bound = 1, x
+            while bound > MOMENT_EPS:
+                terms += 1
+                bound *= x / terms
+            n_bins = 2 * (int(np.ceil(radius / h)) + 1) + 1
+            cost = terms * (VERTEX_TERM_COST * 0.5 * n_vertices + n_bins * len(k))
+            if best is None or cost < best[0]:
+                best = (cost, h, x, terms, n_bins)
+            h *= 0.5
+        _, self.h, x, self.terms, self.n_bins = best
+        self.b_min = -(self.n_bins // 2)
+        self.width = self.n_bins * self.terms
+        self.phase_error = max(16.0, 2.0 * ((9.0 + 1.5 * x) * np.exp(x) + 1.0)) * facet.EPS
         self.two_dk = _uniform_step(k) * 2.0
-        self.taylor = (1j * kappa[None, :] * self.h) ** m[:, None] / fact[:, None]   # (M, n_k)
-        self.chunk = max(1, MOMENT_BUDGET // (terms * len(k) * 16))   # bins per matrix block
+        step = 1j * kappa * self.h
+        taylor = [np.ones_like(step)]
+        for m in range(1, self.terms):
+            taylor.append(taylor[-1] * step / m)
+        self.taylor = np.array(taylor)                                       # (M, n_k)
+        self.chunk = max(1, MOMENT_BUDGET // (self.terms * len(k) * 16))   # bins per block
         self._matrix = self._block(0, self.n_bins) if self.n_bins <= self.chunk else None
 
     def _block(self, lo: int, hi: int) -> np.ndarray:
@@ -177,7 +189,7 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
     """First-bounce PO by ``po_kernel`` in groups of directions (memory of the moments and
     shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too."""
     geo = _Geometry(mesh)
-    plan = _Moments(k, mesh.radius)
+    plan = _Moments(k, mesh.radius, len(mesh.vertices))
     group = max(1, min(GROUP, MOMENT_BUDGET // (16 * plan.width)))
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
     no_shadow = np.zeros((0, 0), dtype=np.uint8)
@@ -188,7 +200,7 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
         part = out[lo:lo + group]
         idx, val = po_kernel.first_bounce(
             geo.v, geo.f, geo.area, geo.area_lo, geo.area_split, r, blocked, geo.two_sided, k,
-            plan.two_dk, tol, PHASE_ERROR, 1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid, mom, part)
+            plan.two_dk, tol, plan.phase_error, 1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid, mom, part)
         part += plan.contract(mom) / k
         if len(idx):
             x = 2.0 * val[:, 1:, None] * k
