@@ -33,10 +33,8 @@ SIMULATION_RULE = {
     # spacing exceeds half a wavelength, so edges are kept at most this fraction of lambda/2
     # at the top frequency (docs/RADAR.md, "Object labels: simulation meshes").
     "edge_half_wavelengths": 0.8,
-    # ...but where the surface is nearly flat the kinks are too weak to matter: an edge may be
-    # as long as a chord of this sagitta (in top-frequency wavelengths), whichever is longer.
-    "sagitta_wavelengths": 1e-3,
-    # and never turn by more than this angle (radians) between neighbouring facets.
+    # and never turn by more than this angle (radians) between neighbouring facets, which
+    # only binds on small radii of curvature (the rim of a flat ellipsoid).
     "max_turn_rad": 0.2,
 }
 
@@ -84,8 +82,7 @@ def _ellipsoid_implicit(axes):
     inv = 1.0 / axes ** 2
 
     def f(x):
-        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(
-            np.diag(2.0 * inv), (len(x), len(axes), len(axes)))
+        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(2.0 * inv, x.shape)
     return f
 
 
@@ -95,8 +92,7 @@ def _cone_implicit(a, b, c):
         w = (c - x[:, 2]) / (2.0 * c)
         value = (x[:, 0] / a) ** 2 + (x[:, 1] / b) ** 2 - w ** 2
         grad = np.column_stack([2 * x[:, 0] / a ** 2, 2 * x[:, 1] / b ** 2, w / c])
-        hess = np.broadcast_to(np.diag([2 / a ** 2, 2 / b ** 2, -1 / (2 * c * c)]),
-                               (len(x), 3, 3))
+        hess = np.broadcast_to([2 / a ** 2, 2 / b ** 2, -1 / (2 * c * c)], x.shape)
         return value, grad, hess
     return f
 
@@ -132,14 +128,36 @@ def _nearest(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
     return out
 
 
-NEWTON_STEPS = 60
+NEWTON_STEPS = 40
+
+
+def _newton_step(res, value, grad, hess, lam):
+    """Solve [[I + lam H, g], [g^T, 0]] (dx, dlam) = -(res, value); H (n, d) is diagonal."""
+    if hess.ndim == 2:
+        dinv = 1.0 / (1.0 + lam[:, None] * hess)
+        dlam = (value - (grad * dinv * res).sum(axis=1)) / (grad * dinv * grad).sum(axis=1)
+        return -dinv * (res + grad * dlam[:, None]), dlam
+    n, d = grad.shape
+    jac = np.zeros((n, d + 1, d + 1))
+    jac[:, :d, :d] = np.eye(d) + lam[:, None, None] * hess
+    jac[:, :d, d] = grad
+    jac[:, d, :d] = grad
+    rhs = -np.concatenate([res, value[:, None]], axis=1)
+    try:
+        step = np.linalg.solve(jac, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        step = np.stack([np.linalg.lstsq(j, r, rcond=None)[0] for j, r in zip(jac, rhs)])
+    return step[:, :d], step[:, d]
 
 
 def _closest_on_implicit(points, starts, implicit):
-    """Critical points of |x - p| on {F = 0} near ``starts`` and whether Newton converged."""
+    """Critical points of |x - p| on {F = 0} near ``starts`` and whether Newton converged.
+
+    Newton on the Lagrange system x - p + lam grad F(x) = 0, F(x) = 0 (quadratic convergence
+    from a start near the closest point; every accepted result is a point of the surface)."""
     p = np.asarray(points, np.float64)
     x = np.array(starts, np.float64)
-    n, d = x.shape
+    n = len(x)
     value, grad, _ = implicit(x)
     lam = ((p - x) * grad).sum(axis=1) / (grad ** 2).sum(axis=1)
     scale = np.abs(p).max() + np.abs(x).max() + 1e-300
@@ -150,18 +168,11 @@ def _closest_on_implicit(points, starts, implicit):
             break
         xi, li = x[idx], lam[idx]
         value, grad, hess = implicit(xi)
-        jac = np.zeros((len(idx), d + 1, d + 1))
-        jac[:, :d, :d] = np.eye(d) + li[:, None, None] * hess
-        jac[:, :d, d] = grad
-        jac[:, d, :d] = grad
-        res = np.concatenate([xi - p[idx] + li[:, None] * grad, value[:, None]], axis=1)
-        try:
-            step = np.linalg.solve(jac, -res[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in zip(jac, res)])
-        x[idx] += step[:, :d]
-        lam[idx] += step[:, d]
-        active[idx] = np.abs(step[:, :d]).max(axis=1) > 1e-15 * scale
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dx, dlam = _newton_step(xi - p[idx] + li[:, None] * grad, value, grad, hess, li)
+        x[idx] += dx
+        lam[idx] += dlam
+        active[idx] = ~(np.abs(dx).max(axis=1) <= 1e-14 * scale)
     value, grad, _ = implicit(x)
     ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
     return x, ok
@@ -320,8 +331,7 @@ def _edge_length(radius, wavelength, refine):
     divided by ``refine`` (2: the twice-finer mesh of the convergence study)."""
     rule = SIMULATION_RULE
     grating = rule["edge_half_wavelengths"] * wavelength / 2.0
-    sagitta = np.sqrt(8.0 * radius * rule["sagitta_wavelengths"] * wavelength)
-    return np.minimum(np.maximum(grating, sagitta), rule["max_turn_rad"] * radius) / refine
+    return np.minimum(grating, rule["max_turn_rad"] * radius) / refine
 
 
 def _ellipse_angles(a, b, wavelength, refine, minimum=4):
