@@ -128,6 +128,7 @@ class ShardPlan:
     objects: list[ObjectPlan]
     n_objects: int
     done: set = field(default_factory=set)  # object indices with a sidecar file
+    stale: list = field(default_factory=list)  # sidecar files of another request or shard
 
     @property
     def sidecar(self) -> Path:
@@ -150,13 +151,34 @@ def _stamp(request: LabelRequest, fingerprint: str) -> str:
     return json.dumps({**request.attrs(), "shard_fingerprint": fingerprint}, sort_keys=True)
 
 
+def _plan_object(path: Path, objs: dict, k: int, name: str, params: dict, faces: int,
+                 rows: np.ndarray, config) -> ObjectPlan:
+    """One object's plan; ``LabelError`` if its primitive is invalid or outside the window.
+
+    ``faces``: the total face count of the stored meshes in ``rows``.
+    """
+    oid, scale = int(objs["id"][k]), objs["scale"][k]
+    try:
+        v, f = simulation_mesh(solid_for(name, scale, params), config.f_stop_hz)
+    except ValueError as exc:
+        raise LabelError(f"{path}: object {oid}: {exc}") from None
+    radius = float(np.sqrt((v * v).sum(axis=1).max()))
+    if radius > config.max_radius_m:
+        raise LabelError(f"{path}: object {oid} ({name}, {' x '.join(f'{x:.4g}' for x in scale)}"
+                         f" m) extends {radius:.4g} m from the origin, beyond the "
+                         f"±{config.max_radius_m:.4g} m range window of radar config "
+                         f"{config.name!r}")
+    work = float(len(f) + faces) * config.n_aspect * config.n_roll * config.n_freq
+    return ObjectPlan(k, oid, name, scale, params, rows, work)
+
+
 def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan | None:
     """Validate one shard; None if it already holds labels for this very request.
 
     Refuses (``LabelError``) objects whose primitive does not fit the config's range window,
-    before any work starts.
+    before any work starts. Finished objects of an interrupted run with the same request are
+    marked done; sidecar files of another request or shard content are listed as stale.
     """
-    config = request.config
     with Shard(path) as s:
         if s.has_labels:
             radar = s.radar
@@ -169,35 +191,19 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
                 raise LabelError(f"{path}: already labelled, with different radar "
                                  f"{' and '.join(differ)} (stored options: "
                                  f"{json.dumps(stored['options'])}); pass --overwrite to relabel")
-        objs, names = s.objects(), s.class_names
-        params = object_params(s)
-        rows = select_mesh_rows(s, request.mesh_labels)
-        n_faces = s.file["meshes/n_faces"][()]
-        per_face = config.n_aspect * config.n_roll * config.n_freq
-        plans = []
-        for k in range(s.n_objects):
-            name, scale = names[int(objs["class"][k])], objs["scale"][k]
-            try:
-                v, f = simulation_mesh(solid_for(name, scale, params[k]), config.f_stop_hz)
-            except ValueError as exc:
-                raise LabelError(f"{path}: object {int(objs['id'][k])}: {exc}") from None
-            radius = float(np.sqrt((v * v).sum(axis=1).max()))
-            if radius > config.max_radius_m:
-                raise LabelError(
-                    f"{path}: object {int(objs['id'][k])} ({name}, "
-                    f"{' x '.join(f'{x:.4g}' for x in scale)} m) extends {radius:.4g} m from "
-                    f"the origin, beyond the ±{config.max_radius_m:.4g} m range window of "
-                    f"radar config {config.name!r}")
-            work = (len(f) + n_faces[rows[k]].sum()) * float(per_face)
-            plans.append(ObjectPlan(k, int(objs["id"][k]), name, scale, params[k], rows[k], work))
+        objs, names, n_faces = s.objects(), s.class_names, s.file["meshes/n_faces"][()]
+        params, rows = object_params(s), select_mesh_rows(s, request.mesh_labels)
+        plans = [_plan_object(path, objs, k, names[int(objs["class"][k])], params[k],
+                              int(n_faces[rows[k]].sum()), rows[k], request.config)
+                 for k in range(s.n_objects)]
         plan = ShardPlan(path, s.fingerprint, plans, s.n_objects)
     stamp = _stamp(request, plan.fingerprint)
     for k in range(plan.n_objects):
         p = plan.object_file(k)
         if p.is_file() and _sidecar_matches(p, stamp):
             plan.done.add(k)
-        else:
-            p.unlink(missing_ok=True)  # from another request or an older shard: recompute
+        elif p.exists():
+            plan.stale.append(p)
     plan.objects = [o for o in plan.objects if o.index not in plan.done]
     return plan
 
@@ -347,6 +353,9 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
         with contextlib.suppress(OSError):
             (path.parent / SIDECAR).rmdir()
     todo = [plan for plan in plans.values() if plan is not None]
+    for plan in todo:  # every shard is valid: now drop what cannot be reused
+        for stale in plan.stale:
+            stale.unlink()
     summary = LabelSummary([], [p for p, plan in plans.items() if plan is None],
                            sum(plan.n_objects for plan in todo),
                            sum(len(plan.done) for plan in todo))

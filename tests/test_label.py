@@ -378,3 +378,21 @@ def test_info_prints_both_fingerprints(dataset, labelled, capsys):
     assert f"label fingerprint {label_fingerprint(labelled)} (radar config 'test-lband')" in text
     assert dataset_fingerprint(labelled) == dataset_fingerprint(dataset)
     assert "label fingerprint (not every shard is labelled" in summary(dataset)
+
+
+def test_sidecars_of_another_request_are_dropped_only_once_all_shards_are_valid(
+        dataset, labelled, lband, tmp_path, capsys):
+    work = tmp_path / "data"
+    shutil.copytree(dataset, work)
+    stale = work / SIDECAR / "shard-00000" / "object-00000.h5"
+    stale.parent.mkdir(parents=True)
+    with h5py.File(stale, "w") as f:
+        f.attrs["request"] = "labels of another config"
+    good = (work / shard_name(3)).read_bytes()
+    (work / shard_name(3)).write_bytes(good[:len(good) // 2])
+    assert "not a readable HDF5 shard" in _one_line_error(["label", str(work), *options(lband)])
+    assert stale.is_file()  # validation failed: nothing touched
+    (work / shard_name(3)).write_bytes(good)
+    main(["label", str(work), "--workers", "1", *options(lband)])
+    assert "finished before an interruption" not in capsys.readouterr().out
+    assert digests(work) == digests(labelled) and not (work / SIDECAR).exists()
