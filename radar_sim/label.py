@@ -408,8 +408,8 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
             work_done += obj.work
             if finished == 1:
                 rate = obj.work / max(result["seconds"], 1e-9)
-                log(f"  first object took {result['seconds']:.2f} s; estimated total "
-                    f"{_duration(total_work / rate / n_threads)} on {n_threads} worker(s)")
+                log(f"  first object took {result['seconds']:.2f} s (with start-up); estimated "
+                    f"total {_duration(total_work / rate / n_threads)} on {n_threads} worker(s)")
             extra = f" + {len(result['mesh_rows'])} mesh(es)" if result["mesh_rows"] else ""
             elapsed = time.perf_counter() - start
             log(f"  [{finished}/{n_todo}] {plan.path.name} object {obj.object_id} "
