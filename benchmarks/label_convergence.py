@@ -56,7 +56,7 @@ def label(vertices, faces, config, kind):
 def independent_mesh(kind: str, scale) -> tuple[np.ndarray, np.ndarray] | None:
     """A fine mesh of the primitive built by trimesh (not by our rule), scaled per axis."""
     if kind == "sphere":
-        m = trimesh.creation.icosphere(subdivisions=7)
+        m = trimesh.creation.icosphere(subdivisions=8)
         m.apply_scale(0.5)  # radius 1 -> unit-diameter; then per axis
     elif kind == "cylinder":
         m = trimesh.creation.cylinder(radius=0.5, height=1.0, sections=2048)
