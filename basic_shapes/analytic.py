@@ -310,34 +310,33 @@ def _torus_starts(p, s, n_u=256, n_v=128, m=9, tries=4):
         yield x[np.arange(len(p)), np.argmin(((x - p[:, None, :]) ** 2).sum(-1), axis=1)]
 
 
-def _cube_sphere(n: int):
-    """Unit-sphere vertices and outward triangles of an equal-angle cube-sphere, n cells/edge.
+def _cube_sphere(n):
+    """Unit-sphere vertices and outward triangles of an equal-angle cube-sphere with n[i]
+    cells along cube axis i (per-axis counts, so an elongated ellipsoid is not over-refined
+    along its short axes).
 
     Vertices are identified by their integer lattice point on the cube, so shared edges are
     shared exactly; each quad is split along its shorter diagonal.
     """
-    m = n + 1
-    ij = np.arange(m)
-    ii, jj = np.meshgrid(ij, ij, indexing="ij")
-    lattice, quads = [], []
+    n = np.broadcast_to(np.asarray(n, np.int64), (3,))
+    lattice, quads, base = [], [], 0
     for axis in range(3):
-        for side in (0, n):
-            pts = np.zeros((m, m, 3), np.int64)
-            others = [k for k in range(3) if k != axis]
-            pts[..., axis] = side
-            pts[..., others[0]] = ii
-            pts[..., others[1]] = jj
+        o0, o1 = [k for k in range(3) if k != axis]
+        ii, jj = np.meshgrid(np.arange(n[o0] + 1), np.arange(n[o1] + 1), indexing="ij")
+        for side in (0, n[axis]):
+            pts = np.zeros(ii.shape + (3,), np.int64)
+            pts[..., axis], pts[..., o0], pts[..., o1] = side, ii, jj
             lattice.append(pts.reshape(-1, 3))
-            base = sum(len(x) for x in lattice[:-1])
-            g = base + ii * m + jj
+            g = base + ii * (n[o1] + 1) + jj
+            base += ii.size
             quads.append(np.stack([g[:-1, :-1], g[1:, :-1], g[1:, 1:], g[:-1, 1:]],
                                   -1).reshape(-1, 4))
     lattice = np.concatenate(lattice)
-    keys = (lattice[:, 0] * m + lattice[:, 1]) * m + lattice[:, 2]
+    keys = (lattice[:, 0] * (n[1] + 1) + lattice[:, 1]) * (n[2] + 1) + lattice[:, 2]
     _uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    xi = np.tan(np.pi / 4 * (2.0 * lattice[first] / n - 1.0))
-    xi[np.abs(lattice[first] - n / 2) == n / 2] = np.sign(lattice[first] - n / 2)[
-        np.abs(lattice[first] - n / 2) == n / 2]
+    cube = 2.0 * lattice[first] / n - 1.0
+    edge = np.abs(cube) == 1.0
+    xi = np.where(edge, cube, np.tan(np.pi / 4 * cube))  # tan(pi/4) is not exactly 1
     v = xi / np.linalg.norm(xi, axis=1, keepdims=True)
     q = inverse[np.concatenate(quads)]
     d02 = ((v[q[:, 0]] - v[q[:, 2]]) ** 2).sum(axis=1)
@@ -430,18 +429,23 @@ def _torus_mesh(s, u, w):
     return v, f
 
 
-def _ellipsoid_cells(axes, wavelength, refine):
-    """Cells per cube-sphere face edge. Scaling the sphere per axis spaces vertices evenly in
-    the eccentric anomaly t of every principal section; n cells per quarter turn must meet
-    _edge_length(R(t)) for every t of the three principal ellipses."""
-    t = np.linspace(0.0, np.pi / 2, 4097)
-    need = 0.0
-    for i, j in ((0, 1), (1, 2), (0, 2)):
-        a, b = axes[i], axes[j]
-        speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
-        need = max(need, float((speed / _edge_length(speed ** 3 / (a * b), wavelength,
-                                                        refine, surface=True)).max()))
-    return 2 * max(2, math.ceil(need * np.pi / 4))  # even: a vertex at each bbox extreme
+def _ellipsoid_cells(axes, edge_length):
+    """Cells along each cube axis for edges of at most ``edge_length(R)`` at radius of
+    curvature R. Scaling the cube-sphere per axis spaces vertices evenly in
+    the eccentric anomaly t of each principal section x_i = a_i cos t, x_j = a_j sin t; for
+    t <= pi/4 (the face across axis i) its cells run along axis j, so n_j quarter-turn cells
+    must meet edge_length(R(t)) there, for every ordered pair (i, j)."""
+    t = np.linspace(0.0, np.pi / 4, 2049)
+    need = [0.0, 0.0, 0.0]
+    for i in range(3):
+        for j in range(3):
+            if i != j:
+                a, b = axes[i], axes[j]
+                speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
+                dens = speed / edge_length(speed ** 3 / (a * b))
+                need[j] = max(need[j], float(dens.max()))
+    # even counts: a vertex at each bbox extreme
+    return tuple(2 * max(2, math.ceil(x * np.pi / 4)) for x in need)
 
 
 def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
@@ -459,7 +463,8 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
     if kind == "cube":
         v, f = _box_mesh(h)
     elif kind == "sphere":
-        unit, f = _cube_sphere(_ellipsoid_cells(h, wavelength, refinement))
+        unit, f = _cube_sphere(_ellipsoid_cells(
+            h, lambda r: _edge_length(r, wavelength, refinement, surface=True)))
         v = unit * h
     elif kind == "cylinder":
         v, f = _cylinder_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
@@ -517,7 +522,7 @@ def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
                 parts.append(p.reshape(-1, 3))
         return np.concatenate(parts)
     if kind == "sphere":
-        return _ellipsoid_grid(h, count(np.pi / 2 * h.max()))
+        return _ellipsoid_grid(h, _ellipsoid_cells(h, lambda r: spacing))
     if kind in ("cylinder", "cone"):
         a, b, c = h
         t = around(a, b)
