@@ -17,6 +17,7 @@ labelled shard do not depend on the number of workers or on how often the run wa
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import shutil
@@ -216,6 +217,17 @@ def object_mode(class_name: str, mode: str) -> str:
     return "convex" if class_name in CONVEX_KINDS else "auto"
 
 
+@functools.cache
+def _warm_up() -> None:
+    """Import and compile the kernels once per worker process, so that an object's time (the
+    cost estimate's calibration) is its own work, not the process's start-up."""
+    from radar_sim import RadarConfig, simulate
+
+    v, f = simulation_mesh(solid_for("cube", (0.1, 0.1, 0.1)), 1e9)
+    simulate(v, f, RadarConfig(name="warm-up", n_aspect=1, n_roll=1, n_freq=3, n_range=3),
+             mode="convex")
+
+
 def label_object(class_name: str, scale, params: dict, meshes: list, config, mode: str,
                  frequency_response: bool) -> dict:
     """Worker task: the object's label on its simulation mesh, and the physics on ``meshes``.
@@ -224,6 +236,7 @@ def label_object(class_name: str, scale, params: dict, meshes: list, config, mod
     """
     from radar_sim import MeshError, simulate
 
+    _warm_up()
     t0 = time.perf_counter()
     v, f = simulation_mesh(solid_for(class_name, scale, params), config.f_stop_hz)
     try:
@@ -329,6 +342,33 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 60:.1f} min" if seconds < 7200 else f"{seconds / 3600:.1f} h"
 
 
+class _Progress:
+    """One line per finished object, and the time left: the first object calibrates a rate
+    (work per second of its own compute, times the workers); later ones measure the rate
+    since then, so process start-up never enters the estimate."""
+
+    def __init__(self, log, n_todo: int, total_work: float, n_threads: int):
+        self.log, self.n_todo, self.total, self.n_threads = log, n_todo, total_work, n_threads
+        self.count, self.work, self.first = 0, 0.0, None
+
+    def finished(self, plan: ShardPlan, obj: ObjectPlan, result: dict) -> None:
+        self.count += 1
+        self.work += obj.work
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, self.work)
+            rate = obj.work / max(result["seconds"], 1e-9) * self.n_threads
+            self.log(f"  first object: {result['seconds']:.2f} s; estimated total "
+                     f"{_duration(self.total / rate)} on {self.n_threads} worker(s)")
+        else:
+            rate = (self.work - self.first[1]) / max(now - self.first[0], 1e-9)
+        extra = f" + {len(result['mesh_rows'])} mesh(es)" if result["mesh_rows"] else ""
+        self.log(f"  [{self.count}/{self.n_todo}] {plan.path.name} object {obj.object_id} "
+                 f"({obj.class_name}, {result['faces']} faces, {result['mode']}){extra}: "
+                 f"{result['seconds']:.2f} s; about {_duration((self.total - self.work) / rate)}"
+                 f" left")
+
+
 def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
                     workers: int | None = None, scheduler: str | None = None,
                     overwrite: bool = False, progress: bool = True) -> LabelSummary:
@@ -394,7 +434,7 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
 
         for _ in range(4 * n_threads):
             submit_next()
-        finished, work_done, start = 0, 0.0, time.perf_counter()
+        progress_log = _Progress(log, n_todo, total_work, n_threads)
         for future in running:
             plan, obj = owner.pop(future.key)
             try:
@@ -404,18 +444,7 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
             future.release()
             write_object(plan, obj.index, result, _stamp(request, plan.fingerprint))
             plan.done.add(obj.index)
-            finished += 1
-            work_done += obj.work
-            if finished == 1:
-                rate = obj.work / max(result["seconds"], 1e-9)
-                log(f"  first object took {result['seconds']:.2f} s (with start-up); estimated "
-                    f"total {_duration(total_work / rate / n_threads)} on {n_threads} worker(s)")
-            extra = f" + {len(result['mesh_rows'])} mesh(es)" if result["mesh_rows"] else ""
-            elapsed = time.perf_counter() - start
-            log(f"  [{finished}/{n_todo}] {plan.path.name} object {obj.object_id} "
-                f"({obj.class_name}, {result['faces']} faces, {result['mode']}){extra}: "
-                f"{result['seconds']:.2f} s; about "
-                f"{_duration(elapsed * (total_work - work_done) / work_done)} left")
+            progress_log.finished(plan, obj, result)
             if len(plan.done) == plan.n_objects:
                 merge_shard(plan, request)
                 summary.labelled.append(plan.path)
