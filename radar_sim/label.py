@@ -223,7 +223,7 @@ def _warm_up() -> None:
     cost estimate's calibration) is its own work, not the process's start-up."""
     from radar_sim import RadarConfig, simulate
 
-    v, f = simulation_mesh(solid_for("cube", (0.1, 0.1, 0.1)), 1e9)
+    v, f = simulation_mesh(solid_for("cube", (0.01, 0.01, 0.01)), 1e9)
     simulate(v, f, RadarConfig(name="warm-up", n_aspect=1, n_roll=1, n_freq=3, n_range=3),
              mode="convex")
 

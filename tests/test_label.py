@@ -147,24 +147,28 @@ def test_labels_are_the_primitives_physics(dataset, labelled):
     assert not (labelled / SIDECAR).exists()
 
 
-def test_sphere_label_matches_an_independent_fine_mesh(labelled):
-    """The stored label of a sphere object is within 0.1 dB² (benchmark metric) of the smooth
-    ellipsoid simulated on a fine trimesh UV sphere (64,512 faces), a mesh built independently
-    of the rule: measured 0.024 dB², where the physics of the object's 1,280-face icosphere
-    (the label before labels were the primitive's) is 0.40 dB² away."""
+def test_sphere_label_matches_an_independent_fine_mesh(tmp_path):
+    """A sphere object's stored label (X band, 7 x 3 directions) is within 1 dB² (benchmark
+    metric) of the smooth ellipsoid simulated on a 260,096-face trimesh UV sphere, a mesh built
+    independently of the simulation-mesh rule: measured 0.41 dB², where the physics of the
+    object's 1,280-face icosphere (the label before labels were the primitive's) is 39 dB² away."""
     from benchmark.data import db_target
 
-    config = radar_sim.RadarConfig(**LBAND)
-    with Shard(labelled / shard_name(2)) as s:
-        scale = s.objects()["scale"][0]
-        assert s.class_names[s.objects()["class"][0]] == "sphere"
-        stored = db_target(s.radar.response(0))
-    fine = trimesh.creation.uv_sphere(radius=0.5, count=[128, 128])
+    xband = {"name": "test-xband-coarse", "n_aspect": 7, "n_roll": 3}
+    (tmp_path / "x.json").write_text(json.dumps(xband))
+    data = write_dataset(tmp_path / "data", n_objects=3, objects_per_shard=3)
+    main(["label", str(data), "--config", str(tmp_path / "x.json"), "--workers", "1"])
+    with Shard(data / shard_name(0)) as s:
+        scale = s.objects()["scale"][2]
+        assert s.class_names[s.objects()["class"][2]] == "sphere"
+        stored = db_target(s.radar.response(2))
+    fine = trimesh.creation.uv_sphere(radius=0.5, count=[256, 256])
     fine.apply_scale(scale)
-    reference = db_target(radar_sim.simulate(fine.vertices, fine.faces, config,
+    reference = db_target(radar_sim.simulate(fine.vertices, fine.faces,
+                                             radar_sim.RadarConfig(**xband),
                                              mode="convex").range_profiles)
     mse = float(np.mean((stored.astype(np.float64) - reference) ** 2))
-    assert mse < 0.1, mse
+    assert mse < 1.0, mse
 
 
 def test_xarray_reads_named_dimensions(labelled):
