@@ -15,6 +15,7 @@ concatenate along ``sample``.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,28 +41,12 @@ class RadarLabels:
     config: str               # RadarConfig JSON
 
 
-LABELS = ("response", "aspect_deg", "roll_deg", "range_m", "frequency_hz")
-
-
-def check_labels(shard: Shard) -> None:
-    """Raise a one-line ShardError unless ``shard`` holds every /radar dataset used here."""
-    missing = [n for n in LABELS if f"radar/{n}" not in shard.file]
-    if "response" in missing:
-        raise ShardError(f"{shard.path}: has no radar labels; run `radar-sim label` first")
-    if missing:
-        raise ShardError(f"{shard.path}: incomplete radar labels (no /radar/"
-                         f"{', /radar/'.join(missing)}); relabel with `radar-sim label`")
-
-
 def read_labels(shard: Shard) -> RadarLabels:
-    """The simple-mesh labels of every object in ``shard``.
-
-    With ``check_labels``, the one place this module reads /radar, so a change of the label
-    layout touches only these two functions.
-    """
-    check_labels(shard)
-    g = shard.file["radar"]
-    return RadarLabels(*(g[n][()] for n in LABELS), str(g.attrs.get("config", "")))
+    """The object labels of every object in ``shard``, through the one /radar reader."""
+    radar = shard.radar
+    response = np.stack([radar.response(k) for k in range(shard.n_objects)])
+    return RadarLabels(response, radar.aspect_deg, radar.roll_deg, radar.range_m,
+                       radar.frequency_hz, json.dumps(radar.config, sort_keys=True))
 
 
 def _mesh_counts(shard: Shard) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,7 +154,9 @@ def export_g2s(directory: str | Path, out: str | Path) -> int:
     paths = list_shards(directory)
     for p in paths:
         with Shard(p) as s:
-            check_labels(s)
+            if not s.has_labels:
+                raise ShardError(f"{p}: has no radar labels; run `radar-sim label` first")
+            s.radar  # a malformed /radar group is refused here, before anything is written
     out = Path(out)
     targets = [out / (p.stem + ".nc") for p in paths]
     if out.is_dir():

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import Shard, dataset_fingerprint, list_shards
+from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, label_fingerprint,
+                                 list_shards)
 
 BAR = 40
 
@@ -19,6 +20,16 @@ def _histogram(n_faces: np.ndarray) -> list[str]:
     top = max(counts.max(), 1)
     return [f"    {lo:>7d}-{hi - 1:<7d} {'#' * int(round(BAR * c / top)):<{BAR}s} {c}"
             for lo, hi, c in zip(edges[:-1], edges[1:], counts)]
+
+
+def _labels(directory) -> str:
+    """The dataset's label fingerprint and radar config, or why there is none."""
+    try:
+        fingerprint = label_fingerprint(directory)
+    except ShardError:
+        return "(not every shard is labelled: run `radar-sim label`)"
+    with Shard(list_shards(directory)[0]) as s:
+        return f"{fingerprint} (radar config {s.radar.config.get('name')!r})"
 
 
 def summary(directory: str | Path) -> str:
@@ -45,7 +56,8 @@ def summary(directory: str | Path) -> str:
                 per_class[names[c]]["hausdorff"].append(table["hausdorff"][complex_])
     lines = [f"dataset {directory}: {len(shards)} shards, seed {config['seed']}, "
              f"{config['variants']} complex variants per object",
-             f"fingerprint {dataset_fingerprint(directory)}"]
+             f"mesh fingerprint  {dataset_fingerprint(directory)}",
+             f"label fingerprint {_labels(directory)}"]
     for name, d in per_class.items():
         faces = np.concatenate(d["faces"])
         h = np.concatenate(d["hausdorff"])

@@ -7,11 +7,13 @@ leaves a file that reads as a valid shard. This module must not import bpy or to
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import hashlib
 import json
 import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
@@ -20,7 +22,7 @@ import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: /radar with dimension scales, label fingerprint, mesh_*
 SHARD_GLOB = "shard-*.h5"
 SPLITS = ("train", "test")
 TOOLKIT = "basic-shapes"
@@ -47,6 +49,7 @@ class MeshRecord:
     faces: np.ndarray  # (F, 3) int32, 0-based
     hausdorff: float  # two-sided, relative to the bbox diagonal of the simple mesh
     params: dict
+    primitive_distance: float = float("nan")  # two-sided to the analytic primitive, same unit
 
 
 @dataclass
@@ -57,6 +60,7 @@ class ObjectRecord:
     seed: int
     split: str  # "train", "val" or "test"
     meshes: list[MeshRecord]
+    params: dict = field(default_factory=dict)  # hidden shape parameters (analytic.Solid)
 
 
 def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_names: list[str],
@@ -80,6 +84,8 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
             _dataset(g, "scale", np.array([o.scale for o in objects], np.float64).reshape(-1, 3))
             _dataset(g, "seed", np.array([o.seed for o in objects], np.uint64))
             _dataset(g, "split", np.array([o.split.encode() for o in objects], "S5"))
+            _dataset(g, "params", np.array([json.dumps(o.params, sort_keys=True).encode()
+                                            for o in objects], dtype=h5py.string_dtype()))
             g = f.create_group("meshes")
             obj_index = np.repeat(np.arange(len(objects)), [len(o.meshes) for o in objects])
             _dataset(g, "object_index", obj_index.astype(np.int32))
@@ -88,6 +94,8 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
             _dataset(g, "face_offset", np.concatenate([[0], np.cumsum(nf)]).astype(np.int64))
             _dataset(g, "n_faces", nf.astype(np.int32))
             _dataset(g, "hausdorff", np.array([m.hausdorff for m in meshes], np.float64))
+            _dataset(g, "primitive_distance",
+                     np.array([m.primitive_distance for m in meshes], np.float64))
             _dataset(g, "params", np.array([json.dumps(m.params, sort_keys=True).encode()
                                             for m in meshes], dtype=h5py.string_dtype()))
             _dataset(g, "vertices", vertices)
@@ -283,6 +291,11 @@ class Shard:
     def has_labels(self) -> bool:
         return "radar/response" in self.file
 
+    @functools.cached_property
+    def radar(self) -> "RadarGroup":
+        """The ``/radar`` group (labels), validated once; ``ShardError`` if absent or malformed."""
+        return RadarGroup(self)
+
 
 def _text_attr(obj, name: str) -> str | None:
     value = obj.attrs.get(name)
@@ -309,6 +322,15 @@ def dataset_fingerprint(directory: str | os.PathLike) -> str:
         with Shard(p) as s:
             s.verify()
             h.update(s.fingerprint.encode())
+    return h.hexdigest()
+
+
+def label_fingerprint(directory: str | os.PathLike) -> str:
+    """sha256 over the shards' label fingerprints, in shard order (``ShardError`` if unlabelled)."""
+    h = hashlib.sha256()
+    for p in list_shards(directory):
+        with Shard(p) as s:
+            h.update(s.radar.fingerprint.encode())
     return h.hexdigest()
 
 
@@ -370,3 +392,191 @@ def mesh_uid(object_id: int, variant: int) -> int:
     if object_id < 0:
         raise ValueError(f"object id {object_id} is negative")
     return int(object_id) * MAX_VARIANTS + int(variant)
+
+
+# --- the /radar group (labels): its only reader and writer -------------------------------------
+RADAR_DIMS = {"object": ("object id (/objects/id)", None), "aspect": ("aspect angle", "degree"),
+              "roll": ("roll angle", "degree"), "range": ("down-range distance", "m"),
+              "frequency": ("frequency", "Hz"), "mesh": ("mesh row (/meshes)", None)}
+"""Dimension scales of /radar: name -> (long_name, units). Coordinates of every label array."""
+RADAR_ARRAYS = {"response": ("object", "aspect", "roll", "range"),
+                "frequency_response": ("object", "aspect", "roll", "frequency"),
+                "mode": ("object",),
+                "mesh_response": ("mesh", "aspect", "roll", "range"),
+                "mesh_mode": ("mesh",)}
+
+
+def radar_fingerprint(config_json: str, rule_json: str, responses) -> str:
+    """sha256 over the radar config, the simulation-mesh rule and the stored label bytes.
+
+    ``responses`` yields the /radar/response rows in object order (complex64, C order), so a
+    writer can hash while streaming and a reader can recompute it from the stored dataset.
+    """
+    h = hashlib.sha256()
+    for part in (config_json, rule_json):
+        h.update(part.encode())
+        h.update(b"\0")
+    for row in responses:
+        h.update(np.ascontiguousarray(row, np.complex64).tobytes())
+    return h.hexdigest()
+
+
+class RadarGroup:
+    """Read access to ``/radar``: coordinates, request attributes, labels read per object.
+
+    ``response(k)`` is the object's label: the physics of its analytic primitive on the
+    simulation mesh. ``mesh_response(j)`` is the physics of one stored representation mesh
+    (row ``mesh_index[j]``), stored when labelling with ``--mesh-labels``.
+    """
+
+    def __init__(self, shard: Shard):
+        f, self.path = shard.file, shard.path
+        if "radar" not in f:
+            raise ShardError(f"{self.path}: no radar labels (/radar); run `radar-sim label` first")
+        self.group = g = f["radar"]
+        required = ["object", "aspect", "roll", "range", "frequency", "response", "mode"]
+        if "mesh_response" in g or "mesh" in g:
+            required += ["mesh", "mesh_response", "mesh_mode"]
+        missing = [n for n in required if n not in g]
+        if missing:
+            raise ShardError(f"{self.path}: truncated /radar group, missing {', '.join(missing)}")
+        coords = {n: g[n][()] for n in RADAR_DIMS if n in g}
+        self.object_ids = coords["object"]
+        self.aspect_deg, self.roll_deg = coords["aspect"], coords["roll"]
+        self.range_m, self.frequency_hz = coords["range"], coords["frequency"]
+        self.mesh_index = coords.get("mesh", np.zeros(0, np.int64))
+        if not np.array_equal(self.object_ids, f["objects/id"][()]):
+            raise ShardError(f"{self.path}: /radar/object does not list the shard's objects")
+        for name, dims in RADAR_ARRAYS.items():
+            if name in g:
+                expected = tuple(len(coords[d]) for d in dims)
+                d, complex_ = g[name], name.endswith("response")
+                if d.shape != expected or complex_ and d.dtype.kind != "c":
+                    raise ShardError(f"{self.path}: /radar/{name} is {d.dtype}{d.shape}, expected "
+                                     f"{'complex' if complex_ else ''}{expected}")
+        n_meshes = len(f["meshes/variant"])
+        rows = self.mesh_index
+        if len(rows) and (rows.min() < 0 or rows.max() >= n_meshes):
+            raise ShardError(f"{self.path}: /radar/mesh holds rows outside 0..{n_meshes - 1}")
+
+    # attributes -----------------------------------------------------------------------------
+    def _json(self, name: str) -> dict:
+        try:
+            return json.loads(self.group.attrs[name])
+        except (KeyError, TypeError, ValueError):
+            raise ShardError(f"{self.path}: /radar attribute {name!r} missing or not "
+                             f"JSON") from None
+
+    @property
+    def config(self) -> dict:
+        """The radar config (``RadarConfig`` fields) the labels were computed with."""
+        return self._json("config")
+
+    @property
+    def options(self) -> dict:
+        return self._json("options")
+
+    @property
+    def simulation_rule(self) -> dict:
+        return self._json("simulation_rule")
+
+    @property
+    def fingerprint(self) -> str:
+        """``radar_fingerprint`` of these labels, as stored when they were written."""
+        value = self.group.attrs.get("label_fingerprint")
+        if not isinstance(value, str):
+            raise ShardError(f"{self.path}: /radar has no label_fingerprint attribute")
+        return value
+
+    def computed_fingerprint(self) -> str:
+        """The fingerprint recomputed from the stored content (reads every label once)."""
+        rows = (self.group["response"][k] for k in range(len(self.object_ids)))
+        return radar_fingerprint(self.group.attrs["config"], self.group.attrs["simulation_rule"],
+                                 rows)
+
+    # labels -----------------------------------------------------------------------------------
+    @property
+    def coordinates(self) -> dict[str, np.ndarray]:
+        return {"aspect_deg": self.aspect_deg, "roll_deg": self.roll_deg, "range_m": self.range_m,
+                "frequency_hz": self.frequency_hz}
+
+    @property
+    def modes(self) -> list[str]:
+        return [m.decode() for m in self.group["mode"][()]]
+
+    def response(self, k: int) -> np.ndarray:
+        """Range profiles (aspect, roll, range) complex64 of the shard's object ``k``."""
+        return self.group["response"][k]
+
+    @property
+    def has_frequency_response(self) -> bool:
+        return "frequency_response" in self.group
+
+    def frequency_response(self, k: int) -> np.ndarray:
+        """(aspect, roll, frequency) complex64 of object ``k`` (``--frequency-response``)."""
+        if not self.has_frequency_response:
+            raise ShardError(f"{self.path}: labelled without --frequency-response")
+        return self.group["frequency_response"][k]
+
+    @property
+    def mesh_modes(self) -> list[str]:
+        return [m.decode() for m in self.group["mesh_mode"][()]] if len(self.mesh_index) else []
+
+    def mesh_response(self, j: int) -> np.ndarray:
+        """Range profiles of the representation mesh in row ``mesh_index[j]`` of /meshes."""
+        return self.group["mesh_response"][j]
+
+
+def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, np.ndarray],
+                object_ids: np.ndarray, modes: list[str], responses, frequency_responses=None,
+                mesh_index=None, mesh_modes=None, mesh_responses=None) -> str:
+    """Write ``/radar`` into an open shard (replacing any); return its label fingerprint.
+
+    ``attrs`` must hold ``config`` and ``simulation_rule`` (JSON); ``coordinates`` the keys
+    of ``RadarGroup.coordinates``. The per-object and per-mesh label arguments are iterables
+    consumed one row at a time, so a shard's labels never need to be in memory at once.
+    Every array gets HDF5 dimension scales with units, which makes the group a NetCDF-4
+    group: ``xarray.open_dataset(shard, engine="h5netcdf", group="radar")`` names its
+    dimensions (object, aspect, roll, range, frequency, mesh).
+    """
+    if "radar" in f:
+        del f["radar"]
+    g = f.create_group("radar")
+    for key, value in attrs.items():
+        g.attrs[key] = value
+    coords = {"object": np.asarray(object_ids, np.int64),
+              "aspect": coordinates["aspect_deg"], "roll": coordinates["roll_deg"],
+              "range": coordinates["range_m"], "frequency": coordinates["frequency_hz"]}
+    if mesh_index is not None:
+        coords["mesh"] = np.asarray(mesh_index, np.int64)
+    for name, data in coords.items():
+        d = _dataset(g, name, np.asarray(data, np.int64 if name in ("object", "mesh")
+                                         else np.float64))
+        d.make_scale(name)
+        long_name, units = RADAR_DIMS[name]
+        d.attrs["long_name"] = long_name
+        if units:
+            d.attrs["units"] = units
+    strings = h5py.string_dtype()
+
+    def array(name: str, rows, dtype):
+        dims = RADAR_ARRAYS[name]
+        d = g.create_dataset(name, (len(coords[dims[0]]), *(len(coords[x]) for x in dims[1:])),
+                             dtype, track_times=False)
+        for axis, dim in enumerate(dims):
+            d.dims[axis].attach_scale(g[dim])
+        for i, row in enumerate(rows):
+            d[i] = row if dtype is strings else np.asarray(row, dtype)
+        return d
+
+    response = array("response", responses, np.complex64)
+    array("mode", [m.encode() for m in modes], strings)
+    if frequency_responses is not None:
+        array("frequency_response", frequency_responses, np.complex64)
+    if mesh_index is not None:
+        array("mesh_response", mesh_responses, np.complex64)
+        array("mesh_mode", [m.encode() for m in mesh_modes], strings)
+    fingerprint = radar_fingerprint(attrs["config"], attrs["simulation_rule"],
+                                    (response[k] for k in range(len(response))))
+    g.attrs["label_fingerprint"] = fingerprint
+    return fingerprint

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.scales import SCALE_RANGE
-from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, list_shards, mesh_uid
+from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, label_fingerprint,
+                                 list_shards, mesh_uid)
 
 FLOOR_AMPLITUDE = 1e-4
 FLOOR_DB = -80.0
@@ -147,20 +148,11 @@ class BenchmarkData:
 
     @staticmethod
     def _read_grid(s: Shard) -> dict[str, np.ndarray]:
-        f = s.file
         if not s.has_labels:
             raise ShardError(f"{s.path}: no radar labels (/radar/response); "
                              f"run `radar-sim label` on the dataset first")
-        missing = [n for n in GRID_NAMES if f"radar/{n}" not in f]
-        if missing:
-            raise ShardError(f"{s.path}: truncated /radar group, missing {', '.join(missing)}")
-        grid = {n: f[f"radar/{n}"][()] for n in GRID_NAMES}
-        resp = f["radar/response"]
-        expected = (s.n_objects, *(len(grid[n]) for n in GRID_NAMES))
-        if resp.shape != expected or resp.dtype.kind != "c":
-            raise ShardError(f"{s.path}: /radar/response is {resp.dtype}{resp.shape}, "
-                             f"expected complex{expected}")
-        return grid
+        coords = s.radar.coordinates  # validates the group's shapes
+        return {n: coords[n] for n in GRID_NAMES}
 
     def _check_index(self) -> None:
         ids = self.objects["id"]
@@ -180,6 +172,12 @@ class BenchmarkData:
     def fingerprint(self) -> str:
         """sha256 of the shards' mesh content (``basic_shapes.shards.dataset_fingerprint``)."""
         return dataset_fingerprint(self.directory)
+
+    @cached_property
+    def label_fingerprint(self) -> str:
+        """sha256 of the labels: radar config, simulation-mesh rule, stored label bytes
+        (``basic_shapes.shards.label_fingerprint``)."""
+        return label_fingerprint(self.directory)
 
     def object_rows(self, split: str | None = None) -> np.ndarray:
         """Global object rows of a split (all objects if ``split`` is None)."""
@@ -224,7 +222,7 @@ class BenchmarkData:
     def target(self, obj: int) -> np.ndarray:
         """dB target (n_aspect, n_roll, n_range) float32 of global object row ``obj``."""
         shard = self._shard(int(self.objects["shard"][obj]))
-        t = db_target(shard.file["radar/response"][int(self.objects["row"][obj])])
+        t = db_target(shard.radar.response(int(self.objects["row"][obj])))
         if not np.all(np.isfinite(t)):
             raise ShardError(f"{shard.path}: non-finite radar label for object "
                              f"{int(self.objects['id'][obj])}")

@@ -86,7 +86,8 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
     data.test_objects()  # refuses a dataset without a test split
     rows = data.mesh_rows("test")
     elapsed = 0.0
-    with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape) as writer:
+    with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape,
+                           label_fingerprint=data.label_fingerprint) as writer:
         with tqdm(total=len(rows), desc="predict", unit="mesh", disable=not progress) as bar:
             for start in range(0, len(rows), batch_size):
                 chunk = rows[start:start + batch_size]
@@ -149,7 +150,7 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
         seeds = {"dataset": dataset_seed if isinstance(dataset_seed, int) else None, "train": train_seed}
         per_object = metrics.pop("per_object")
         results = make_results(data.fingerprint, metrics, model_info(model, overrides), speed,
-                               seeds)
+                               seeds, label_fingerprint=data.label_fingerprint)
         results["per_object"] = per_object
         return results
 
@@ -255,6 +256,7 @@ class Evaluator:
         with tempfile.TemporaryDirectory() as tmp, BenchmarkData(self.root) as data:
             path = Path(tmp) / "predictions.h5"
             write_predictions(path, self.fingerprint, arrays["mesh_uid"].astype(np.int64),
-                              arrays["target_db"].astype(np.float32))
+                              arrays["target_db"].astype(np.float32),
+                              label_fingerprint=data.label_fingerprint)
             with Predictions(path, data) as preds:
                 return score(data, preds)

@@ -160,8 +160,9 @@ class PredictionsWriter:
     """Write a predictions file row block by row block; the file appears only when complete."""
 
     def __init__(self, path: str | os.PathLike, dataset_fingerprint: str, n_meshes: int,
-                 target_shape: tuple[int, ...]):
+                 target_shape: tuple[int, ...], *, label_fingerprint: str):
         self.path, self.fingerprint = Path(path), dataset_fingerprint
+        self.label_fingerprint = label_fingerprint
         self.n, self.shape, self.filled = n_meshes, tuple(target_shape), 0
 
     def __enter__(self) -> "PredictionsWriter":
@@ -171,6 +172,7 @@ class PredictionsWriter:
         self.file.attrs["format"] = PREDICTIONS_FORMAT
         self.file.attrs["version"] = PREDICTIONS_VERSION
         self.file.attrs["dataset_fingerprint"] = self.fingerprint
+        self.file.attrs["label_fingerprint"] = self.label_fingerprint
         self.uid = self.file.create_dataset("mesh_uid", (self.n,), np.int64, track_times=False)
         self.target = self.file.create_dataset("target_db", (self.n, *self.shape), np.float32,
                                                chunks=(1, *self.shape), track_times=False)
@@ -200,10 +202,11 @@ class PredictionsWriter:
 
 
 def write_predictions(path: str | os.PathLike, dataset_fingerprint: str, mesh_uid: np.ndarray,
-                      target_db: np.ndarray) -> None:
+                      target_db: np.ndarray, *, label_fingerprint: str) -> None:
     """Write a whole predictions file at once (for third parties with arrays in memory)."""
     target_db = np.asarray(target_db)
-    with PredictionsWriter(path, dataset_fingerprint, len(mesh_uid), target_db.shape[1:]) as w:
+    with PredictionsWriter(path, dataset_fingerprint, len(mesh_uid), target_db.shape[1:],
+                           label_fingerprint=label_fingerprint) as w:
         w.write(mesh_uid, target_db)
 
 
@@ -233,6 +236,9 @@ class Predictions:
         if _attr(f, "dataset_fingerprint") != data.fingerprint:
             self._fail(f"made for dataset {str(_attr(f, 'dataset_fingerprint'))[:64]}, not for "
                        f"{data.directory} ({data.fingerprint})")
+        if _attr(f, "label_fingerprint") != data.label_fingerprint:
+            self._fail(f"made for labels {_attr(f, 'label_fingerprint')}, not for the labels of "
+                       f"{data.directory} ({data.label_fingerprint}): relabelled since?")
         for name in ("mesh_uid", "target_db"):
             if not isinstance(f.get(name), h5py.Dataset):
                 self._fail(f"/{name} is missing or not a plain dataset")
@@ -336,9 +342,10 @@ def score_predictions(data_dir: str | os.PathLike, predictions_path: str | os.Pa
 
 # --- results JSON -----------------------------------------------------------------------------
 def make_results(dataset_fingerprint: str, metrics: dict, model: dict, speed: dict,
-                 seeds: dict) -> dict:
+                 seeds: dict, *, label_fingerprint: str) -> dict:
     """A results record (docs/ARCHITECTURE.md, "Results JSON"), validated."""
     results = {"benchmark_version": __version__, "dataset_fingerprint": dataset_fingerprint,
+               "label_fingerprint": label_fingerprint,
                "model": model, "metrics": metrics, "speed": speed, "seeds": seeds,
                "created": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
     validate_results(results, "results")

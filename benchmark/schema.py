@@ -141,6 +141,7 @@ SPEED = {  # benchmark.evaluate.speed_block; the machine fields are absent when 
 RESULTS = {
     "benchmark_version": Field("text", hi=40),
     "dataset_fingerprint": Field("hex64"),
+    "label_fingerprint": Field("hex64"),
     "created": Field("time"),
 }
 SEED = Field("int", 0, 2**64 - 1, null=True)

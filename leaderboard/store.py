@@ -133,11 +133,14 @@ def validate_entry(entry) -> dict:
     if not isinstance(dataset, dict) or not re.fullmatch(r"[0-9a-f]{64}",
                                                          str(dataset.get("fingerprint", ""))):
         raise EntryError("dataset.fingerprint must be a sha256 hex digest")
+    if not re.fullmatch(r"[0-9a-f]{64}", str(dataset.get("label_fingerprint", ""))):
+        raise EntryError("dataset.label_fingerprint must be a sha256 hex digest")
     classes = dataset.get("classes")
     if not isinstance(classes, list) or len(classes) > schema.MAX_CLASSES \
             or not all(isinstance(c, str) and len(c) <= MAX_NAME for c in classes):
         raise EntryError("dataset.classes must be a list of class names")
-    if set(dataset) - {"fingerprint", "classes", "test_objects", "test_meshes"}:
+    if set(dataset) - {"fingerprint", "label_fingerprint", "classes", "test_objects",
+                       "test_meshes"}:
         raise EntryError("dataset has unknown fields")
     unknown = sorted(str(k)[:40] for k in set(entry) - set(ENTRY_FIELDS))
     if unknown:

@@ -94,12 +94,16 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         raise _refuse(results_path, exc) from None
     try:
         data = BenchmarkData(data_dir)
-        fingerprint = data.fingerprint
+        fingerprint, labels = data.fingerprint, data.label_fingerprint
     except (OSError, ValueError) as exc:
         raise _refuse(data_dir, exc) from None
     if results["dataset_fingerprint"] != fingerprint:
         raise SubmissionError(f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
                               f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)")
+    if results["label_fingerprint"] != labels:
+        raise SubmissionError(f"{results_path}: label fingerprint "
+                              f"{results['label_fingerprint'][:16]}... belongs to other labels "
+                              f"({data_dir} is {labels[:16]}...: relabelled?)")
     try:
         rescored = score_predictions(data_dir, predictions_path)
     except (OSError, ValueError) as exc:
@@ -124,7 +128,8 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         "model": results["model"],
         "params": results["model"].get("params"),
         "benchmark_version": results["benchmark_version"],
-        "dataset": {"fingerprint": fingerprint, "classes": data.class_names,
+        "dataset": {"fingerprint": fingerprint, "label_fingerprint": labels,
+                    "classes": data.class_names,
                     "test_objects": test_objects, "test_meshes": test_meshes},
         "metrics": check_metrics(rescored, "re-scored metrics"),
         "speed": {**results["speed"],

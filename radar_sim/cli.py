@@ -16,8 +16,8 @@ import numpy as np
 
 from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
 from basic_shapes.shards import Shard, ShardError, find_object
-from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_variants
-from radar_sim.meshio import UNITS, load_mesh
+from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_mesh_labels
+from radar_sim.meshio import UNITS, MeshFileError, load_mesh
 
 CONVENTION = "dB = 20 log10|A| = 10 log10 sigma (sigma in m^2, dBsm)"
 
@@ -66,9 +66,9 @@ def _positive(text: str) -> int:
     return int(text)
 
 
-def _variants(text: str) -> str:
+def _mesh_labels(text: str) -> str:
     try:
-        parse_variants(text)
+        parse_mesh_labels(text)
     except LabelError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
@@ -109,12 +109,38 @@ def units_hint(path: str):
 
 
 def cmd_label(args) -> None:
-    request = LabelRequest(load_config(args.config), args.variants, args.mode,
+    request = LabelRequest(load_config(args.config), args.mesh_labels, args.mode,
                            args.frequency_response)
     summary = label_directory(args.directory, request, workers=args.workers,
                               scheduler=args.scheduler, overwrite=args.overwrite)
-    print(f"labelled {len(summary.labelled)} shard(s), {summary.objects} object(s); "
+    reused = f" ({summary.reused} finished before an interruption)" if summary.reused else ""
+    print(f"labelled {len(summary.labelled)} shard(s), {summary.objects} object(s){reused}; "
           f"skipped {len(summary.skipped)} shard(s) already labelled with this config")
+
+
+MAX_WAVELENGTHS = 300.0
+
+
+def size_warning(extent_m, f_min_hz: float, f_max_hz: float, units: str) -> str | None:
+    """Why the object's size is implausible for the band, or None.
+
+    Above 300 wavelengths at the top frequency (7.5 m at 12 GHz; the generator's largest
+    objects are 2 m, 80 wavelengths) a file is more likely in millimetres than a target that
+    large; below half a wavelength at the bottom frequency physical optics does not hold, the
+    sign of a file in metres read with ``--units mm``.
+    """
+    from radar_sim.field import C0
+
+    size = float(np.max(extent_m))
+    if size > MAX_WAVELENGTHS * C0 / f_max_hz:
+        hint = "if the file is in millimetres, pass --units mm" if units == "m" else \
+            "check --units"
+        return (f"the object is {size:.4g} m across, {size * f_max_hz / C0:.0f} wavelengths at "
+                f"{f_max_hz / 1e9:.4g} GHz, larger than {MAX_WAVELENGTHS:.0f}: {hint}")
+    if size < 0.5 * C0 / f_min_hz:
+        return (f"the object is {size:.4g} m across, under half a wavelength at "
+                f"{f_min_hz / 1e9:.4g} GHz, where physical optics does not hold: check --units")
+    return None
 
 
 def cmd_rcs(args) -> None:
@@ -125,9 +151,14 @@ def cmd_rcs(args) -> None:
     with units_hint(args.meshfile):
         field = monostatic_field(vertices, faces, args.freq * 1e9,
                                  line_of_sight(args.aspect, args.roll), mode=mode)
-    extent = " x ".join(f"{e:.4g}" for e in np.ptp(vertices, axis=0))
-    print(f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {extent} m), "
+    extent = np.ptp(vertices, axis=0)
+    text = " x ".join(f"{e:.4g}" for e in extent)
+    print(f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {text} m), "
           f"mode {mode}, roll {args.roll:g} deg")
+    warning = size_warning(extent, args.freq.min() * 1e9, args.freq.max() * 1e9, args.units)
+    if warning:
+        print(f"# warning: {warning}")
+        print(f"radar-sim: warning: {args.meshfile}: {warning}", file=sys.stderr)
     print(f"# RCS in dBsm: {CONVENTION}")
     print("aspect_deg " + " ".join(f"{f:>10.4g}GHz" for f in args.freq))
     with np.errstate(divide="ignore"):
@@ -137,27 +168,39 @@ def cmd_rcs(args) -> None:
 
 
 def dataset_signature(directory, object_id: int, config: str, mode: str = "auto",
-                      variant: int = 0):
+                      variant: int | None = None):
     """(coordinates, profiles, frequency response, title) of one mesh of a dataset object.
 
-    The simple mesh (variant 0) uses the stored labels when they include the frequency
-    response; otherwise, and for complex variants, the mesh is simulated with ``config`` (the
-    same computation as ``radar-sim label``).
+    Without ``variant``: the object's label, stored when it includes the frequency response,
+    otherwise computed as ``radar-sim label`` does (the primitive on its simulation mesh) with
+    ``config``. With ``variant``: the physics on that representation mesh (0 = simple),
+    simulated with ``config``.
     """
+    from basic_shapes.analytic import simulation_mesh, solid_for
+    from radar_sim.label import object_mode, object_params
+
     path, obj, meshes = find_object(directory, object_id)
-    by_variant = {v: (vertices, faces) for v, vertices, faces in meshes}
-    if variant not in by_variant:
-        raise ShardError(f"{path}: object {obj['id']} has no variant {variant} "
-                         f"(--variant 0..{max(by_variant)})")
-    name = "simple mesh" if variant == 0 else f"variant {variant}"
-    title = f"object {obj['id']} ({obj['class']}, {name})"
+    k = obj["shard_object_index"]
+    title = f"object {obj['id']} ({obj['class']})"
+    if variant is not None:
+        by_variant = {v: (vertices, faces) for v, vertices, faces in meshes}
+        if variant not in by_variant:
+            raise ShardError(f"{path}: object {obj['id']} has no variant {variant} "
+                             f"(--variant 0..{max(by_variant)})")
+        name = "simple mesh" if variant == 0 else f"variant {variant}"
+        return simulated_signature(*by_variant[variant], config, mode, f"{title}, physics on "
+                                   f"its {name}")
     with Shard(path) as s:
-        if variant == 0 and "radar/frequency_response" in s.file:
-            g, k = s.file["radar"], obj["shard_object_index"]
-            coords = {n: g[n][()] for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
-            return coords, g["response"][k], g["frequency_response"][k], f"{title}, stored labels"
-    vertices, faces = by_variant[variant]
-    return simulated_signature(vertices, faces, config, mode, title)
+        if s.has_labels and s.radar.has_frequency_response:
+            radar = s.radar
+            return (radar.coordinates, radar.response(k), radar.frequency_response(k),
+                    f"{title}, stored label")
+        params = object_params(s)[k]
+    cfg = load_config(config)
+    vertices, faces = simulation_mesh(solid_for(obj["class"], obj["scale"], params),
+                                      cfg.f_stop_hz)
+    return simulated_signature(vertices, faces, config, object_mode(obj["class"], mode),
+                               f"{title}, label on its {len(faces)}-face simulation mesh")
 
 
 def simulated_signature(vertices, faces, config: str, mode: str, title: str):
@@ -178,7 +221,7 @@ def cmd_plot(args) -> None:
         if args.object is None:
             raise SystemExit(f"radar-sim: {args.source} is a dataset directory: pass --object ID")
         signature = dataset_signature(args.source, args.object, args.config, args.mode,
-                                      args.variant or 0)
+                                      args.variant)
     else:
         if args.variant is not None:
             raise SystemExit(f"radar-sim: {args.source} is a mesh file: --variant needs a "
@@ -201,16 +244,19 @@ def build_parser() -> ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     q = sub.add_parser("label", help="add /radar labels to every shard of a dataset, in place",
-                       description="Label every shard in place, atomically and resumably: a shard "
-                       "already labelled with the same config is skipped. Runs on Dask.")
+                       description="Label every shard in place, atomically and resumably: an "
+                       "object's label is the physics of its analytic primitive (on a simulation "
+                       "mesh refined for the top frequency); finished objects survive a kill; a "
+                       "shard already labelled with the same config is skipped. Runs on Dask.")
     q.add_argument("directory", help="dataset directory holding shard-*.h5")
     q.add_argument("--config", default="xband-v1", help="config name or JSON file (default %(default)s)")
     q.add_argument("--workers", type=_positive, default=None,
                    help="local worker processes, one thread each (default: one per core)")
     q.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler "
                    "(tcp://host:8786) instead of a local cluster")
-    q.add_argument("--variants", type=_variants, default="none", help="also label complex meshes: "
-                   "none, sample:K (K per object, drawn from the object seed) or all (default none)")
+    q.add_argument("--mesh-labels", type=_mesh_labels, default="none", help="also store the "
+                   "physics on stored meshes (representations, the simple one included): none, "
+                   "sample:K (K per object, drawn from the object seed) or all (default none)")
     q.add_argument("--mode", choices=MODES, default="auto",
                    help="physics per mesh: auto-detected, or forced (default auto)")
     q.add_argument("--frequency-response", action="store_true",
@@ -239,8 +285,8 @@ def build_parser() -> ArgumentParser:
     q.add_argument("--object", type=number(int, minimum=0), default=None,
                    help="object id (dataset directories)")
     q.add_argument("--variant", type=number(int, minimum=0), default=None,
-                   help="mesh of the object: 0 = simple (stored labels if any), 1.. = a complex "
-                   "variant, simulated (default 0)")
+                   help="plot the physics on this representation mesh of the object (0 = "
+                   "simple, 1.. = complex), simulated; default: the object's label")
     q.add_argument("--out", type=_png_path, required=True, help="PNG file to write")
     q.add_argument("--roll", type=number(), default=0.0,
                    help="degrees; nearest grid roll (default 0)")

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 EPS = np.finfo(np.float64).eps
-CONVEX_TOL = 1e-6          # relative to the bounding radius: flat within float32 noise
+CONVEX_TOL = 1e-4          # relative to the bounding radius: flat within float32 noise
 SEE_EACH_OTHER = 0.01      # probe fraction of reflected power that hits the mesh again -> bounce2
+SEE_DISTANCE = 0.1         # ...after crossing at least this x the bounding radius (a cavity)
 MILLIMETRE_RADIUS = 100.0  # metres; larger meshes are probably in millimetres (warning)
 RAY_OFFSET = 2.0 ** -17    # shadow/bounce ray origins leave the surface by this x scene radius
 
@@ -34,7 +35,9 @@ class Mesh:
 
     ``closed``: every edge is shared by exactly two faces with opposite orientation (faces are
     then outward, flipped if needed, and one-sided). Open meshes are thin two-sided sheets.
-    ``convex``: closed and convex within CONVEX_TOL, so back-face culling alone is exact.
+    ``convex``: closed and convex within CONVEX_TOL, so back-face culling alone is exact (up to
+    concavities of 1e-4 of the radius, 0.1 mm on a 1 m object: float32 vertices of slivers
+    measure up to 8e-6, and a dent of λ/300 at 10 GHz shifts phases by under 0.05 rad).
     """
 
     vertices: np.ndarray
@@ -241,9 +244,15 @@ def fibonacci_directions(n: int) -> np.ndarray:
 
 
 def reflected_fraction(mesh: Mesh, caster: RayCaster | None = None, n_probe: int = 64) -> float:
-    """Share of the lit projected area whose specular reflection hits the mesh again.
+    """Share of the lit projected area whose specular reflection crosses open space (at least
+    SEE_DISTANCE x the bounding radius) and hits the mesh again.
 
     Probe: n_probe directions; each lit, unshadowed facet reflects a ray from its centroid.
+    Re-hits closer than that are the creases of a coarse tessellation (a decimated sphere's
+    folded diagonals: near-grazing rays caught by the neighbouring facet), not a cavity whose
+    second bounce is worth 100-1000 times the cost; they measured 2-3.6% of the lit area on
+    generated spheres, against 4.6% for a torus and 5.6% for an L-prism, whose re-hits cross
+    the hole or the corner.
     """
     caster = caster or RayCaster(mesh)
     area = mesh.area_vectors
@@ -260,15 +269,15 @@ def reflected_fraction(mesh: Mesh, caster: RayCaster | None = None, n_probe: int
         shadow = caster.occluded(centroids[idx], np.broadcast_to(r, n.shape), n)
         idx, n, p = idx[~shadow], n[~shadow], p[~shadow]
         reflected = -r + 2.0 * (n @ r)[:, None] * n
-        face, _ = caster.intersect(centroids[idx], reflected, n)
+        face, distance = caster.intersect(centroids[idx], reflected, n)
         lit_area += p.sum()
-        hit_area += p[face >= 0].sum()
+        hit_area += p[(face >= 0) & (distance > SEE_DISTANCE * mesh.radius)].sum()
     return hit_area / lit_area if lit_area > 0 else 0.0
 
 
 def mode_of(mesh: Mesh) -> str:
-    """convex: closed and convex; bounce2: facets see each other (probe above 1%);
-    shadowed: anything else (open or non-convex)."""
+    """convex: closed and convex (within CONVEX_TOL); bounce2: facets see each other across
+    open space (probe above 1%); shadowed: anything else (open or non-convex)."""
     if mesh.convex:
         return "convex"
     return "bounce2" if reflected_fraction(mesh) > SEE_EACH_OTHER else "shadowed"

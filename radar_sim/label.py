@@ -1,41 +1,54 @@
 """Label shards in place: add the ``/radar`` group (docs/ARCHITECTURE.md, "Shards").
 
-One Dask task per object (its simple mesh, plus the variants asked for), so the work
-balances across workers whatever the shard sizes; the client gathers an object's labels and
-rewrites its shard once, atomically, when the shard's last object is done. A killed run
-therefore leaves every shard either untouched or fully labelled, and a rerun skips the
-labelled ones. Each label depends only on its mesh and the config, never on which worker
-computed it, so the bytes do not depend on the number of workers.
+An object's label is the physics of its analytic primitive (``basic_shapes.analytic``),
+computed on the deterministic simulation mesh for the config's top frequency, not on any
+stored mesh. ``--mesh-labels`` also keeps the physics on stored representation meshes, which
+measures how far the simulator run on a representation is from the object's label.
+
+One Dask task per object, so the work balances across workers whatever the shard sizes. The
+client writes each finished object at once to a small file of its own
+(``<dataset>/.labels/<shard stem>/object-NNNNN.h5``, atomically); when a shard's objects are
+all there it merges them into the shard (one atomic rewrite) and removes them. A killed run
+loses at most the objects in flight, and a rerun reuses the finished ones. Each label depends
+only on its object and the config, never on the worker or on interruptions, so the bytes of a
+labelled shard do not depend on the number of workers or on how often the run was resumed.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
+import shutil
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
 import numpy as np
 
+from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
 from basic_shapes.cluster import dask_client
-from basic_shapes.shards import Shard, list_shards, rewrite_atomically
+from basic_shapes.shards import Shard, atomic_path, list_shards, rewrite_atomically, write_radar
 from radar_sim.field import MODES
+
+SIDECAR = ".labels"
+CONVEX_KINDS = ("cube", "cylinder", "sphere", "cone")  # primitives that bound a convex body
 
 
 class LabelError(ValueError):
     """A dataset cannot be labelled as asked (config mismatch, bad mesh, bad request)."""
 
 
-def parse_variants(spec: str) -> tuple[str, int]:
+def parse_mesh_labels(spec: str) -> tuple[str, int]:
     """``"none"`` | ``"sample:K"`` | ``"all"`` -> (kind, K); K is 0 unless sampling."""
     if spec in ("none", "all"):
         return spec, 0
     kind, _, k = spec.partition(":")
     if kind == "sample" and k.isdigit() and int(k) > 0:
         return "sample", int(k)
-    raise LabelError(f"--variants {spec!r}: expected none, all or sample:K with K >= 1")
+    raise LabelError(f"--mesh-labels {spec!r}: expected none, all or sample:K with K >= 1")
 
 
 @dataclass(frozen=True)
@@ -43,141 +56,267 @@ class LabelRequest:
     """What a label depends on. Stored with the labels; a rerun with an equal request skips."""
 
     config: object  # radar_sim.RadarConfig
-    variants: str = "none"
+    mesh_labels: str = "none"
     mode: str = "auto"
     frequency_response: bool = False
 
     def __post_init__(self):
-        parse_variants(self.variants)
+        parse_mesh_labels(self.mesh_labels)
         if self.mode not in MODES:
             raise LabelError(f"mode {self.mode!r}: expected one of {', '.join(MODES)}")
 
     def attrs(self) -> dict[str, str]:
         """The /radar attributes that identify this request."""
-        options = {"variants": self.variants, "mode": self.mode,
+        options = {"mesh_labels": self.mesh_labels, "mode": self.mode,
                    "frequency_response": self.frequency_response}
-        return {"config": self.config.to_json(), "options": json.dumps(options, sort_keys=True)}
+        return {"config": self.config.to_json(), "options": json.dumps(options, sort_keys=True),
+                "simulation_rule": json.dumps(SIMULATION_RULE, sort_keys=True)}
 
 
-def _differences(group: h5py.Group, attrs: dict[str, str]) -> list[str]:
-    """Names of the request attributes ("config", "options") that the stored labels differ in."""
-    def parsed(value):
-        try:
-            return json.loads(value)
-        except (TypeError, ValueError):
-            return None
-
-    return [k for k, v in attrs.items() if parsed(group.attrs.get(k)) != json.loads(v)]
+def _differences(stored: dict[str, dict], attrs: dict[str, str]) -> list[str]:
+    """Names of the request attributes that the stored labels differ in."""
+    return [k for k, v in attrs.items() if stored.get(k) != json.loads(v)]
 
 
-def select_variants(shard: Shard, variants: str) -> list[np.ndarray]:
-    """Per object, the rows of the complex meshes to label besides the simple one.
+def select_mesh_rows(shard: Shard, mesh_labels: str) -> list[np.ndarray]:
+    """Per object, the rows of the stored meshes (the simple one included) to label as well.
 
-    ``sample:K`` draws K complex meshes per object from a generator seeded by the object's
-    own seed, so the choice is the same on every run and every machine.
+    ``sample:K`` draws K meshes per object from a generator seeded by the object's own seed,
+    so the choice is the same on every run and every machine.
     """
-    kind, k = parse_variants(variants)
+    kind, k = parse_mesh_labels(mesh_labels)
     oi = shard.file["meshes/object_index"][()]
-    var = shard.file["meshes/variant"][()]
     seeds = shard.file["objects/seed"][()]
     rows = []
     for obj in range(shard.n_objects):
-        complex_rows = np.flatnonzero((oi == obj) & (var > 0))
+        mine = np.flatnonzero(oi == obj)
         if kind == "none":
-            complex_rows = complex_rows[:0]
-        elif kind == "sample" and k < len(complex_rows):
+            mine = mine[:0]
+        elif kind == "sample" and k < len(mine):
             rng = np.random.default_rng(np.random.SeedSequence(int(seeds[obj]), spawn_key=(k,)))
-            complex_rows = np.sort(rng.choice(complex_rows, k, replace=False))
-        rows.append(complex_rows.astype(np.int64))
+            mine = np.sort(rng.choice(mine, k, replace=False))
+        rows.append(mine.astype(np.int64))
     return rows
+
+
+def object_params(shard: Shard) -> list[dict]:
+    """Hidden shape parameters per object (``/objects/params``; {} where the shard has none)."""
+    if "objects/params" not in shard.file:
+        return [{} for _ in range(shard.n_objects)]
+    return [json.loads(p) for p in shard.file["objects/params"][()]]
+
+
+@dataclass
+class ObjectPlan:
+    """One object to label: its primitive, the representation rows, the estimated work."""
+
+    index: int
+    object_id: int
+    class_name: str
+    scale: np.ndarray
+    params: dict
+    mesh_rows: np.ndarray
+    work: float  # faces x directions x frequencies, simulation mesh and representations
 
 
 @dataclass
 class ShardPlan:
-    """One shard to label: which mesh rows per object, and the labels as they arrive."""
+    """One shard to label: the objects still to compute, and where finished ones wait."""
 
     path: Path
-    simple: np.ndarray  # (n_objects,) row of each object's simple mesh
-    variant_rows: list[np.ndarray]
-    object_ids: np.ndarray
-    results: dict = field(default_factory=dict)  # object index -> list of per-mesh labels
+    fingerprint: str
+    objects: list[ObjectPlan]
+    n_objects: int
+    done: set = field(default_factory=set)  # object indices with a sidecar file
+    stale: list = field(default_factory=list)  # sidecar files of another request or shard
 
     @property
-    def n_objects(self) -> int:
-        return len(self.simple)
+    def sidecar(self) -> Path:
+        return self.path.parent / SIDECAR / self.path.stem
+
+    def object_file(self, k: int) -> Path:
+        return self.sidecar / f"object-{k:05d}.h5"
+
+
+def _sidecar_matches(path: Path, stamp: str) -> bool:
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("request") == stamp
+    except OSError:
+        return False
+
+
+def _stamp(request: LabelRequest, fingerprint: str) -> str:
+    """What a finished object's file must carry to be reused: the request and the shard."""
+    return json.dumps({**request.attrs(), "shard_fingerprint": fingerprint}, sort_keys=True)
+
+
+def _plan_object(path: Path, objs: dict, k: int, name: str, params: dict, faces: int,
+                 rows: np.ndarray, config) -> ObjectPlan:
+    """One object's plan; ``LabelError`` if its primitive is invalid or outside the window.
+
+    ``faces``: the total face count of the stored meshes in ``rows``.
+    """
+    oid, scale = int(objs["id"][k]), objs["scale"][k]
+    try:
+        v, f = simulation_mesh(solid_for(name, scale, params), config.f_stop_hz)
+    except ValueError as exc:
+        raise LabelError(f"{path}: object {oid}: {exc}") from None
+    radius = float(np.sqrt((v * v).sum(axis=1).max()))
+    if radius > config.max_radius_m:
+        raise LabelError(f"{path}: object {oid} ({name}, {' x '.join(f'{x:.4g}' for x in scale)}"
+                         f" m) extends {radius:.4g} m from the origin, beyond the "
+                         f"±{config.max_radius_m:.4g} m range window of radar config "
+                         f"{config.name!r}")
+    work = float(len(f) + faces) * config.n_aspect * config.n_roll * config.n_freq
+    return ObjectPlan(k, oid, name, scale, params, rows, work)
 
 
 def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan | None:
-    """Validate one shard; None if it already holds labels for this very request."""
+    """Validate one shard; None if it already holds labels for this very request.
+
+    Refuses (``LabelError``) objects whose primitive does not fit the config's range window,
+    before any work starts. Finished objects of an interrupted run with the same request are
+    marked done; sidecar files of another request or shard content are listed as stale.
+    """
     with Shard(path) as s:
         s.verify()  # labels computed from edited meshes must not pass as done, nor be made
-        if "radar" in s.file:
-            differ = _differences(s.file["radar"], request.attrs())
+        if s.has_labels:
+            radar = s.radar
+            stored = {"config": radar.config, "options": radar.options,
+                      "simulation_rule": radar.simulation_rule}
+            differ = _differences(stored, request.attrs())
             if not differ:
                 return None
             if not overwrite:
-                stored = s.file["radar"].attrs.get("options", "unknown options")
                 raise LabelError(f"{path}: already labelled, with different radar "
-                                 f"{' and '.join(differ)} (stored options: {stored}); pass "
-                                 f"--overwrite to relabel")
-        simple = s.simple_mesh_index()
-        missing = np.flatnonzero(simple < 0)
-        if len(missing):
-            raise LabelError(f"{path}: object index {int(missing[0])} has no simple mesh "
-                             f"(variant 0)")
-        return ShardPlan(path, simple, select_variants(s, request.variants), s.file["objects/id"][()])
+                                 f"{' and '.join(differ)} (stored options: "
+                                 f"{json.dumps(stored['options'])}); pass --overwrite to relabel")
+        objs, names, n_faces = s.objects(), s.class_names, s.file["meshes/n_faces"][()]
+        params, rows = object_params(s), select_mesh_rows(s, request.mesh_labels)
+        plans = [_plan_object(path, objs, k, names[int(objs["class"][k])], params[k],
+                              int(n_faces[rows[k]].sum()), rows[k], request.config)
+                 for k in range(s.n_objects)]
+        plan = ShardPlan(path, s.fingerprint, plans, s.n_objects)
+    stamp = _stamp(request, plan.fingerprint)
+    for k in range(plan.n_objects):
+        p = plan.object_file(k)
+        if p.is_file() and _sidecar_matches(p, stamp):
+            plan.done.add(k)
+        elif p.exists():
+            plan.stale.append(p)
+    plan.objects = [o for o in plan.objects if o.index not in plan.done]
+    return plan
 
 
-def label_meshes(meshes: list[tuple[int, np.ndarray, np.ndarray]], config, mode: str,
-                 frequency_response: bool) -> list[tuple]:
-    """Worker task: (range profiles, frequency response or None, mode) per (row, V, F), complex64."""
+def object_mode(class_name: str, mode: str) -> str:
+    """The physics of a primitive: convex primitives are exact with culling alone; the torus
+    (which sees itself) gets what detection finds on its simulation mesh."""
+    if mode != "auto":
+        return mode
+    return "convex" if class_name in CONVEX_KINDS else "auto"
+
+
+@functools.cache
+def _warm_up() -> None:
+    """Import and compile the kernels once per worker process, so that an object's time (the
+    cost estimate's calibration) is its own work, not the process's start-up."""
+    from radar_sim import RadarConfig, simulate
+
+    v, f = simulation_mesh(solid_for("cube", (0.01, 0.01, 0.01)), 1e9)
+    simulate(v, f, RadarConfig(name="warm-up", n_aspect=1, n_roll=1, n_freq=3, n_range=3),
+             mode="convex")
+
+
+def label_object(class_name: str, scale, params: dict, meshes: list, config, mode: str,
+                 frequency_response: bool) -> dict:
+    """Worker task: the object's label on its simulation mesh, and the physics on ``meshes``.
+
+    ``meshes`` is [(row, vertices, faces), ...]; labels are complex64.
+    """
     from radar_sim import MeshError, simulate
 
-    out = []
+    _warm_up()
+    t0 = time.perf_counter()
+    v, f = simulation_mesh(solid_for(class_name, scale, params), config.f_stop_hz)
+    try:
+        r = simulate(v, f, config, mode=object_mode(class_name, mode))
+    except MeshError as exc:
+        raise MeshError(f"simulation mesh: {exc}") from None
+    out = {"response": r.range_profiles.astype(np.complex64), "mode": r.mode,
+           "frequency_response": (r.frequency_response.astype(np.complex64)
+                                  if frequency_response else None),
+           "mesh_rows": [], "mesh_responses": [], "mesh_modes": [], "faces": len(f)}
     for row, vertices, faces in meshes:
         try:
-            r = simulate(vertices, faces, config, mode=mode)
+            m = simulate(vertices, faces, config, mode=mode)
         except MeshError as exc:
             raise MeshError(f"mesh row {row}: {exc}") from None
-        freq = r.frequency_response.astype(np.complex64) if frequency_response else None
-        out.append((r.range_profiles.astype(np.complex64), freq, r.mode))
+        out["mesh_rows"].append(row)
+        out["mesh_responses"].append(m.range_profiles.astype(np.complex64))
+        out["mesh_modes"].append(m.mode)
+    out["seconds"] = time.perf_counter() - t0
     return out
 
 
-def write_labels(plan: ShardPlan, request: LabelRequest) -> None:
-    """Rewrite one shard atomically with its complete /radar group."""
+def write_object(plan: ShardPlan, k: int, result: dict, stamp: str) -> None:
+    """Keep one finished object on disk (atomically) until its shard is complete."""
+    path = plan.object_file(k)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w", libver="earliest") as f:
+            f.attrs["request"] = stamp
+            f.attrs["mode"] = result["mode"]
+            f.create_dataset("response", data=result["response"], track_times=False)
+            if result["frequency_response"] is not None:
+                f.create_dataset("frequency_response", data=result["frequency_response"],
+                                 track_times=False)
+            f.create_dataset("mesh_rows", data=np.asarray(result["mesh_rows"], np.int64),
+                             track_times=False)
+            shape = (0, *result["response"].shape)
+            f.create_dataset("mesh_response", data=np.asarray(
+                result["mesh_responses"] or np.zeros(shape), np.complex64), track_times=False)
+            f.create_dataset("mesh_mode", data=[m.encode() for m in result["mesh_modes"]],
+                             dtype=h5py.string_dtype(), track_times=False)
+
+
+def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
+    """Rewrite the shard atomically with its complete /radar group, then drop the sidecar."""
     from radar_sim import __version__
 
+    files = [plan.object_file(k) for k in range(plan.n_objects)]
     config = request.config
-    per_object = [plan.results[k] for k in range(plan.n_objects)]
-    strings = h5py.string_dtype()
+
+    def rows(name):
+        for p in files:
+            with h5py.File(p, "r") as f:
+                yield f[name][()]
+
+    def mesh_rows(name):
+        for p in files:
+            with h5py.File(p, "r") as f:
+                yield from f[name][()]
 
     def edit(f: h5py.File) -> None:
-        if "radar" in f:
-            del f["radar"]
-        g = f.create_group("radar")
-        for key, value in request.attrs().items():
-            g.attrs[key] = value
-        g.attrs["radar_sim_version"] = __version__
-
-        def put(name, data, dtype=None):
-            g.create_dataset(name, data=np.asarray(data, dtype=dtype), track_times=False)
-
-        for name in ("aspect_deg", "roll_deg", "frequency_hz", "range_m"):
-            put(name, getattr(config, name), np.float64)
-        put("response", [labels[0][0] for labels in per_object])
-        if request.frequency_response:
-            put("frequency_response", [labels[0][1] for labels in per_object])
-        put("mode", [labels[0][2].encode() for labels in per_object], strings)
-        if request.variants != "none":
-            put("variant_mesh_index", np.concatenate(plan.variant_rows), np.int64)
-            variant_labels = [lab for labels in per_object for lab in labels[1:]]
-            shape = (0, *per_object[0][0][0].shape)
-            put("variant_response", [lab[0] for lab in variant_labels] or np.zeros(shape),
-                np.complex64)
-            put("variant_mode", [lab[2].encode() for lab in variant_labels], strings)
+        modes = []
+        for p in files:
+            with h5py.File(p, "r") as o:
+                modes.append(str(o.attrs["mode"]))
+        with_meshes = request.mesh_labels != "none"
+        write_radar(
+            f, attrs={**request.attrs(), "radar_sim_version": __version__},
+            coordinates={n: getattr(config, n)
+                         for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")},
+            object_ids=f["objects/id"][()], modes=modes, responses=rows("response"),
+            frequency_responses=rows("frequency_response") if request.frequency_response else None,
+            mesh_index=np.fromiter(mesh_rows("mesh_rows"), np.int64) if with_meshes else None,
+            mesh_modes=[m.decode() for m in mesh_rows("mesh_mode")] if with_meshes else None,
+            mesh_responses=mesh_rows("mesh_response") if with_meshes else None)
 
     rewrite_atomically(plan.path, edit)
+    shutil.rmtree(plan.sidecar, ignore_errors=True)
+    with contextlib.suppress(OSError):
+        plan.sidecar.parent.rmdir()  # only when no other shard's objects wait there
 
 
 @dataclass
@@ -185,16 +324,49 @@ class LabelSummary:
     labelled: list[Path]
     skipped: list[Path]
     objects: int
+    reused: int = 0
 
 
-def _object_tasks(plans: list[ShardPlan]):
-    """(plan, object index, [(row, V, F), ...]) per object; each shard is read once, then closed."""
+def _tasks(plans: list[ShardPlan]):
+    """(plan, object plan, [(row, V, F), ...]) per object; each shard is read once per object."""
     for plan in plans:
-        with Shard(plan.path) as s:
-            items = [(plan, k, [(int(r), *s.mesh(int(r)))
-                                for r in (plan.simple[k], *plan.variant_rows[k])])
-                     for k in range(plan.n_objects)]
-        yield from items
+        for obj in plan.objects:
+            with Shard(plan.path) as s:
+                meshes = [(int(r), *s.mesh(int(r))) for r in obj.mesh_rows]
+            yield plan, obj, meshes
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.1f} s"
+    return f"{seconds / 60:.1f} min" if seconds < 7200 else f"{seconds / 3600:.1f} h"
+
+
+class _Progress:
+    """One line per finished object, and the time left: the first object calibrates a rate
+    (work per second of its own compute, times the workers); later ones measure the rate
+    since then, so process start-up never enters the estimate."""
+
+    def __init__(self, log, n_todo: int, total_work: float, n_threads: int):
+        self.log, self.n_todo, self.total, self.n_threads = log, n_todo, total_work, n_threads
+        self.count, self.work, self.first = 0, 0.0, None
+
+    def finished(self, plan: ShardPlan, obj: ObjectPlan, result: dict) -> None:
+        self.count += 1
+        self.work += obj.work
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, self.work)
+            rate = obj.work / max(result["seconds"], 1e-9) * self.n_threads
+            self.log(f"  first object: {result['seconds']:.2f} s; estimated total "
+                     f"{_duration(self.total / rate)} on {self.n_threads} worker(s)")
+        else:
+            rate = (self.work - self.first[1]) / max(now - self.first[0], 1e-9)
+        extra = f" + {len(result['mesh_rows'])} mesh(es)" if result["mesh_rows"] else ""
+        self.log(f"  [{self.count}/{self.n_todo}] {plan.path.name} object {obj.object_id} "
+                 f"({obj.class_name}, {result['faces']} faces, {result['mode']}){extra}: "
+                 f"{result['seconds']:.2f} s; about {_duration((self.total - self.work) / rate)}"
+                 f" left")
 
 
 def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
@@ -202,57 +374,78 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
                     overwrite: bool = False, progress: bool = True) -> LabelSummary:
     """Label every shard of ``directory`` that is not already labelled with ``request``.
 
-    Every shard is validated before any work starts, so a foreign or truncated shard, or a
-    config mismatch, fails fast and changes nothing.
+    Every shard is validated before any work starts, so a foreign or truncated shard, a config
+    mismatch or an object outside the range window fails fast and changes nothing. Prints the
+    planned work, an estimate calibrated on the first object, and one line per object.
     """
     from distributed import as_completed
-    from tqdm import tqdm
 
     from radar_sim import MeshError
 
+    def log(text: str) -> None:  # stdout: stderr is kept for the one-line error
+        if progress:
+            print(text, flush=True)
+
     paths = list_shards(directory)
     plans = {p: plan_shard(p, request, overwrite) for p in paths}
+    for path in [p for p, plan in plans.items() if plan is None]:  # killed after its merge
+        shutil.rmtree(path.parent / SIDECAR / path.stem, ignore_errors=True)
+        with contextlib.suppress(OSError):
+            (path.parent / SIDECAR).rmdir()
     todo = [plan for plan in plans.values() if plan is not None]
+    for plan in todo:  # every shard is valid: now drop what cannot be reused
+        for stale in plan.stale:
+            stale.unlink()
     summary = LabelSummary([], [p for p, plan in plans.items() if plan is None],
-                           sum(plan.n_objects for plan in todo))
+                           sum(plan.n_objects for plan in todo),
+                           sum(len(plan.done) for plan in todo))
+    for plan in [p for p in todo if not p.objects]:  # every object finished before a kill
+        merge_shard(plan, request)
+        summary.labelled.append(plan.path)
+    todo = [plan for plan in todo if plan.objects]
     if not todo:
         return summary
-
+    n_todo = sum(len(plan.objects) for plan in todo)
+    total_work = sum(o.work for plan in todo for o in plan.objects)
     with contextlib.ExitStack() as stack:
         try:
             client = stack.enter_context(dask_client(workers, scheduler))
         except OSError as exc:
             raise LabelError(f"{directory}: cannot use the Dask cluster "
                              f"{scheduler or '(local)'}: {exc}") from None
-        bar = stack.enter_context(tqdm(total=summary.objects, unit="object", desc="radar labels",
-                                       disable=not progress))
-        window = 4 * max(1, sum(client.nthreads().values()))
-        tasks = _object_tasks(todo)
+        log(f"radar-sim label: {n_todo} object(s) in {len(todo)} shard(s) to compute"
+            f"{f', {summary.reused} reused from an interrupted run' if summary.reused else ''}; "
+            f"work {total_work:.3g} face x direction x frequency products")
+        n_threads = max(1, sum(client.nthreads().values()))
+        tasks = _tasks(todo)
         running = as_completed()
         owner = {}
 
         def submit_next() -> None:
             item = next(tasks, None)
             if item is not None:
-                plan, k, meshes = item
-                future = client.submit(label_meshes, meshes, request.config, request.mode,
+                plan, obj, meshes = item
+                future = client.submit(label_object, obj.class_name, obj.scale, obj.params,
+                                       meshes, request.config, request.mode,
                                        request.frequency_response, pure=False)
-                owner[future.key] = (plan, k)
+                owner[future.key] = (plan, obj)
                 running.add(future)
 
-        for _ in range(window):
+        for _ in range(4 * n_threads):
             submit_next()
+        progress_log = _Progress(log, n_todo, total_work, n_threads)
         for future in running:
-            plan, k = owner.pop(future.key)
+            plan, obj = owner.pop(future.key)
             try:
-                plan.results[k] = future.result()
+                result = future.result()
             except MeshError as exc:
-                raise LabelError(f"{plan.path}: object {int(plan.object_ids[k])}: {exc}") from None
+                raise LabelError(f"{plan.path}: object {obj.object_id}: {exc}") from None
             future.release()
-            if len(plan.results) == plan.n_objects:
-                write_labels(plan, request)
-                plan.results.clear()
+            write_object(plan, obj.index, result, _stamp(request, plan.fingerprint))
+            plan.done.add(obj.index)
+            progress_log.finished(plan, obj, result)
+            if len(plan.done) == plan.n_objects:
+                merge_shard(plan, request)
                 summary.labelled.append(plan.path)
-            bar.update()
             submit_next()
     return summary

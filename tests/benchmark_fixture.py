@@ -19,7 +19,8 @@ import h5py
 import numpy as np
 import trimesh
 
-from basic_shapes.shards import MeshRecord, ObjectRecord, rewrite_atomically, shard_name, write_shard
+from basic_shapes.shards import (MeshRecord, ObjectRecord, rewrite_atomically, shard_name,
+                                 write_radar, write_shard)
 
 CLASSES = ["cube", "cylinder", "sphere"]
 STRENGTH = {"cube": 1.0, "cylinder": 0.5, "sphere": 0.2}
@@ -85,12 +86,13 @@ def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_c
                            for o in part])
 
         def add_radar(f: h5py.File, labels=labels):
-            g = f.create_group("radar")
-            g.create_dataset("response", data=labels)
-            g.create_dataset("aspect_deg", data=aspect)
-            g.create_dataset("roll_deg", data=roll)
-            g.create_dataset("range_m", data=rng_m)
-            g.attrs["config"] = json.dumps({"fixture": "analytic corners"})
+            write_radar(f, attrs={"config": json.dumps({"fixture": "analytic corners"}),
+                                  "simulation_rule": json.dumps({"fixture": True}),
+                                  "options": json.dumps({"fixture": True})},
+                        coordinates={"aspect_deg": aspect, "roll_deg": roll, "range_m": rng_m,
+                                     "frequency_hz": np.linspace(8e9, 12e9, grid[2])},
+                        object_ids=f["objects/id"][()], modes=["convex"] * len(labels),
+                        responses=labels)
 
         rewrite_atomically(path, add_radar)
     return directory

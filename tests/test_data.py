@@ -174,7 +174,7 @@ def test_unlabelled_and_inconsistent_shards_are_refused(tmp_path):
     rewrite_atomically(plain / shard_name(0), lambda f: f.__delitem__("radar"))
     with pytest.raises(ShardError, match=r"shard-00000.h5: no radar labels"):
         BenchmarkData(plain)
-    rewrite_atomically(src / shard_name(1), lambda f: f["radar/range_m"].__setitem__(0, -9.0))
+    rewrite_atomically(src / shard_name(1), lambda f: f["radar/range"].__setitem__(0, -9.0))
     with pytest.raises(ShardError, match="radar grid differs"):
         BenchmarkData(src)
     with pytest.raises(ShardError, match="no such dataset directory"):
@@ -220,7 +220,8 @@ def test_evaluator_scores_arrays_through_the_harness_path(data, data_dir, tmp_pa
     noisy = oracle.numpy() + rng.normal(0, 3, oracle.shape).astype(np.float32)
     order = rng.permutation(len(uid))
     got = ev.eval({"mesh_uid": uid.numpy()[order], "target_db": noisy[order]})
-    write_predictions(tmp_path / "p.h5", data.fingerprint, uid.numpy(), noisy)
+    write_predictions(tmp_path / "p.h5", data.fingerprint, uid.numpy(), noisy,
+                      label_fingerprint=data.label_fingerprint)
     assert got == score_predictions(data_dir, tmp_path / "p.h5")
     with pytest.raises(PredictionsError, match="missing 1 of"):
         ev.eval({"mesh_uid": uid[1:], "target_db": oracle[1:]})

@@ -106,9 +106,10 @@ def ws(tmp_path_factory) -> dict:
     with BenchmarkData(data) as d:
         rows = d.mesh_rows("test")
         uids, fp, shape = d.meshes["uid"][rows], d.fingerprint, d.target_shape
+        labels = d.label_fingerprint
         targets = np.stack([d.target(int(d.meshes["object"][r])) for r in rows]) + 1.0
     pred = root / "pred.h5"
-    write_predictions(pred, fp, uids, targets)
+    write_predictions(pred, fp, uids, targets, label_fingerprint=labels)
     from benchmark.evaluate import evaluate
     results = root / "results.json"
     write_results(results, evaluate(data, predictions=pred, progress=False))
@@ -118,14 +119,15 @@ def ws(tmp_path_factory) -> dict:
                           capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     return {"root": root, "data": data, "pred": pred, "results": results, "entries": entries,
-            "uids": uids, "targets": targets, "fp": fp, "shape": shape}
+            "uids": uids, "targets": targets, "fp": fp, "labels": labels, "shape": shape}
 
 
 def predictions_file(path: Path, ws: dict, target=None, uid=None, attrs=None) -> Path:
     """A predictions file whose /target_db is made by ``target(f, name)`` (default: plain)."""
     with h5py.File(path, "w") as f:
         f.attrs.update({"format": "basic-shapes-predictions", "version": 1,
-                        "dataset_fingerprint": ws["fp"], **(attrs or {})})
+                        "dataset_fingerprint": ws["fp"], "label_fingerprint": ws["labels"],
+                        **(attrs or {})})
         (uid or (lambda f, n: f.create_dataset(n, data=ws["uids"])))(f, "mesh_uid")
         (target or (lambda f, n: f.create_dataset(n, data=ws["targets"])))(f, "target_db")
     return path
@@ -464,7 +466,7 @@ def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
     obj = ObjectRecord(0, 0, np.array([0.3, 0.3, 0.3]), 1, "test",
                        [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})])
     write_shard(d / shard_name(0), [obj], ["cube"], {"fixture": True}, "0.1.0")
-    cli("radar_sim", "label", d, "--workers", "1", phrase="object 0: mesh row 0: mesh has no face",
+    cli("radar_sim", "label", d, "--workers", "1", "--mesh-labels", "all", phrase="object 0: mesh row 0: mesh has no face",
         watch=[d])
 
 

@@ -5,9 +5,10 @@ classes; each object has a simple mesh and two complex meshes of the same shape)
 analytic /radar label, so that the expected metrics are known exactly: a prediction equal to the
 label's dB target plus a per-class offset ``s`` (simple mesh) or ``c`` (complex meshes) has
 Simple MSE s^2, Complex MSE c^2 and Variation MSE (s - c)^2. The label's magnitude never drops
-below 1e-3, so the benchmark's -80 dB floor never clips it. Complex meshes also get per-mesh
-labels (/radar/variant_response) that are the object's label raised by ``VARIANT_DB`` decibels,
-so the physics simulator's own Complex MSE is exactly VARIANT_DB^2.
+below 1e-3, so the benchmark's -80 dB floor never clips it. Every mesh also gets the physics on
+it (/radar/mesh_response): the object's label raised by ``SIMPLE_DB`` decibels on the simple mesh
+and by ``VARIANT_DB`` on complex meshes, so the simulator-on-the-mesh point has Simple MSE
+SIMPLE_DB^2, Complex MSE VARIANT_DB^2 and Variation MSE (VARIANT_DB - SIMPLE_DB)^2.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from basic_shapes.shards import (MeshRecord, ObjectRecord, dataset_fingerprint, mesh_uid,
-                                 rewrite_atomically, write_shard)
+from basic_shapes.shards import (MeshRecord, ObjectRecord, dataset_fingerprint, label_fingerprint,
+                                 mesh_uid, rewrite_atomically, write_radar, write_shard)
 from leaderboard import cli, store
 from leaderboard.submit import REL_TOL
 
@@ -34,6 +35,7 @@ ROLL = np.array([0.0, 90.0, 180.0, 270.0])
 RANGE = np.linspace(-1.0, 1.0, 20)
 OFFSETS = {"cube": (1.0, 3.0), "cylinder": (2.0, 5.0), "sphere": (0.5, 4.0)}  # (simple, complex) dB
 VARIANT_DB = 0.5
+SIMPLE_DB = 0.25
 TEST_OBJECTS = (1, 2, 4, 5, 7, 8)  # two per class; objects 0, 3, 6 are training objects
 
 
@@ -85,21 +87,18 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
         write_shard(path, objects, CLASSES, {"salt": salt}, "test")
 
         def add_radar(f, objects=objects):
-            g = f.create_group("radar")
-            g.create_dataset("response", data=np.stack([response(o.scale, o.id) for o in objects]))
-            g.create_dataset("aspect_deg", data=ASPECT)
-            g.create_dataset("roll_deg", data=ROLL)
-            g.create_dataset("range_m", data=RANGE)
-            g.create_dataset("mode", data=np.array([b"convex"] * len(objects)),
-                             dtype=h5py.string_dtype())
-            rows = [(i, k) for i, (k, m) in enumerate((k, m) for k, o in enumerate(objects)
-                                                       for m in o.meshes) if m.variant > 0]
-            g.create_dataset("variant_mesh_index", data=np.array([i for i, _ in rows], np.int64))
-            gain = np.float32(10 ** (VARIANT_DB / 20))
-            g.create_dataset("variant_response", data=np.stack(
-                [response(objects[k].scale, objects[k].id) * gain for _, k in rows]))
-            g.attrs["config"] = json.dumps({"name": "analytic-test"})
-            g.attrs["version"] = "test"
+            rows = [(k, m.variant) for k, o in enumerate(objects) for m in o.meshes]
+            gain = {v: np.float32(10 ** ((SIMPLE_DB if v == 0 else VARIANT_DB) / 20))
+                    for _, v in rows}
+            write_radar(f, attrs={"config": json.dumps({"name": "analytic-test"}),
+                                  "simulation_rule": json.dumps({"test": True})},
+                        coordinates={"aspect_deg": ASPECT, "roll_deg": ROLL, "range_m": RANGE,
+                                     "frequency_hz": np.linspace(8e9, 12e9, len(RANGE))},
+                        object_ids=[o.id for o in objects], modes=["convex"] * len(objects),
+                        responses=(response(o.scale, o.id) for o in objects),
+                        mesh_index=np.arange(len(rows)), mesh_modes=["convex"] * len(rows),
+                        mesh_responses=(response(objects[k].scale, objects[k].id) * gain[v]
+                                        for k, v in rows))
         rewrite_atomically(path, add_radar)
     return directory
 
@@ -120,6 +119,7 @@ def write_predictions(path: Path, data: Path, offsets=OFFSETS, drop: int = 0,
         f.attrs["format"] = "basic-shapes-predictions"
         f.attrs["version"] = 1
         f.attrs["dataset_fingerprint"] = fingerprint or dataset_fingerprint(data)
+        f.attrs["label_fingerprint"] = label_fingerprint(data)
         f.create_dataset("mesh_uid", data=np.array(uids, np.int64))
         f.create_dataset("target_db", data=np.array(rows, np.float32))
     return path
@@ -132,6 +132,7 @@ def write_results(path: Path, data: Path, predictions: Path, name: str = "graph-
     results = {
         "benchmark_version": "0.1.0",
         "dataset_fingerprint": dataset_fingerprint(data),
+        "label_fingerprint": label_fingerprint(data),
         "model": {"name": name, "params": 1234567, "embedding": "graph", "regime": "autoencoder"},
         "metrics": metrics if metrics is not None else score_predictions(data, predictions),
         "speed": {"ms_per_mesh": ms_per_mesh, "hardware": "cpu: test (2 cores)"},
@@ -234,6 +235,7 @@ TAMPERS = {
                   "claimed per_class.sphere.complex_mse"),
     "no-skill": (lambda r: r["metrics"].__setitem__("no_skill", True), "claimed no_skill"),
     "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
+    "labels": (lambda r: r.__setitem__("label_fingerprint", "ab" * 32), "belongs to other labels"),
     "no-metrics": (lambda r: r.pop("metrics"), "results.json"),
     "bad-params": (lambda r: r["model"].__setitem__("params", "many"), "params"),
     "long-hardware": (lambda r: r["speed"].__setitem__("hardware", "x" * 500), "speed.hardware"),
@@ -415,28 +417,29 @@ def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_pat
     assert png_size(site / f"speed-vs-error-{dataset_fingerprint(data)[:12]}.png")[0] > 100
 
 
-def test_simulator_point_is_the_physics_variation_between_meshes(data, tmp_path):
-    from leaderboard.simulator import ASSUMED_ZERO, MEASURED
+def test_simulator_point_is_the_physics_on_representation_meshes(data, tmp_path):
+    from leaderboard.simulator import MEASURED
     entries = tmp_path / "entries"
     run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250")
     (path,) = entries.glob("physics-*.json")
     e = json.loads(path.read_text())
-    assert e["kind"] == "simulator" and e["complex_mse_source"] == MEASURED
-    assert e["metrics"]["simple_mse"] == 0.0 and e["speed"]["ms_per_mesh"] == 250.0
+    assert e["kind"] == "simulator" and e["complex_mse_source"].startswith(MEASURED)
+    assert e["speed"]["ms_per_mesh"] == 250.0
+    assert e["dataset"]["label_fingerprint"] == label_fingerprint(data)
     for block in [e["metrics"], *e["metrics"]["per_class"].values()]:
-        assert close(block["complex_mse"], VARIANT_DB ** 2) and block["variation_mse"] == block["complex_mse"]
+        assert close(block["simple_mse"], SIMPLE_DB ** 2)
+        assert close(block["complex_mse"], VARIANT_DB ** 2)
+        assert close(block["variation_mse"], (VARIANT_DB - SIMPLE_DB) ** 2)
     bare = tmp_path / "bare"
     shutil.copytree(data, bare)
 
-    def drop_variant_labels(f):
-        del f["radar/variant_mesh_index"], f["radar/variant_response"]
+    def drop_mesh_labels(f):
+        del f["radar/mesh_response"], f["radar/mesh_mode"], f["radar/mesh"]
     for shard in sorted(bare.glob("shard-*.h5")):
-        rewrite_atomically(shard, drop_variant_labels)
-    run("simulator", "--data", bare, "--entries", entries, "--ms-per-mesh", "300")  # replaces
-    (path,) = entries.glob("physics-*.json")
-    e = json.loads(path.read_text())
-    assert e["complex_mse_source"] == ASSUMED_ZERO and e["metrics"]["complex_mse"] == 0.0
-    assert e["speed"]["ms_per_mesh"] == 300.0
+        rewrite_atomically(shard, drop_mesh_labels)
+    assert "--mesh-labels all" in refused("simulator", "--data", bare, "--entries", entries,
+                                          "--ms-per-mesh", "300")
+    assert json.loads(path.read_text())["speed"]["ms_per_mesh"] == 250.0  # kept
 
 
 def test_simulator_point_measured_with_radar_sim(data, tmp_path):
@@ -455,11 +458,12 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
     config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
     (tmp_path / "coarse.json").write_text(json.dumps(config))
     radar_sim_main(["label", str(real), "--config", str(tmp_path / "coarse.json"),
-                    "--variants", "all", "--workers", "1"])
+                    "--mesh-labels", "all", "--workers", "1"])
     entries = tmp_path / "entries"
     run("simulator", "--data", real, "--entries", entries)
     e = json.loads(next(entries.glob("physics-*.json")).read_text())
-    assert e["name"] == "radar_sim coarse-test" and e["speed"]["source"].startswith("measured")
+    assert e["name"] == "radar_sim on the representation mesh coarse-test"
+    assert e["speed"]["source"].startswith("measured")
 
     per_object, per_mesh_seconds = {}, []
     cfg = radar_sim.RadarConfig(**config)
@@ -467,10 +471,11 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
         with h5py.File(shard) as f:
             ids, split = f["objects/id"][()], f["objects/split"][()]
             owner = f["meshes/object_index"][()]
-            for j, row in enumerate(f["radar/variant_mesh_index"][()]):
+            variant = f["meshes/variant"][()]
+            for j, row in enumerate(f["radar/mesh"][()]):
                 k = owner[row]
-                if split[k] == b"test":
-                    d = target_db(f["radar/response"][k]) - target_db(f["radar/variant_response"][j])
+                if split[k] == b"test" and variant[row] > 0:
+                    d = target_db(f["radar/response"][k]) - target_db(f["radar/mesh_response"][j])
                     per_object.setdefault(int(ids[k]), []).append(np.mean(d ** 2))
             if 1 in ids:  # the example object: time simulate on its complex meshes ourselves
                 k = int(np.flatnonzero(ids == 1)[0])

@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
-from basic_shapes.shards import dataset_fingerprint
+from basic_shapes.shards import dataset_fingerprint, label_fingerprint
 from benchmark.cli import main
 from benchmark.evaluate import evaluate
 from benchmark.protocol import (ModelError, NearestScaleModel, PredictionsError, ResultsError, load_model,
@@ -86,6 +86,7 @@ def test_model_path_and_predictions_path_give_identical_metrics(data_dir, model_
     assert sp["self_reported"] is False and sp["cpu"] in sp["hardware"] and sp["load_avg_1m"] >= 0
     assert len(results["per_object"]["object_id"]) == results["metrics"]["n_objects"]
     assert results["dataset_fingerprint"] == dataset_fingerprint(data_dir)
+    assert results["label_fingerprint"] == label_fingerprint(data_dir)
 
 
 def test_scores_agree_with_an_independent_computation(data_dir, model_run):
@@ -105,11 +106,13 @@ def test_third_party_file_in_any_row_order_scores_the_same(data_dir, model_run, 
         uid, tgt = f["mesh_uid"][()], f["target_db"][()]
     perm = np.random.default_rng(0).permutation(len(uid))
     shuffled = tmp_path / "shuffled.h5"
-    write_predictions(shuffled, dataset_fingerprint(data_dir), uid[perm], tgt[perm])
+    labels = label_fingerprint(data_dir)
+    write_predictions(shuffled, dataset_fingerprint(data_dir), uid[perm], tgt[perm],
+                      label_fingerprint=labels)
     assert score_predictions(data_dir, shuffled) == results["metrics"]
     # a different prediction for one mesh changes the numbers: the check can fail
     tgt[perm[0]] += 1.0
-    write_predictions(shuffled, dataset_fingerprint(data_dir), uid, tgt)
+    write_predictions(shuffled, dataset_fingerprint(data_dir), uid, tgt, label_fingerprint=labels)
     assert score_predictions(data_dir, shuffled) != results["metrics"]
 
 
@@ -194,6 +197,7 @@ MALFORMED = {
                    "1 rows are not test-split meshes"),
     "duplicate": (lambda u, t, a: (np.append(u, u[0]), np.concatenate([t, t[:1]]), a), "1 duplicated mesh_uid"),
     "fingerprint": (lambda u, t, a: (u, t, {**a, "dataset_fingerprint": "0" * 64}), "made for dataset 0000"),
+    "labels": (lambda u, t, a: (u, t, {**a, "label_fingerprint": "0" * 64}), "made for labels 0000"),
     "version": (lambda u, t, a: (u, t, {**a, "version": 7}), "version 7 is not 1"),
     "foreign": (lambda u, t, a: (u, t, {}), "not a predictions file"),
     "nan": (lambda u, t, a: (u, _with_nan(t), a), "non-finite prediction for mesh_uid"),
@@ -233,6 +237,7 @@ def test_results_json_round_trip_and_validation(model_run, tmp_path):
         "missing": ({k: v for k, v in results.items() if k != "speed"},
                     "speed must be a JSON object"),
         "fingerprint": ({**results, "dataset_fingerprint": "abc"}, "not a sha256"),
+        "labels": ({**results, "label_fingerprint": "abc"}, "label_fingerprint is not a sha256"),
         "bool mse": ({**results, "metrics": {**results["metrics"], "simple_mse": True}}, "simple_mse must be"),
         "negative": ({**results, "metrics": {**results["metrics"], "variation_mse": -1.0}}, "variation_mse must be"),
         "params": ({**results, "model": {**results["model"], "params": "many"}}, "model.params"),
@@ -319,5 +324,6 @@ def test_dataset_without_test_split_is_refused(tmp_path):
 
 def test_writer_refuses_mismatched_blocks(tmp_path):
     with pytest.raises(PredictionsError, match=r"2 mesh uids but predictions of shape \(3, 4\)"):
-        write_predictions(tmp_path / "p.h5", "0" * 64, np.arange(2), np.zeros((3, 4), np.float32))
+        write_predictions(tmp_path / "p.h5", "0" * 64, np.arange(2), np.zeros((3, 4), np.float32),
+                          label_fingerprint="0" * 64)
     assert list(tmp_path.iterdir()) == []

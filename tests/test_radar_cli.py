@@ -106,16 +106,80 @@ def test_plot_uses_stored_labels(tmp_path):
 
     data = write_dataset(tmp_path / "data", n_objects=1)
     _, _, simulated, title = dataset_signature(data, 0, "xband-v1")
-    assert "simulated" in title
+    assert "label on its 12-face simulation mesh" in title  # a cube: the box itself
     main(["label", str(data), "--workers", "1", "--frequency-response"])
     coords, profiles, response, title = dataset_signature(data, 0, "xband-v1")
-    assert "stored labels" in title
+    assert "stored label" in title
     with h5py.File(data / "shard-00000.h5") as f:
         np.testing.assert_array_equal(profiles, f["radar/response"][0])
         np.testing.assert_array_equal(response, f["radar/frequency_response"][0])
-        np.testing.assert_array_equal(coords["range_m"], f["radar/range_m"][()])
+        np.testing.assert_array_equal(coords["range_m"], f["radar/range"][()])
     np.testing.assert_array_equal(response, simulated.astype(np.complex64))
     config = radar_sim.RadarConfig.named("xband-v1")
     np.testing.assert_array_equal(coords["aspect_deg"], config.aspect_deg)
     main(["plot", str(data), "--object", "0", "--out", str(tmp_path / "o0.png")])
     _check_png(tmp_path / "o0.png")
+
+
+def test_millimetre_file_read_as_metres_is_flagged(tmp_path, capsys):
+    """A 50 mm cube in a millimetre file read without --units mm is a 50 m cube (about 109
+    dBsm broadside at 10 GHz): the extent is printed with the result, and a warning says the
+    size is implausible for the band; with --units mm there is no warning."""
+    trimesh.creation.box((50.0, 50.0, 50.0)).export(tmp_path / "cube_mm.stl")
+    args = ["--freq", "10", "--aspect", "0"]
+    main(["rcs", str(tmp_path / "cube_mm.stl"), *args])
+    out, err = capsys.readouterr()
+    assert "extent 50 x 50 x 50 m" in out
+    lam = C / 10e9
+    np.testing.assert_allclose(table(out)[0, 0], 10 * np.log10(4 * np.pi * 50.0 ** 4 / lam ** 2),
+                               atol=0.01)
+    assert "50 m across, 1668 wavelengths at 10 GHz" in err and "pass --units mm" in err
+    main(["rcs", str(tmp_path / "cube_mm.stl"), "--units", "mm", *args])
+    out, err = capsys.readouterr()
+    assert "extent 0.05 x 0.05 x 0.05 m" in out and "warning" not in out + err
+    main(["rcs", str(tmp_path / "cube_mm.stl"), "--units", "mm", "--freq", "0.5", "--aspect", "0"])
+    assert "under half a wavelength at 0.5 GHz" in capsys.readouterr().err
+
+
+def test_generated_spheres_never_take_the_bounce_path(tmp_path):
+    """Spheres from the real generator (Blender decimation folds some facet pairs inward) are
+    "convex" or at worst "shadowed": their re-hits stay within a crease, so "auto" does not
+    pay 100-1000x for the second bounce. A torus and an L-prism still see themselves."""
+    import manifold3d
+
+    from basic_shapes.cli import main as generate
+    from basic_shapes.shards import Shard
+    from radar_sim import detect_mode
+    from radar_sim.geometry import prepare
+
+    generate(["generate", "--out", str(tmp_path / "d"), "--classes", "sphere",
+              "--objects-per-class", "3", "--variants", "19", "--seed", "0", "--workers", "1"])
+    modes, strict = [], []
+    with Shard(next((tmp_path / "d").glob("shard-*.h5"))) as s:
+        for i in range(s.n_meshes):
+            v, f = s.mesh(i)
+            modes.append(detect_mode(v, f))
+            strict.append(prepare(v, f).convex)
+    assert "bounce2" not in modes
+    assert "shadowed" in modes  # some meshes are folded, so the test exercises the probe
+    torus = trimesh.creation.torus(0.3, 0.1)
+    assert detect_mode(torus.vertices, torus.faces) == "bounce2"
+    ell = (manifold3d.Manifold.cube([0.4, 0.1, 0.3]) + manifold3d.Manifold.cube([0.1, 0.4, 0.3]))
+    ell = ell.to_mesh()
+    ell_vertices = np.asarray(ell.vert_properties)[:, :3]
+    assert detect_mode(ell_vertices, np.asarray(ell.tri_verts)) == "bounce2"
+
+
+def test_float32_noise_is_convex():
+    """A sphere whose float32 vertices make a few edges concave by ~1e-6 of the radius is
+    still "convex" (the old 1e-6 tolerance sent such meshes to shadow rays)."""
+    from radar_sim.geometry import CONVEX_TOL, prepare
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    v = np.array(sphere.vertices)
+    rng = np.random.default_rng(0)
+    v *= 1 + rng.uniform(-5e-6, 5e-6, (len(v), 1))  # radial jitter: dents of ~1e-5 R
+    assert 1e-6 < 1e-5 < CONVEX_TOL
+    assert prepare(v, sphere.faces).convex
+    v[0] *= 1 - 1e-2  # a real dent (the curvature sagitta over one edge is 3e-3 R)
+    assert not prepare(v, sphere.faces).convex

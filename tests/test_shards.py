@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from basic_shapes.shards import MeshRecord, ObjectRecord, Shard, ShardError, find_object, iter_objects, mesh_uid, write_shard
+from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, ShardError, find_object,
+                                 iter_objects, label_fingerprint, mesh_uid, rewrite_atomically,
+                                 write_radar, write_shard)
 
 
 def _objects():
@@ -74,3 +76,78 @@ def test_truncated_and_foreign_files_are_refused(tmp_path):
         del f["meshes/faces"]
     with pytest.raises(ShardError, match="missing meshes/faces"):
         Shard(partial)
+
+
+GRID = {"aspect_deg": np.array([0.0, 90.0]), "roll_deg": np.array([0.0, 120.0, 240.0]),
+        "range_m": np.linspace(-1, 1, 5), "frequency_hz": np.linspace(8e9, 12e9, 7)}
+ATTRS = {"config": '{"name": "t"}', "simulation_rule": '{"rule": 1}', "options": "{}"}
+
+
+def _labelled(path, responses, attrs=ATTRS, mesh_index=(0, 2)):
+    """A two-object shard with labels ``responses`` (2, 2, 3, 5) and physics on two meshes."""
+    write_shard(path, _objects(), ["cube"], {"seed": 0}, "0.1.0")
+    rewrite_atomically(path, lambda f: write_radar(
+        f, attrs=attrs, coordinates=GRID, object_ids=[7, 8], modes=["convex", "shadowed"],
+        responses=iter(responses), mesh_index=np.array(mesh_index),
+        mesh_modes=["convex"] * len(mesh_index), mesh_responses=responses[:len(mesh_index)]))
+    return path
+
+
+def _responses(seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.normal(size=(2, 2, 3, 5)) + 1j * rng.normal(size=(2, 2, 3, 5))).astype(np.complex64)
+
+
+def test_radar_round_trip_and_fingerprint(tmp_path):
+    resp = _responses()
+    with Shard(_labelled(tmp_path / "shard-00000.h5", resp)) as s:
+        r = s.radar
+        assert r.modes == ["convex", "shadowed"] and list(r.object_ids) == [7, 8]
+        for name, value in GRID.items():
+            np.testing.assert_array_equal(r.coordinates[name], value)
+        np.testing.assert_array_equal(r.response(1), resp[1])
+        assert list(r.mesh_index) == [0, 2] and r.mesh_modes == ["convex", "convex"]
+        np.testing.assert_array_equal(r.mesh_response(1), resp[1])
+        assert not r.has_frequency_response and r.config == {"name": "t"}
+        # sha256 over config, rule and the label bytes, written independently here
+        h = hashlib.sha256(b'{"name": "t"}\0{"rule": 1}\0' + resp.tobytes()).hexdigest()
+        assert r.fingerprint == r.computed_fingerprint() == h
+    assert label_fingerprint(tmp_path) == hashlib.sha256(h.encode()).hexdigest()
+    again = _labelled(tmp_path / "again.h5", resp)
+    assert again.read_bytes() == (tmp_path / "shard-00000.h5").read_bytes()
+    other = [_labelled(tmp_path / "b.h5", _responses(1)),
+             _labelled(tmp_path / "c.h5", resp, {**ATTRS, "config": '{"name": "u"}'}),
+             _labelled(tmp_path / "d.h5", resp, {**ATTRS, "simulation_rule": '{"rule": 2}'})]
+    fingerprints = set()
+    with Shard(again) as s:
+        meshes = s.fingerprint
+    for p in other:
+        with Shard(p) as s:
+            assert s.fingerprint == meshes  # the meshes are the same, the labels are not
+            fingerprints.add(s.radar.fingerprint)
+    assert len(fingerprints) == 3 and h not in fingerprints
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda g: g.__delitem__("mode"), "truncated /radar group, missing mode"),
+    (lambda g: (g.__delitem__("response"), g.create_dataset("response", data=np.zeros(
+        (2, 2, 3, 4), np.complex64))), r"/radar/response is complex64\(2, 2, 3, 4\), expected"),
+    (lambda g: g["object"].__setitem__(0, 99), "/radar/object does not list the shard's objects"),
+    (lambda g: g["mesh"].__setitem__(1, 3), r"/radar/mesh holds rows outside 0\.\.2"),
+    (lambda g: g.attrs.__delitem__("label_fingerprint"), "no label_fingerprint"),
+])
+def test_malformed_radar_groups_are_refused(tmp_path, edit, problem):
+    path = _labelled(tmp_path / "shard-00000.h5", _responses())
+    rewrite_atomically(path, lambda f: edit(f["radar"]))
+    with Shard(path) as s, pytest.raises(ShardError, match=problem) as err:
+        s.radar.fingerprint
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
+def test_unlabelled_shard_has_no_radar(tmp_path):
+    p = tmp_path / "shard-00000.h5"
+    write_shard(p, _objects(), ["cube"], {"seed": 0}, "0.1.0")
+    with Shard(p) as s, pytest.raises(ShardError, match="no radar labels"):
+        s.radar
+    with pytest.raises(ShardError, match="no radar labels"):
+        label_fingerprint(tmp_path)
