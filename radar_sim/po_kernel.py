@@ -198,8 +198,8 @@ def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
 @njit(cache=True)
 def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, k, two_dk,
                  tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out):
-    """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights, series facets
-    added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
+    """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights (n_terms = 0: their
+    frequency sums added to ``out`` directly), special facets added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
     (face, direction) index pairs, their projected areas and their three positions r̂·r_i.
     ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none); ``area_split``
     holds the Veltkamp halves of ``area`` (hi parts, then lo parts); ``two_dk`` is 2Δk of a
@@ -286,6 +286,14 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
             st_val[n_st, 2] = s1
             st_val[n_st, 3] = s2
             n_st += 1
+        if n_terms == 0:                              # few vertices: direct sums
+            for i in range(n_v):
+                if w[i] != 0.0:
+                    _phasors(s[i], k, two_dk, scratch[0], scratch[1])
+                    for n in range(len(k)):
+                        wk = w[i] / k[n]
+                        row[n] += complex(wk * scratch[0, n], wk * scratch[1, n])
+            continue
         m_row = mom[d]
         two_over_h = 2.0 * inv_h
         for i in range(n_v):
