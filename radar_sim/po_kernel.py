@@ -199,8 +199,9 @@ def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
 def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, k, two_dk,
                  tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out):
     """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights (n_terms = 0: their
-    frequency sums added to ``out`` directly), special facets added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
-    (face, direction) index pairs, their projected areas and their three positions r̂·r_i.
+    frequency sums added to ``out`` directly), special facets added to ``out`` (n_dirs, n_k);
+    returns the facets left for the stable integral as (face, direction) index pairs, their
+    projected areas and their three positions r̂·r_i.
     ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none); ``area_split``
     holds the Veltkamp halves of ``area`` (hi parts, then lo parts); ``two_dk`` is 2Δk of a
     uniform frequency grid (0: not uniform)."""
