@@ -206,7 +206,7 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
         idx, val = po_kernel.first_bounce(
             geo.v, geo.f, geo.area, geo.area_lo, geo.area_split, r, blocked, geo.two_sided, k,
             plan.two_dk, tol, plan.phase_error, 1.0 / plan.h, plan.b_min, plan.terms,
-            2.0 * plan.k_mid, mom, part)
+            2.0 * plan.k_mid, mom, part, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS)
         if plan.terms:
             part += plan.contract(mom) / k
         if len(idx):
