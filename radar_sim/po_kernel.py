@@ -159,19 +159,19 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im, tab, par):
             terms = n + 1
             break
     _phasors(s1, k, two_dk, re, im, tab, par)
+    top_even = (terms - 1) // 2 * 2
+    top_odd = terms - 1 if terms % 2 == 0 else terms - 2
     for i in range(len(k)):
         kk = k[i]
-        pr = 0.0
-        pi = 0.0
-        for n in range(terms - 1, -1, -1):        # Horner in k: even n real, odd n imaginary
-            if n % 2:
-                pi = pi * kk + coef[n]
-                pr = pr * kk
-            else:
-                pr = pr * kk + coef[n]
-                pi = pi * kk
+        k2 = kk * kk
+        pr = 0.0                                   # even n: real, Horner in k²
+        for n in range(top_even, -1, -2):
+            pr = pr * k2 + coef[n]
+        pi = 0.0                                   # odd n: imaginary, k·(Horner in k²)
+        for n in range(top_odd, 0, -2):
+            pi = pi * k2 + coef[n]
         pr *= kk
-        pi *= kk
+        pi *= k2
         row[i] += complex(pr * re[i] - pi * im[i], pr * im[i] + pi * re[i])
 
 
