@@ -135,7 +135,7 @@ class _Moments:
         if spread > 0:
             h = min(h, 2.0 ** np.floor(np.log2(2.0 / spread)))
         best = None
-        for _ in range(8):                                   # x = 2, 1, 1/2, ... 1/128
+        for _ in range(8):                        # eight widths, halving from x <= 2
             x = spread * h
             terms, bound = 1, x
             while bound > MOMENT_EPS:

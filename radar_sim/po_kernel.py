@@ -3,7 +3,7 @@
 Per direction, every lit facet is classified (docs/RADAR.md, "Numerics") and either scattered
 as three frequency-independent k⁻¹ vertex weights onto the mesh's vertices, or, when its
 phases nearly coincide, evaluated at once on the frequency grid by an exact series (near-pair
-or near-specular, ``facet`` forms), or handed back for the stable per-frequency integral.
+or near-specular forms, below), or handed back for the stable per-frequency integral.
 
 The vertex weights' frequency sums Σ_v w_v e^{j2k_n s_v} are reduced to binned Taylor
 moments: with bins of width h (a power of two) centred at c_b = b·h, δ = s − c_b is exact,
@@ -11,7 +11,8 @@ and e^{j2k_n s} = e^{j2k_n c_b} · e^{j2k_mid δ} · Σ_m (jκ_n h)^m/m! · u^m 
 k_n − k_mid and u = 2δ/h in [−1, 1]. Per direction each lit vertex adds M moments
 Σ_v w_v e^{j2k_mid δ_v} u_v^m to its bin; ``field`` contracts the moments of all directions
 with the direction-independent matrix e^{j2k_n c_b}(jκ_n h)^m/m! in one matrix product. That
-is about M + 10 real multiply-adds per lit vertex and direction instead of 4 × n_k.
+is one phasor and M complex updates per lit vertex and direction instead of n_k complex
+multiply-adds.
 """
 
 from __future__ import annotations
