@@ -14,8 +14,9 @@ For each mesh, CPU seconds (time.process_time) of
     frequency sums + 10 per lit facet and direction for the weights) at this core's dgemm rate,
 and the new labels' largest difference from the old ones and from the stable per-frequency sum
 Σ facet.facet_field (checked against mpmath in tests/test_facet.py) on 16 directions, both
-relative to the label's peak |A|. Compile time: numba's first call in a fresh process with an
-empty cache (compile + cache write), and with that cache (load), as Dask workers see it.
+relative to the label's peak |A|. Compile time: CPU seconds of numba's first call in a fresh
+process with an empty cache (compile + cache write), and with that cache (load), as Dask
+workers see it.
 Writes benchmarks/results/radar_kernel.json and prints a table.
 """
 
@@ -26,21 +27,21 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
-import importlib  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
-import re  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import importlib
+import json
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-import radar_sim  # noqa: E402
-from radar_sim import facet, field, geometry  # noqa: E402
+import radar_sim
+from radar_sim import facet, field, geometry
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results"
@@ -70,7 +71,7 @@ def ellipsoid(segments: int, rings: int):
 def mesh_for(faces: int):
     """The UV ellipsoid with about ``faces`` faces: 2·s·(r − 1) faces for s segments, r rings."""
     square = faces > 100_000            # n x n (as the issue's 256 x 256), else 2n x n
-    n = int(round(np.sqrt(faces / 2.0))) if square else int(round(np.sqrt(faces) / 2.0))
+    n = round(np.sqrt(faces / 2.0)) if square else round(np.sqrt(faces) / 2.0)
     return ellipsoid(n, n) if square else ellipsoid(2 * n, n)
 
 
@@ -108,25 +109,27 @@ def lit_counts(mesh, dirs):
         lit = area @ dirs[lo:lo + 64].T > 0
         facets += int(lit.sum())
         for col in lit.T:
-            vertices += len(np.unique(mesh.faces[col]))
+            seen = np.zeros(len(mesh.vertices), dtype=bool)
+            seen[mesh.faces[col].ravel()] = True
+            vertices += int(seen.sum())
     return facets, vertices
 
 
 def compile_seconds() -> dict:
     """numba's first call (tiny mesh) in fresh processes: empty cache, then that cache."""
-    code = ("import time, numpy as np; t = time.perf_counter(); import radar_sim; "
-            "from radar_sim import monostatic_field as m; i = time.perf_counter(); "
-            "v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.]]); m(v, [[0, 1, 2]], [1e10], [0, 0, 1]); "
-            "print(i - t, time.perf_counter() - i)")
+    code = ("import time, numpy as np; t = time.process_time(); import radar_sim; "
+            "from radar_sim import monostatic_field as m; i = time.process_time(); "
+            "w = time.perf_counter(); v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.]]); "
+            "m(v, [[0, 1, 2]], [1e10], [0, 0, 1]); "
+            "print(i - t, time.process_time() - i, time.perf_counter() - w)")
     out = {}
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=str(ROOT))
-        for label in ("compile_s", "cached_s"):
+        for label in ("compile", "cached"):
             run = subprocess.run([sys.executable, "-c", code], env=env, check=True,
                                  capture_output=True, text=True)
-            imp, first = map(float, run.stdout.split())
-            out[label] = first
-            out["import_s"] = imp
+            imp, first, wall = map(float, run.stdout.split())
+            out.update({f"{label}_s": first, f"{label}_wall_s": wall, "import_s": imp})
     return out
 
 
@@ -155,11 +158,11 @@ def main(argv=None) -> int:
         for n_faces in args.faces:
             v, f = mesh_for(n_faces)
             mesh = geometry.prepare(v, f)
-            new, new_s, new_wall = cpu(lambda: field.mesh_field(mesh, k, dirs, "convex"))
-            _, sim_s, _ = cpu(lambda: radar_sim.simulate(v, f, config, mode="convex"))
+            new, new_s, new_wall = cpu(lambda m=mesh: field.mesh_field(m, k, dirs, "convex"))
+            _, sim_s, _ = cpu(lambda v=v, f=f: radar_sim.simulate(v, f, config, mode="convex"))
             lit_f, lit_v = lit_counts(mesh, dirs)
             bound_s = (4.0 * len(k) * lit_v + 10.0 * lit_f) / rate
-            row = {"faces": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
+            row = {"faces": len(mesh.faces), "vertices": len(mesh.vertices),
                    "new_s": new_s, "new_wall_s": new_wall, "simulate_s": sim_s,
                    "lit_facet_directions": lit_f, "lit_vertex_directions": lit_v,
                    "bound_s": bound_s, "new_over_bound": new_s / bound_s}
@@ -170,8 +173,8 @@ def main(argv=None) -> int:
                 row["new_vs_stable_rel_peak"] = float(np.abs(new[pick] - ref).max() / peak)
             if len(mesh.faces) <= args.old_max_faces:
                 old_mesh = old_geometry.prepare(v, f)
-                was, old_s, old_wall = cpu(lambda: old_field.mesh_field(old_mesh, k, dirs,
-                                                                       "convex"))
+                was, old_s, old_wall = cpu(lambda m=old_mesh: old_field.mesh_field(m, k, dirs,
+                                                                                  "convex"))
                 row.update(old_s=old_s, old_wall_s=old_wall, speedup=old_s / new_s,
                            new_vs_old_rel_peak=float(np.abs(new - was).max() / peak),
                            complex64_equal_fraction=float(np.mean(
@@ -189,8 +192,9 @@ def main(argv=None) -> int:
     (RESULTS / "radar_kernel.json").write_text(json.dumps(result, indent=2) + "\n")
     print(f"\nfirst-bounce PO kernel, {len(dirs)} directions x {len(k)} frequencies, one core; "
           f"CPU s (old: radar_sim@{OLD_COMMIT})")
-    print(f"numba first call: compile {compiled['compile_s']:.2f} s, from cache "
-          f"{compiled['cached_s']:.2f} s (import radar_sim {compiled['import_s']:.2f} s)")
+    print(f"numba first call (CPU s): compile {compiled['compile_s']:.2f} s (wall "
+          f"{compiled['compile_wall_s']:.1f}), from cache {compiled['cached_s']:.2f} s "
+          f"(import radar_sim {compiled['import_s']:.2f} s)")
     head = (f"{'faces':>8} {'old s':>8} {'new s':>7} {'old/new':>7} {'simulate':>8} "
             f"{'bound s':>7} {'new/bnd':>7} {'new-old':>8} {'new-ref':>8} {'old-ref':>8}")
     print(head)

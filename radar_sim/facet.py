@@ -18,9 +18,8 @@ loses digits when two phases nearly coincide; this module provides
   three phases lie within 0.5 rad), with double-double phases and areas: relative error about
   1e-15 against the exact integral of the given floats in every hard case (absolute, about
   eps/D, at the integral's own zeros);
-* double-double area vectors (``area_vectors_split``) for projected areas at grazing incidence,
-  and the constants of the frequency-independent forms evaluated by ``po_kernel``: exact
-  series for nearly coincident pairs and nearly specular facets (polynomials in k).
+* double-double area vectors (``area_vectors_split``) for projected areas at grazing
+  incidence, and the e^{jx} table shared with the compiled fast path (``po_kernel``).
 """
 
 from __future__ import annotations
@@ -36,7 +35,7 @@ SERIES_TERMS = 16        # h_n terms for spreads <= 0.5 rad (last term < 1e-17)
 # e^{jx}, fast and accurate: table of e^{j 2π i/N} times a short polynomial of the remainder.
 # numpy's float64 sin/cos are scalar libm calls (~15-20 ns each); this is a few vector ops.
 _TABLE_BITS = 12
-_N = CIS_TABLE_SIZE = 1 << _TABLE_BITS
+_N = 1 << _TABLE_BITS
 _TWO_PI_HI, _TWO_PI_LO = 6.283185307179586, 2.4492935982947064e-16   # 2π as a double-double
 _H_HI = float(np.round(_TWO_PI_HI / _N * 2.0 ** 29) / 2.0 ** 29)      # 20 significant bits
 _H_LO = ((_TWO_PI_HI - _N * _H_HI) + _TWO_PI_LO) / _N
@@ -278,18 +277,3 @@ def facet_field(triangles: np.ndarray, direction: np.ndarray, k: np.ndarray,
     dd = exp_divided_difference(x_hi[:, 0], x_hi[:, 1], x_hi[:, 2],
                                 lo=np.moveaxis(x_lo, 1, 0))
     return (2.0 / SQRT_PI) * lit[:, None] * k[None, :] * dd
-
-
-# ---------------------------------------------------------------------------------------------
-# Constants of the frequency-independent forms of the fast path (``po_kernel``), where a lit
-# facet's field is Σ_v e^{j2k s_v}·(polynomial in k on the vertex). Near pair (two phases within
-# g, the third at e from their middle), with D = 2P/(√π(4e² − g²)) and T(y) = tan(y)/y:
-#     A_f = D·{ (e^{j2ks_a} + e^{j2ks_b})/2 · (1/k − j2e T(kg)) − e^{j2ks_c}/k },
-# T truncated after y¹⁴; near specular: e^{j2ks_mid} Σ_n (2/√π) P (2jk)^n h_n/(n+2)! · k.
-
-# tan(y)/y = Σ_m TAN_SERIES[m] y^{2m}; the first omitted coefficient is TAN_NEXT
-TAN_SERIES = (1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835, 1382 / 155925, 21844 / 6081075,
-              929569 / 638512875)
-TAN_NEXT = 6404582 / 10854718875
-SERIES_N = 16                        # h_0 … h_15: powers k¹ … k¹⁶
-SERIES_NEXT = 17.0 / 6402373705728000.0   # (n+1)/(n+2)! of the first omitted term, n = 16

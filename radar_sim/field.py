@@ -29,6 +29,7 @@ MODES = ("auto", "convex", "shadowed", "bounce2")
 DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular magnitude P k/√π
 GROUP = 64              # directions per kernel call (same in every mode: same bytes)
 VERTEX_TERM_COST = 8.0        # one moment update per vertex / one multiply-add of the contraction
+DIRECT_COST = 30.0            # one direct phasor and multiply-add / one of the contraction
 MOMENT_EPS = facet.EPS / 16    # Taylor remainder of a vertex phasor in the binned sums
 MOMENT_BUDGET = 64 << 20       # bytes of moments (or contraction matrix) held at a time
 
@@ -106,7 +107,7 @@ class _Geometry:
 
     def __init__(self, mesh: Mesh):
         self.v = np.ascontiguousarray(mesh.vertices)
-        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int32)     # half the traffic
         self.area, self.area_lo = facet.area_vectors_split(self.v[self.f])
         self.area_split = np.concatenate(facet.split(self.area), axis=1)    # (F, 6)
         self.two_sided = not mesh.closed
@@ -120,9 +121,10 @@ class _Moments:
     Bin width h, a power of two with x = κ_max·h <= 2 (κ = k − k_mid), and M terms, the
     fewest with x^M/M! <= eps/16: the h that minimizes the estimated work per direction,
     M updates per lit vertex (cost VERTEX_TERM_COST each) + n_bins·M·n_k multiply-adds of
-    the contraction. Bins cover |r̂·r| <= R. ``phase_error`` bounds the absolute phase error
-    of a vertex phasor so represented: (9 + 1.5x)·e^x ulps of rounding (docs/RADAR.md), twice
-    over, and at least that of the special facets' phasors (16 eps)."""
+    the contraction; or no moments (terms = 0) where direct sums, DIRECT_COST per vertex and
+    frequency, cost less (a few vertices). Bins cover |r̂·r| <= R. ``phase_error`` bounds the
+    absolute phase error of a vertex phasor so represented: (9 + 1.5x)·e^x ulps of rounding
+    (docs/RADAR.md), twice over, and at least that of the direct phasors (16 eps)."""
 
     def __init__(self, k: np.ndarray, radius: float, n_vertices: int):
         self.k = k
@@ -133,7 +135,7 @@ class _Moments:
         if spread > 0:
             h = min(h, 2.0 ** np.floor(np.log2(2.0 / spread)))
         best = None
-        for _ in range(8):                                   # x = 2, 1, 1/2, ... 1/128
+        for _ in range(8):                        # eight widths, halving from x <= 2
             x = spread * h
             terms, bound = 1, x
             while bound > MOMENT_EPS:
@@ -145,6 +147,8 @@ class _Moments:
                 best = (cost, h, x, terms, n_bins)
             h *= 0.5
         _, self.h, x, self.terms, self.n_bins = best
+        if DIRECT_COST * 0.5 * n_vertices * len(k) < best[0]:     # a handful of vertices
+            self.terms, x = 0, 0.0
         self.b_min = -(self.n_bins // 2)
         self.width = self.n_bins * self.terms
         self.phase_error = max(16.0, 2.0 * ((9.0 + 1.5 * x) * np.exp(x) + 1.0)) * facet.EPS
@@ -154,8 +158,9 @@ class _Moments:
         for m in range(1, self.terms):
             taylor.append(taylor[-1] * step / m)
         self.taylor = np.array(taylor)                                       # (M, n_k)
-        self.chunk = max(1, MOMENT_BUDGET // (self.terms * len(k) * 16))   # bins per block
-        self._matrix = self._block(0, self.n_bins) if self.n_bins <= self.chunk else None
+        self.chunk = max(1, MOMENT_BUDGET // (max(self.terms, 1) * len(k) * 16))  # bins/block
+        small = self.terms and self.n_bins <= self.chunk
+        self._matrix = self._block(0, self.n_bins) if small else None
 
     def _block(self, lo: int, hi: int) -> np.ndarray:
         """Rows (b, m) of e^{j2k_n c_b}(jκ_n h)^m/m! for bins lo <= b - b_min < hi."""
@@ -190,7 +195,7 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
     shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too."""
     geo = _Geometry(mesh)
     plan = _Moments(k, mesh.radius, len(mesh.vertices))
-    group = max(1, min(GROUP, MOMENT_BUDGET // (16 * plan.width)))
+    group = max(1, min(GROUP, MOMENT_BUDGET // (16 * max(plan.width, 1))))
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
     no_shadow = np.zeros((0, 0), dtype=np.uint8)
     for lo in range(0, len(dirs), group):
@@ -200,8 +205,10 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
         part = out[lo:lo + group]
         idx, val = po_kernel.first_bounce(
             geo.v, geo.f, geo.area, geo.area_lo, geo.area_split, r, blocked, geo.two_sided, k,
-            plan.two_dk, tol, plan.phase_error, 1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid, mom, part)
-        part += plan.contract(mom) / k
+            plan.two_dk, tol, plan.phase_error, 1.0 / plan.h, plan.b_min, plan.terms,
+            2.0 * plan.k_mid, mom, part, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS)
+        if plan.terms:
+            part += plan.contract(mom) / k
         if len(idx):
             x = 2.0 * val[:, 1:, None] * k
             dd = facet.exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])

@@ -3,7 +3,7 @@
 Per direction, every lit facet is classified (docs/RADAR.md, "Numerics") and either scattered
 as three frequency-independent k⁻¹ vertex weights onto the mesh's vertices, or, when its
 phases nearly coincide, evaluated at once on the frequency grid by an exact series (near-pair
-or near-specular, ``facet`` forms), or handed back for the stable per-frequency integral.
+or near-specular forms, below), or handed back for the stable per-frequency integral.
 
 The vertex weights' frequency sums Σ_v w_v e^{j2k_n s_v} are reduced to binned Taylor
 moments: with bins of width h (a power of two) centred at c_b = b·h, δ = s − c_b is exact,
@@ -11,7 +11,8 @@ and e^{j2k_n s} = e^{j2k_n c_b} · e^{j2k_mid δ} · Σ_m (jκ_n h)^m/m! · u^m 
 k_n − k_mid and u = 2δ/h in [−1, 1]. Per direction each lit vertex adds M moments
 Σ_v w_v e^{j2k_mid δ_v} u_v^m to its bin; ``field`` contracts the moments of all directions
 with the direction-independent matrix e^{j2k_n c_b}(jκ_n h)^m/m! in one matrix product. That
-is about M + 10 real multiply-adds per lit vertex and direction instead of 4 × n_k.
+is one phasor and M complex updates per lit vertex and direction instead of n_k complex
+multiply-adds.
 """
 
 from __future__ import annotations
@@ -23,18 +24,23 @@ from numba import njit
 
 from radar_sim import facet
 
-_TAB_RE = np.ascontiguousarray(facet.CIS_TABLE.real)
-_TAB_IM = np.ascontiguousarray(facet.CIS_TABLE.imag)
-_MASK = facet.CIS_TABLE_SIZE - 1
-_INV_H = facet.CIS_INV_STEP
-_H_HI = facet.CIS_STEP_HI
-_H_LO = facet.CIS_STEP_LO
-_LIMIT = facet.CIS_LIMIT
-_TWO_OVER_SQRT_PI = 2.0 / facet.SQRT_PI
-_TAN = np.array(facet.TAN_SERIES)
-_TAN_NEXT = facet.TAN_NEXT
-_SERIES_N = facet.SERIES_N
-_SERIES_NEXT = facet.SERIES_NEXT
+# numba's cache is keyed on this file alone, so what comes from ``facet`` (the e^{jx} table and
+# its reduction constants) is passed in as arguments (CIS_TABLE, CIS_PARAMS), never frozen.
+CIS_TABLE = np.stack([facet.CIS_TABLE.real, facet.CIS_TABLE.imag])
+CIS_PARAMS = np.array([facet.CIS_INV_STEP, facet.CIS_STEP_HI, facet.CIS_STEP_LO, facet.CIS_LIMIT])
+
+# The special forms: a lit facet's field as Σ_v e^{j2k s_v}·(polynomial in k on the vertex).
+# Near pair (two phases within g, the third at e from their middle), D = 2P/(√π(4e² − g²)),
+# T(y) = tan(y)/y:  A_f = D·{ (e^{j2ks_a} + e^{j2ks_b})/2 · (1/k − j2e T(kg)) − e^{j2ks_c}/k },
+# T truncated after y¹⁴; near specular: e^{j2ks_mid} Σ_n (2/√π) P (2jk)^n h_n/(n+2)! · k.
+_TWO_OVER_SQRT_PI = 2.0 / np.sqrt(np.pi)
+_SQRT_PI = np.sqrt(np.pi)
+# tan(y)/y = Σ_m _TAN[m] y^{2m}; the first omitted coefficient is _TAN_NEXT
+_TAN = np.array([1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835, 1382 / 155925, 21844 / 6081075,
+                 929569 / 638512875])
+_TAN_NEXT = 6404582 / 10854718875
+_SERIES_N = 16                        # h_0 … h_15: powers k¹ … k¹⁶
+_SERIES_NEXT = 17.0 / 6402373705728000.0   # (n+1)/(n+2)! of the first omitted term, n = 16
 
 
 @njit(cache=True)
@@ -60,28 +66,28 @@ def _two_sum(a, b):
 
 
 @njit(cache=True)
-def _cis(x, x_lo):
+def _cis(x, x_lo, tab, par):
     """(cos, sin) of x + x_lo: ``facet.cis`` (table and short polynomial), libm beyond."""
-    if abs(x) > _LIMIT:
+    if abs(x) > par[3]:
         c, s = math.cos(x), math.sin(x)
         return c - s * x_lo, s + c * x_lo
-    m = math.floor(x * _INV_H + 0.5)
-    r = x - m * _H_HI
-    r -= m * _H_LO
+    m = math.floor(x * par[0] + 0.5)
+    r = x - m * par[1]
+    r -= m * par[2]
     r += x_lo
     r2 = r * r
     cm1 = r2 * (-0.5 + r2 * (1.0 / 24.0))
     sn = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0)))
-    i = int(m) & _MASK
-    tr = _TAB_RE[i]
-    ti = _TAB_IM[i]
+    i = int(m) & (tab.shape[1] - 1)
+    tr = tab[0, i]
+    ti = tab[1, i]
     return tr + (tr * cm1 - ti * sn), ti + (tr * sn + ti * cm1)
 
 
 @njit(cache=True)
-def _cis_of_product(s, two_k):
+def _cis_of_product(s, two_k, tab, par):
     hi, lo = _two_product(s, two_k)
-    return _cis(hi, lo)
+    return _cis(hi, lo, tab, par)
 
 
 @njit(cache=True)
@@ -106,15 +112,15 @@ def _projected(area, area_lo, area_split, f, r0, r1, r2, r_split):
 
 
 @njit(cache=True)
-def _phasors(s, k, two_dk, re, im):
+def _phasors(s, k, two_dk, re, im, tab, par):
     """e^{j2k_n s} into (re, im): accurate (two-product and table, 2 eps) at every 4th
     frequency and multiplied on by e^{j2Δk s} in between on a uniform grid (two_dk > 0):
     at most 3 steps of 4 eps each, so within 16 eps (``field._Moments.phase_error``)."""
     if two_dk > 0.0:
-        sr, si = _cis_of_product(s, two_dk)
+        sr, si = _cis_of_product(s, two_dk, tab, par)
     for n in range(len(k)):
         if two_dk <= 0.0 or n % 4 == 0:
-            c, sn = _cis_of_product(s, 2.0 * k[n])
+            c, sn = _cis_of_product(s, 2.0 * k[n], tab, par)
         else:
             c, sn = c * sr - sn * si, c * si + sn * sr
         re[n] = c
@@ -122,7 +128,7 @@ def _phasors(s, k, two_dk, re, im):
 
 
 @njit(cache=True)
-def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im):
+def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im, tab, par):
     """Near-specular facet: e^{j2k s_mid} Σ_n (2/√π) P (2jk)^n h_n(σ_lo, σ_hi)/(n+2)! · k,
     truncated where (2k_max d)^N (N+1)/(N+2)! <= tol/2 (at most 16 terms)."""
     if s0 > s1:
@@ -153,25 +159,25 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im):
         if bound <= 0.5 * tol:
             terms = n + 1
             break
-    _phasors(s1, k, two_dk, re, im)
+    _phasors(s1, k, two_dk, re, im, tab, par)
+    top_even = (terms - 1) // 2 * 2
+    top_odd = terms - 1 if terms % 2 == 0 else terms - 2
     for i in range(len(k)):
         kk = k[i]
-        pr = 0.0
-        pi = 0.0
-        for n in range(terms - 1, -1, -1):        # Horner in k: even n real, odd n imaginary
-            if n % 2:
-                pi = pi * kk + coef[n]
-                pr = pr * kk
-            else:
-                pr = pr * kk + coef[n]
-                pi = pi * kk
+        k2 = kk * kk
+        pr = 0.0                                   # even n: real, Horner in k²
+        for n in range(top_even, -1, -2):
+            pr = pr * k2 + coef[n]
+        pi = 0.0                                   # odd n: imaginary, k·(Horner in k²)
+        for n in range(top_odd, 0, -2):
+            pi = pi * k2 + coef[n]
         pr *= kk
-        pi *= kk
+        pi *= k2
         row[i] += complex(pr * re[i] - pi * im[i], pr * im[i] + pi * re[i])
 
 
 @njit(cache=True)
-def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
+def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2, tab, par):
     """The k⁰⁺ part of a near pair: −j e D T(kg) (e^{j2ks_i} + e^{j2ks_j}), T = tan(y)/y
     truncated where TAN_m (k_max g)^{2m}/(k_min e) <= tol/2 (at most 8 terms)."""
     n_tan = len(_TAN)
@@ -183,8 +189,8 @@ def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
         if _TAN[m] * bound <= 0.5 * tol:
             terms = m
             break
-    _phasors(si, k, two_dk, re, im)
-    _phasors(sj, k, two_dk, re2, im2)
+    _phasors(si, k, two_dk, re, im, tab, par)
+    _phasors(sj, k, two_dk, re2, im2, tab, par)
     for i in range(len(k)):
         kk = k[i]
         y2 = (kk * g) * (kk * g)
@@ -197,13 +203,14 @@ def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
 
 @njit(cache=True)
 def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, k, two_dk,
-                 tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out):
-    """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights, series facets
-    added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
-    (face, direction) index pairs, their projected areas and their three positions r̂·r_i.
+                 tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out, tab, par):
+    """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights (n_terms = 0: their
+    frequency sums added to ``out`` directly), special facets added to ``out`` (n_dirs, n_k);
+    returns the facets left for the stable integral as (face, direction) index pairs, their
+    projected areas and their three positions r̂·r_i.
     ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none); ``area_split``
     holds the Veltkamp halves of ``area`` (hi parts, then lo parts); ``two_dk`` is 2Δk of a
-    uniform frequency grid (0: not uniform)."""
+    uniform frequency grid (0: not uniform); ``tab``, ``par``: CIS_TABLE, CIS_PARAMS."""
     n_v = len(v)
     n_f = len(faces)
     k_lo = k.min()
@@ -242,13 +249,14 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
             aa, bb, cc = abs(a), abs(b), abs(c)
             d_max = max(aa, bb, cc)
             if abc != 0.0 and d_max * phase_error <= tol * k_lo2 * abs(abc):
-                q = p / ((2.0 * facet.SQRT_PI) * abc)
+                q = p / ((2.0 * _SQRT_PI) * abc)
                 w[i0] += q * b
                 w[i1] += q * c
                 w[i2] += q * a
                 continue
             if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
-                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1])
+                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1], tab,
+                            par)
                 continue
             d_min = min(aa, bb, cc)
             ke = k_lo * d_max
@@ -270,7 +278,7 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
                 w[pj] += 0.5 * dd
                 w[pm] -= dd
                 _add_pair_tan(row, k, two_dk, tol, dd, e, g, si, sj, scratch[0], scratch[1],
-                              scratch[2], scratch[3])
+                              scratch[2], scratch[3], tab, par)
                 continue
             if n_st == cap:
                 cap *= 2
@@ -286,6 +294,14 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
             st_val[n_st, 2] = s1
             st_val[n_st, 3] = s2
             n_st += 1
+        if n_terms == 0:                              # few vertices: direct sums
+            for i in range(n_v):
+                if w[i] != 0.0:
+                    _phasors(s[i], k, two_dk, scratch[0], scratch[1], tab, par)
+                    for n in range(len(k)):
+                        wk = w[i] / k[n]
+                        row[n] += complex(wk * scratch[0, n], wk * scratch[1, n])
+            continue
         m_row = mom[d]
         two_over_h = 2.0 * inv_h
         for i in range(n_v):
@@ -295,7 +311,7 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
             bf = math.floor(s[i] * inv_h + 0.5)
             delta = s[i] - bf * h                     # exact: h is a power of two
             u = delta * two_over_h
-            c, sn = _cis_of_product(delta, two_k_mid)
+            c, sn = _cis_of_product(delta, two_k_mid, tab, par)
             wr = wi * c
             wim = wi * sn
             base = (int(bf) - b_min) * n_terms
