@@ -36,6 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="objects per class (default: %(default)s, the paper's scale)")
     g.add_argument("--variants", type=int, default=GenerateConfig.variants,
                    help="complex variants per object, besides the simple mesh (default: %(default)s)")
+    g.add_argument("--ood-variants", type=int, default=GenerateConfig.ood_variants_per_remesher,
+                   help="out-of-distribution meshes per remesher per test object, variants 900-999 "
+                        "(default: %(default)s; 0 = none)")
     g.add_argument("--seed", type=int, default=0, help="dataset seed (default: %(default)s)")
     g.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: one per core; 0 = no Dask, in-process)")
@@ -72,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
 
             cfg = GenerateConfig(classes=args.classes, objects_per_class=args.objects_per_class,
                                  variants=args.variants, seed=args.seed,
+                                 ood_variants_per_remesher=args.ood_variants,
                                  objects_per_shard=args.objects_per_shard,
                                  scale_range=tuple(args.scale_range),
                                  min_scale_distance=args.min_scale_distance)

@@ -20,6 +20,7 @@ filters used here draw no random numbers (repeatability across processes is test
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 
 import numpy as np
 
@@ -47,6 +48,10 @@ ON_PLANE = 1e-6
 
 DELAUNAY_CLASSES = ("cube", "cylinder", "sphere", "cone")
 
+TRIES: dict[tuple[str, str], int] = defaultdict(int)
+"""Tries per (remesher, outcome) in this process: "accepted" or the rejection reason
+(read by benchmarks/ood_remeshers.py)."""
+
 
 def supports(remesher: str, class_name: str) -> bool:
     """Whether ``remesher`` can represent ``class_name`` (delaunay needs a convex solid)."""
@@ -67,11 +72,13 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
     reference = verify.Reference(simple_vertices, simple_faces)
     seen = set(seen or ()) | {verify.topology_key(simple_faces, len(simple_vertices))}
     tol = verify.tolerance(class_name, {})
-    dense = None
+    source = {"isotropic": (simple_vertices, simple_faces)}
     out = []
     for name in OOD_REMESHERS:
         if not supports(name, class_name):
             continue
+        if name == "qem" and per_remesher:
+            source["qem"] = _dense(class_name, scale, simple_vertices, simple_faces)
         for k in range(per_remesher):
             variant = ood_variant(name, k)
             rejected = {}
@@ -79,18 +86,9 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                 rng = np.random.default_rng([seed, variant, attempt])
                 lo, hi = FACE_RANGE[class_name]
                 params = {"remesher": name, "attempt": attempt, "tolerance": tol,
-                          "target_faces": int(round(math.exp(rng.uniform(math.log(lo),
-                                                                         math.log(hi)))))}
-                if name == "isotropic":
-                    v, f = _isotropic(class_name, scale, simple_vertices, simple_faces, params, rng)
-                elif name == "qem":
-                    if dense is None:
-                        dense = _dense(class_name, scale, simple_vertices, simple_faces)
-                    v, f = _qem(class_name, scale, dense, params, rng)
-                else:
-                    v, f = _delaunay(class_name, scale, params, rng)
-                v = v.astype(np.float32)
-                f = f.astype(np.int32)
+                          "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi))))}
+                v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng)
+                v, f = v.astype(np.float32), f.astype(np.int32)
                 key = verify.topology_key(f, len(v))
                 reason = "duplicate topology" if key in seen else verify.defect(v, f, spec.euler)
                 if reason is None and len(f) > FACE_RANGE[class_name][1]:
@@ -99,10 +97,12 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                     distance = reference.distance(v, f)
                     if distance <= tol:
                         seen.add(key)
+                        TRIES[name, "accepted"] += 1
                         out.append(MeshRecord(variant, v, f, distance, params))
                         break
                     reason = "Hausdorff above tolerance"
                 rejected[reason] = rejected.get(reason, 0) + 1
+                TRIES[name, reason.split(" (")[0]] += 1
             else:
                 raise RuntimeError(f"{class_name} seed {seed}: {name} mesh {k} failed "
                                    f"{MAX_ATTEMPTS} attempts ({rejected})")
@@ -184,30 +184,33 @@ def _edge_for(area: float, n_faces: float) -> float:
     return math.sqrt(4 * area / (math.sqrt(3) * n_faces))
 
 
-def _remesh(class_name, scale, vertices, faces, edge, iterations, adaptive):
+def _remesh(class_name, scale, vertices, faces, edge, iterations, flips):
+    """MeshLab's isotropic remeshing, then projection onto the primitive. Its curvature-adaptive
+    mode is not used: its result depends on what MeshLab ran before in the process."""
     pm, ms = _meshlab(vertices, faces)
     ms.meshing_isotropic_explicit_remeshing(
-        iterations=iterations, adaptive=adaptive, targetlen=pm.PureValue(edge),
-        featuredeg=FEATURE_DEG, reprojectflag=True)
+        iterations=iterations, adaptive=False, targetlen=pm.PureValue(edge),
+        featuredeg=FEATURE_DEG, swapflag=flips, reprojectflag=True)
     v, f = _result(ms)
     return project(class_name, scale, v, f), f
 
 
-def _isotropic(class_name, scale, vertices, faces, params, rng):
+def _isotropic(class_name, scale, source, params, rng):
     """Isotropic explicit remeshing (split, collapse, flip, tangential smoothing, reprojection
     onto the simple mesh), then projection onto the primitive."""
+    vertices, faces = source
     params["edge_length"] = round(_edge_for(_area(vertices, faces), params["target_faces"]), 6)
     params["iterations"] = int(rng.integers(3, 11))
-    params["adaptive"] = bool(rng.integers(2))
+    params["edge_flips"] = bool(rng.uniform() < 0.75)
     params["feature_deg"] = FEATURE_DEG
     return _remesh(class_name, scale, vertices, faces, params["edge_length"],
-                   params["iterations"], params["adaptive"])
+                   params["iterations"], params["edge_flips"])
 
 
 def _dense(class_name, scale, vertices, faces):
     """The dense isotropic remesh ``qem`` decimates (one per object)."""
     return _remesh(class_name, scale, vertices, faces,
-                   _edge_for(_area(vertices, faces), DENSE_FACES), 6, False)
+                   _edge_for(_area(vertices, faces), DENSE_FACES), 6, True)
 
 
 def _qem(class_name, scale, dense, params, rng):
@@ -217,7 +220,7 @@ def _qem(class_name, scale, dense, params, rng):
     params["quality_threshold"] = round(float(rng.uniform(0.1, 0.5)), 4)
     params["optimal_placement"] = bool(rng.integers(2))
     params["planar_quadric"] = bool(rng.integers(2))
-    pm, ms = _meshlab(*dense)
+    _, ms = _meshlab(*dense)
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=params["target_faces"], qualitythr=params["quality_threshold"],
         preservenormal=True, preservetopology=True, preserveboundary=True,
@@ -240,7 +243,7 @@ BULGE = 0.125
 spacing, so that collinear edge points become hull vertices of the face (no zero-area ears)."""
 
 
-def _delaunay(class_name, scale, params, rng):
+def _delaunay(class_name, scale, _source, params, rng):
     """Random points on the surface (features first, then thinned to a minimum spacing), their
     convex hull for the curved part, and a 2D Delaunay triangulation of each flat face."""
     from scipy.spatial import ConvexHull, Delaunay
@@ -321,7 +324,7 @@ def _candidates(class_name: str, n: int, spacing: float, rng) -> np.ndarray:
         t = np.sqrt(rng.uniform(0, 1, m))  # distance from the apex: area-uniform on the side
         side = np.column_stack([t * np.cos(th), t * np.sin(th), 1 - 2 * t])
         side_area, cap_area = np.pi * math.sqrt(5), np.pi
-    n_cap = int(round(m * cap_area / side_area))
+    n_cap = round(m * cap_area / side_area)
     caps = []
     for z in rims:
         rho = inset * np.sqrt(rng.uniform(0, 1, n_cap))
@@ -344,3 +347,7 @@ def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
         if keep[i]:
             keep[pairs[starts[i]:starts[i + 1], 1]] = False
     return points[keep]
+
+
+REMESHERS = {"isotropic": _isotropic, "qem": _qem, "delaunay": _delaunay}
+"""name -> f(class_name, scale, source mesh, params (filled in), rng) -> (vertices, faces)."""
