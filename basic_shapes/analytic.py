@@ -1,0 +1,493 @@
+"""The object itself: the smooth primitive, its surface distance, samples and simulation mesh.
+
+An object is an analytic solid (box, elliptic cylinder, ellipsoid, elliptic cone, torus) that
+coincides with Blender's default primitive scaled per axis, so that its bounding-box extents
+equal ``scale``. Every stored mesh is a *representation* of it (verify.py measures how far);
+its radar label is the physics of the smooth surface, computed on a *simulation mesh* that is
+refined until the label has converged (docs/RADAR.md, "Object labels: simulation meshes").
+
+numpy only: radar_sim imports this module to label objects.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+C0 = 299_792_458.0
+
+KINDS = ("cube", "cylinder", "sphere", "cone", "torus")
+
+TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
+"""Blender's default torus (radii in the default mesh, before scaling)."""
+
+_UNIT_EXTENTS = {"cube": (2.0, 2.0, 2.0), "cylinder": (2.0, 2.0, 2.0), "sphere": (2.0, 2.0, 2.0),
+                 "cone": (2.0, 2.0, 2.0), "torus": (2.5, 2.5, 0.5)}
+
+SIMULATION_RULE = {
+    "name": "edge-grating-v1",
+    "version": 1,
+    # Facet edges along a curved direction form a grating; its first lobe appears once the
+    # spacing exceeds half a wavelength, so edges are kept at most this fraction of lambda/2
+    # at the top frequency (docs/RADAR.md, "Object labels: simulation meshes").
+    "edge_half_wavelengths": 0.8,
+    # ...but where the surface is nearly flat the kinks are too weak to matter: an edge may be
+    # as long as a chord of this sagitta (in top-frequency wavelengths), whichever is longer.
+    "sagitta_wavelengths": 1e-3,
+    # and never turn by more than this angle (radians) between neighbouring facets.
+    "max_turn_rad": 0.2,
+}
+
+
+@dataclass(frozen=True)
+class Solid:
+    """An object: the primitive ``kind`` with bounding-box extents ``scale`` (metres).
+
+    ``params`` holds hidden shape parameters (none for Basic Shapes).
+    """
+
+    kind: str
+    scale: tuple[float, float, float]
+    params: dict = field(default_factory=dict)
+
+    @property
+    def half(self) -> np.ndarray:
+        return np.asarray(self.scale, np.float64) / 2.0
+
+    @property
+    def diagonal(self) -> float:
+        return float(np.linalg.norm(self.scale))
+
+
+def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
+    """The Solid of a generated object (ValueError naming the problem for bad input)."""
+    if class_name not in KINDS:
+        raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(KINDS)}")
+    s = np.asarray(scale, np.float64)
+    if s.shape != (3,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
+        raise ValueError(f"{class_name}: scale must be three positive finite extents, got {scale!r}")
+    params = dict(params or {})
+    if params:
+        raise ValueError(f"{class_name}: unknown shape parameter(s) {sorted(params)}")
+    return Solid(class_name, tuple(float(x) for x in s), params)
+
+
+# ---------------------------------------------------------------------------------------
+# closest points: Newton on the Lagrange system of an implicit surface, started from the
+# nearest of a coarse set of surface samples
+
+
+def _ellipsoid_implicit(axes):
+    axes = np.asarray(axes, np.float64)
+    inv = 1.0 / axes ** 2
+
+    def f(x):
+        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(
+            np.diag(2.0 * inv), (len(x), len(axes), len(axes)))
+    return f
+
+
+def _cone_implicit(a, b, c):
+    """The double cone through the apex (0, 0, c) and the base ellipse (a, b) at z = -c."""
+    def f(x):
+        w = (c - x[:, 2]) / (2.0 * c)
+        value = (x[:, 0] / a) ** 2 + (x[:, 1] / b) ** 2 - w ** 2
+        grad = np.column_stack([2 * x[:, 0] / a ** 2, 2 * x[:, 1] / b ** 2, w / c])
+        hess = np.broadcast_to(np.diag([2 / a ** 2, 2 / b ** 2, -1 / (2 * c * c)]),
+                               (len(x), 3, 3))
+        return value, grad, hess
+    return f
+
+
+def _torus_implicit(s):
+    """(rho - R)^2 + q_z^2 - r^2 in the default torus' coordinates q = x / s."""
+    s = np.asarray(s, np.float64)
+
+    def f(x):
+        q = x / s
+        rho = np.sqrt(q[:, 0] ** 2 + q[:, 1] ** 2)
+        e = rho - TORUS_MAJOR
+        value = e ** 2 + q[:, 2] ** 2 - TORUS_MINOR ** 2
+        cx, cy = q[:, 0] / rho, q[:, 1] / rho
+        gq = np.column_stack([2 * e * cx, 2 * e * cy, 2 * q[:, 2]])
+        hq = np.zeros((len(x), 3, 3))
+        hq[:, 0, 0] = 2 * (cx * cx + e * cy * cy / rho)
+        hq[:, 1, 1] = 2 * (cy * cy + e * cx * cx / rho)
+        hq[:, 0, 1] = hq[:, 1, 0] = 2 * cx * cy * (1 - e / rho)
+        hq[:, 2, 2] = 2.0
+        return value, gq / s, hq / (s[:, None] * s[None, :])
+    return f
+
+
+def _nearest(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Index of the nearest sample to each point (brute force in chunks)."""
+    out = np.empty(len(points), np.int64)
+    s2 = (samples ** 2).sum(axis=1)
+    step = max(1, 2 ** 22 // max(1, len(samples)))
+    for i in range(0, len(points), step):
+        p = points[i:i + step]
+        out[i:i + step] = np.argmin(s2[None, :] - 2.0 * p @ samples.T, axis=1)
+    return out
+
+
+NEWTON_STEPS = 60
+
+
+def _closest_on_implicit(points, starts, implicit):
+    """Critical points of |x - p| on {F = 0} near ``starts`` and whether Newton converged."""
+    p = np.asarray(points, np.float64)
+    x = np.array(starts, np.float64)
+    n, d = x.shape
+    value, grad, _ = implicit(x)
+    lam = ((p - x) * grad).sum(axis=1) / (grad ** 2).sum(axis=1)
+    scale = np.abs(p).max() + np.abs(x).max() + 1e-300
+    active = np.ones(n, bool)
+    for _ in range(NEWTON_STEPS):
+        idx = np.flatnonzero(active)
+        if not len(idx):
+            break
+        xi, li = x[idx], lam[idx]
+        value, grad, hess = implicit(xi)
+        jac = np.zeros((len(idx), d + 1, d + 1))
+        jac[:, :d, :d] = np.eye(d) + li[:, None, None] * hess
+        jac[:, :d, d] = grad
+        jac[:, d, :d] = grad
+        res = np.concatenate([xi - p[idx] + li[:, None] * grad, value[:, None]], axis=1)
+        try:
+            step = np.linalg.solve(jac, -res[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in zip(jac, res)])
+        x[idx] += step[:, :d]
+        lam[idx] += step[:, d]
+        active[idx] = np.abs(step[:, :d]).max(axis=1) > 1e-15 * scale
+    value, grad, _ = implicit(x)
+    ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
+    return x, ok
+
+
+def _curve_distance(q: np.ndarray, implicit, samples: np.ndarray) -> np.ndarray:
+    """Distance from points to a smooth closed curve/surface {F = 0} (nearest sample + Newton)."""
+    start = samples[_nearest(q, samples)]
+    x, ok = _closest_on_implicit(q, start, implicit)
+    d = np.linalg.norm(q - x, axis=1)
+    return np.where(ok, np.minimum(d, np.linalg.norm(q - start, axis=1)),
+                    np.linalg.norm(q - start, axis=1))
+
+
+def _ellipse_points(a, b, n=256):
+    t = np.arange(n) * (2 * np.pi / n)
+    return np.column_stack([a * np.cos(t), b * np.sin(t)])
+
+
+def _ellipse_distance(q2, a, b):
+    """Distance from 2-D points to the ellipse curve (a, b) and whether they lie inside it."""
+    d = _curve_distance(q2, _ellipsoid_implicit((a, b)), _ellipse_points(a, b))
+    inside = (q2[:, 0] / a) ** 2 + (q2[:, 1] / b) ** 2 <= 1.0
+    return d, inside
+
+
+def _disk_distance(p, a, b, z0, rim=None):
+    """Distance to the elliptic disk (a, b) in the plane z = z0."""
+    rim_d, inside = rim if rim is not None else _ellipse_distance(p[:, :2], a, b)
+    dz = p[:, 2] - z0
+    return np.where(inside, np.abs(dz), np.hypot(rim_d, dz))
+
+
+def surface_distance(solid: Solid, points) -> np.ndarray:
+    """Unsigned distance (metres) from each of ``points`` (n, 3) to the solid's surface."""
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must be an (n, 3) array, got shape {p.shape}")
+    if not len(p):
+        return np.zeros(0)
+    h = solid.half
+    kind = solid.kind
+    if kind == "cube":
+        q = np.abs(p) - h
+        outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+        return np.where(np.all(q <= 0, axis=1), -q.max(axis=1), outside)
+    if kind == "sphere":
+        return _curve_distance(p, _ellipsoid_implicit(h), _ellipsoid_grid(h, 24))
+    if kind == "cylinder":
+        a, b, c = h
+        rim = _ellipse_distance(p[:, :2], a, b)
+        side = np.hypot(rim[0], np.maximum(np.abs(p[:, 2]) - c, 0.0))
+        return np.minimum(side, np.minimum(_disk_distance(p, a, b, c, rim),
+                                           _disk_distance(p, a, b, -c, rim)))
+    if kind == "cone":
+        a, b, c = h
+        best = np.minimum(np.linalg.norm(p - [0.0, 0.0, c], axis=1),
+                          _disk_distance(p, a, b, -c))
+        samples = _cone_side_grid(a, b, c, 128, 32)
+        start = samples[_nearest(p, samples)]
+        x, ok = _closest_on_implicit(p, start, _cone_implicit(a, b, c))
+        ok &= (x[:, 2] >= -c) & (x[:, 2] <= c)
+        side = np.where(ok, np.linalg.norm(p - x, axis=1), np.inf)
+        return np.minimum(best, np.minimum(side, np.linalg.norm(p - start, axis=1)))
+    if kind == "torus":
+        s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
+        return _curve_distance(p, _torus_implicit(s), _torus_grid(s, 96, 24))
+    raise ValueError(f"unknown primitive class {kind!r}")
+
+
+# ---------------------------------------------------------------------------------------
+# surface grids (all vertices on the surface)
+
+
+def _ellipsoid_grid(axes, n):
+    """Vertices of an equal-angle cube-sphere with n x n cells per face, scaled to ``axes``."""
+    v, _ = _cube_sphere(n)
+    return v * np.asarray(axes)
+
+
+def _cone_side_grid(a, b, c, n_around, n_along):
+    t = np.arange(n_around) * (2 * np.pi / n_around)
+    s = (np.arange(n_along) + 1.0) / n_along  # 0 would be the apex, where F is singular
+    w = s[:, None]
+    return np.stack([w * a * np.cos(t), w * b * np.sin(t),
+                     np.broadcast_to(c - 2 * c * w, (n_along, n_around))], -1).reshape(-1, 3)
+
+
+def _torus_point(s, u, v):
+    r = TORUS_MAJOR + TORUS_MINOR * np.cos(v)
+    return np.stack([r * np.cos(u) * s[0], r * np.sin(u) * s[1],
+                     np.broadcast_to(TORUS_MINOR * np.sin(v) * s[2], np.broadcast(u, v).shape)],
+                    -1)
+
+
+def _torus_grid(s, n_u, n_v):
+    u = np.arange(n_u)[:, None] * (2 * np.pi / n_u)
+    v = np.arange(n_v)[None, :] * (2 * np.pi / n_v)
+    return _torus_point(s, u, v).reshape(-1, 3)
+
+
+def _cube_sphere(n: int):
+    """Unit-sphere vertices and outward triangles of an equal-angle cube-sphere, n cells/edge.
+
+    Vertices are identified by their integer lattice point on the cube, so shared edges are
+    shared exactly; each quad is split along its shorter diagonal.
+    """
+    m = n + 1
+    ij = np.arange(m)
+    ii, jj = np.meshgrid(ij, ij, indexing="ij")
+    lattice, quads = [], []
+    for axis in range(3):
+        for side in (0, n):
+            pts = np.zeros((m, m, 3), np.int64)
+            others = [k for k in range(3) if k != axis]
+            pts[..., axis] = side
+            pts[..., others[0]] = ii
+            pts[..., others[1]] = jj
+            lattice.append(pts.reshape(-1, 3))
+            base = sum(len(x) for x in lattice[:-1])
+            g = base + ii * m + jj
+            quads.append(np.stack([g[:-1, :-1], g[1:, :-1], g[1:, 1:], g[:-1, 1:]],
+                                  -1).reshape(-1, 4))
+    lattice = np.concatenate(lattice)
+    keys = (lattice[:, 0] * m + lattice[:, 1]) * m + lattice[:, 2]
+    _uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    xi = np.tan(np.pi / 4 * (2.0 * lattice[first] / n - 1.0))
+    xi[np.abs(lattice[first] - n / 2) == n / 2] = np.sign(lattice[first] - n / 2)[
+        np.abs(lattice[first] - n / 2) == n / 2]
+    v = xi / np.linalg.norm(xi, axis=1, keepdims=True)
+    q = inverse[np.concatenate(quads)]
+    d02 = ((v[q[:, 0]] - v[q[:, 2]]) ** 2).sum(axis=1)
+    d13 = ((v[q[:, 1]] - v[q[:, 3]]) ** 2).sum(axis=1)
+    short02 = d02 <= d13
+    tri = np.concatenate([
+        np.where(short02[:, None], q[:, [0, 1, 2]], q[:, [0, 1, 3]]),
+        np.where(short02[:, None], q[:, [0, 2, 3]], q[:, [1, 2, 3]])])
+    return v, _outward(v, tri)
+
+
+def _outward(v, tri):
+    """Flip triangles whose normal points towards the origin (star-shaped surfaces only)."""
+    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
+    inward = (np.cross(b - a, c - a) * (a + b + c)).sum(axis=1) < 0
+    tri = tri.copy()
+    tri[inward] = tri[inward][:, [0, 2, 1]]
+    return tri
+
+
+# ---------------------------------------------------------------------------------------
+# simulation meshes
+
+
+def _edge_length(radius, wavelength, refine):
+    """Longest allowed edge across a direction of curvature radius ``radius`` (metres),
+    divided by ``refine`` (2: the twice-finer mesh of the convergence study)."""
+    rule = SIMULATION_RULE
+    grating = rule["edge_half_wavelengths"] * wavelength / 2.0
+    sagitta = np.sqrt(8.0 * radius * rule["sagitta_wavelengths"] * wavelength)
+    return np.minimum(np.maximum(grating, sagitta), rule["max_turn_rad"] * radius) / refine
+
+
+def _ellipse_angles(a, b, wavelength, refine, minimum=4):
+    """Quadrant-symmetric parameter angles t (x = a cos t, y = b sin t) with edges per
+    _edge_length of the local radius of curvature: a multiple of 4, >= minimum * refine."""
+    t = np.linspace(0.0, np.pi / 2, 4097)
+    speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
+    radius = speed ** 3 / (a * b)
+    density = speed / _edge_length(radius, wavelength, refine)
+    cum = np.concatenate([[0.0], np.cumsum((density[1:] + density[:-1]) / 2 * np.diff(t))])
+    m = max(math.ceil(cum[-1]), math.ceil(minimum * refine / 4))
+    q = np.interp(np.arange(m + 1) * (cum[-1] / m), cum, t)
+    q[0], q[-1] = 0.0, np.pi / 2
+    return np.concatenate([q[:m], np.pi - q[m:0:-1], np.pi + q[:m], 2 * np.pi - q[m:0:-1]])
+
+
+def _box_mesh(h):
+    v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64) * h
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    f = np.array([[q[0], q[1], q[2]] for q in quads] + [[q[0], q[2], q[3]] for q in quads])
+    return v, f
+
+
+def _cylinder_mesh(a, b, c, t):
+    n = len(t)
+    ring = np.column_stack([a * np.cos(t), b * np.sin(t)])
+    v = np.concatenate([np.column_stack([ring, np.full(n, -c)]),
+                        np.column_stack([ring, np.full(n, c)]),
+                        [[0.0, 0.0, -c], [0.0, 0.0, c]]])
+    i = np.arange(n)
+    j = (i + 1) % n
+    f = np.concatenate([np.column_stack([i, j, n + j]), np.column_stack([i, n + j, n + i]),
+                        np.column_stack([np.full(n, 2 * n + 1), n + i, n + j]),
+                        np.column_stack([np.full(n, 2 * n), j, i])])
+    return v, f
+
+
+def _cone_mesh(a, b, c, t):
+    n = len(t)
+    v = np.concatenate([np.column_stack([a * np.cos(t), b * np.sin(t), np.full(n, -c)]),
+                        [[0.0, 0.0, c], [0.0, 0.0, -c]]])
+    i = np.arange(n)
+    j = (i + 1) % n
+    f = np.concatenate([np.column_stack([i, j, np.full(n, n)]),
+                        np.column_stack([np.full(n, n + 1), j, i])])
+    return v, f
+
+
+def _torus_mesh(s, u, w):
+    nu, nw = len(u), len(w)
+    v = _torus_point(s, u[:, None], w[None, :]).reshape(-1, 3)
+    i = np.arange(nu)[:, None]
+    j = np.arange(nw)[None, :]
+    a, b = i * nw + j, ((i + 1) % nu) * nw + j
+    c, d = ((i + 1) % nu) * nw + (j + 1) % nw, i * nw + (j + 1) % nw
+    f = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                        np.stack([a, c, d], -1).reshape(-1, 3)])
+    return v, f
+
+
+def _ellipsoid_cells(axes, wavelength, refine):
+    """Cells per cube-sphere face edge. Scaling the sphere per axis spaces vertices evenly in
+    the eccentric anomaly t of every principal section; n cells per quarter turn must meet
+    _edge_length(R(t)) for every t of the three principal ellipses."""
+    t = np.linspace(0.0, np.pi / 2, 4097)
+    need = 0.0
+    for i, j in ((0, 1), (1, 2), (0, 2)):
+        a, b = axes[i], axes[j]
+        speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
+        need = max(need, float((speed / _edge_length(speed ** 3 / (a * b), wavelength,
+                                                        refine)).max()))
+    return max(4, math.ceil(need * np.pi / 2))
+
+
+def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
+    """The deterministic mesh on which the object's label is computed (SIMULATION_RULE).
+
+    Closed, outward oriented, every vertex on the surface: (vertices float64 (V, 3), faces
+    int32 (F, 3)). Only curved directions are refined; the box is its 12 triangles (exact).
+    ``refinement`` divides every edge-length limit (2: the convergence study's finer mesh).
+    """
+    if not (np.isfinite(f_max_hz) and f_max_hz > 0):
+        raise ValueError(f"f_max_hz must be positive and finite, got {f_max_hz!r}")
+    wavelength = C0 / f_max_hz
+    h = solid.half
+    kind = solid.kind
+    if kind == "cube":
+        v, f = _box_mesh(h)
+    elif kind == "sphere":
+        unit, f = _cube_sphere(_ellipsoid_cells(h, wavelength, refinement))
+        v = unit * h
+    elif kind == "cylinder":
+        v, f = _cylinder_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
+    elif kind == "cone":
+        v, f = _cone_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
+    elif kind == "torus":
+        s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
+        outer = TORUS_MAJOR + TORUS_MINOR
+        u = _ellipse_angles(outer * s[0], outer * s[1], wavelength, refinement, 16)
+        minor = [_ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8)
+                 for r in (s[0], s[1])]
+        v, f = _torus_mesh(s, u, max(minor, key=len))
+    else:
+        raise ValueError(f"unknown primitive class {kind!r}")
+    return np.ascontiguousarray(v, np.float64), np.ascontiguousarray(f, np.int32)
+
+
+# ---------------------------------------------------------------------------------------
+# surface samples
+
+
+def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
+    """Deterministic points on the surface, about ``spacing`` metres apart (n, 3)."""
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise ValueError(f"spacing must be positive and finite, got {spacing!r}")
+    h = solid.half
+    kind = solid.kind
+
+    def count(length, lo=4):
+        return max(lo, math.ceil(length / spacing))
+
+    def around(a, b):
+        n = 4 * count(np.pi * max(a, b) / 2, 1)
+        return np.arange(n) * (2 * np.pi / n)
+
+    def disk(a, b, z):
+        t = around(a, b)
+        rings = [np.array([[0.0, 0.0, z]])]
+        m = count(max(a, b), 1)
+        for r in np.arange(1, m + 1) / m:
+            rings.append(np.column_stack([r * a * np.cos(t), r * b * np.sin(t),
+                                          np.full(len(t), z)]))
+        return np.concatenate(rings)
+
+    if kind == "cube":
+        parts = []
+        for axis in range(3):
+            o = [k for k in range(3) if k != axis]
+            g0 = np.linspace(-h[o[0]], h[o[0]], count(2 * h[o[0]], 1) + 1)
+            g1 = np.linspace(-h[o[1]], h[o[1]], count(2 * h[o[1]], 1) + 1)
+            for sign in (-1, 1):
+                p = np.zeros((len(g0), len(g1), 3))
+                p[..., axis] = sign * h[axis]
+                p[..., o[0]], p[..., o[1]] = np.meshgrid(g0, g1, indexing="ij")
+                parts.append(p.reshape(-1, 3))
+        return np.concatenate(parts)
+    if kind == "sphere":
+        return _ellipsoid_grid(h, count(np.pi / 2 * h.max()))
+    if kind in ("cylinder", "cone"):
+        a, b, c = h
+        t = around(a, b)
+        m = count(2 * np.hypot(c, max(a, b) / 2) if kind == "cone" else 2 * c, 1)
+        s = np.arange(m + 1)[:, None] / m
+        if kind == "cylinder":
+            side = np.stack([np.broadcast_to(a * np.cos(t), (m + 1, len(t))),
+                             np.broadcast_to(b * np.sin(t), (m + 1, len(t))),
+                             np.broadcast_to(-c + 2 * c * s, (m + 1, len(t)))], -1)
+            caps = [disk(a, b, -c), disk(a, b, c)]
+        else:
+            side = np.stack([s * a * np.cos(t), s * b * np.sin(t),
+                             np.broadcast_to(c - 2 * c * s, (m + 1, len(t)))], -1)
+            caps = [disk(a, b, -c)]
+        return np.concatenate([side.reshape(-1, 3)] + caps)
+    if kind == "torus":
+        s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
+        n_u = 4 * count(np.pi / 2 * (TORUS_MAJOR + TORUS_MINOR) * max(s[0], s[1]), 1)
+        n_v = 4 * count(np.pi / 2 * TORUS_MINOR * s.max(), 1)
+        return _torus_grid(s, n_u, n_v)
+    raise ValueError(f"unknown primitive class {kind!r}")
