@@ -13,7 +13,8 @@ way (docs/GENERATOR.md, "Out-of-distribution meshes"):
 After remeshing, every vertex is moved onto the analytic primitive (in unit space, then scaled
 per axis), so each mesh is inscribed in the object like Blender's tessellations; it is then
 checked like every variant (closed, oriented, manifold, distinct topology, within
-``verify.tolerance``). All randomness comes from ``(seed, variant, attempt)``; MeshLab's
+``verify.tolerance`` of the simple mesh) and against the smooth primitive (``analytic``,
+within the same bound). All randomness comes from ``(seed, variant, attempt)``; MeshLab's
 filters used here draw no random numbers (repeatability across processes is tested).
 """
 
@@ -24,7 +25,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from basic_shapes import primitives, verify
+from basic_shapes import analytic, primitives, verify
 from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
 
 MAX_ATTEMPTS = 32
@@ -33,7 +34,8 @@ MAX_ATTEMPTS = 32
 FACE_RANGE = {"cube": (12, 4000), "cylinder": (300, 4000), "sphere": (900, 4000),
               "cone": (300, 4000), "torus": (1200, 4000)}
 """Target triangle counts per class, drawn log-uniformly: the range of the training variants,
-less the coarse end where a remesher's triangles would stray beyond the class tolerance."""
+less the coarse end where a remesher's triangles would stray beyond the class tolerance. The
+lower end grows by 1.5x with every rejected try."""
 
 FEATURE_DEG = 40.0
 """Dihedral angle above which an edge is a feature: the box's edges and the cylinder's rims
@@ -72,6 +74,7 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
     reference = verify.Reference(simple_vertices, simple_faces)
     seen = set(seen or ()) | {verify.topology_key(simple_faces, len(simple_vertices))}
     tol = verify.tolerance(class_name, {})
+    solid = analytic.solid_for(class_name, scale)
     source = {"isotropic": (simple_vertices, simple_faces)}
     out = []
     for name in OOD_REMESHERS:
@@ -85,6 +88,7 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
             for attempt in range(MAX_ATTEMPTS):
                 rng = np.random.default_rng([seed, variant, attempt])
                 lo, hi = FACE_RANGE[class_name]
+                lo = min(hi, lo * 1.5 ** attempt)  # a rejected try was most likely too coarse
                 params = {"remesher": name, "attempt": attempt, "tolerance": tol,
                           "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi))))}
                 v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng)
@@ -95,7 +99,8 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                     reason = "too many triangles"
                 if reason is None:
                     distance = reference.distance(v, f)
-                    if distance <= tol:
+                    params["primitive_distance"] = primitive_distance(solid, v, f)
+                    if max(distance, params["primitive_distance"]) <= tol:
                         seen.add(key)
                         TRIES[name, "accepted"] += 1
                         out.append(MeshRecord(variant, v, f, distance, params))
@@ -107,6 +112,26 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                 raise RuntimeError(f"{class_name} seed {seed}: {name} mesh {k} failed "
                                    f"{MAX_ATTEMPTS} attempts ({rejected})")
     return out
+
+
+PRIMITIVE_SPACING = 1.0 / 64
+"""Spacing of the primitive's surface samples, relative to its diagonal."""
+
+
+def primitive_distance(solid: analytic.Solid, vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Two-sided Hausdorff distance between a mesh and the object's smooth surface, relative to
+    the object's diagonal: mesh vertices and face samples (``verify.face_samples``) to the
+    analytic surface, and the primitive's own samples (``analytic.surface_samples``) to the
+    mesh's triangles (MeshLab, as in ``verify``)."""
+    diag = solid.diagonal
+    points = np.concatenate([np.asarray(vertices, np.float64),
+                             verify.face_samples(vertices, faces, diag * verify.SAMPLE_SPACING)])
+    to_surface = float(analytic.surface_distance(solid, points).max())
+    samples = analytic.surface_samples(solid, diag * PRIMITIVE_SPACING)
+    pm, ms = _meshlab(vertices, faces)
+    ms.add_mesh(pm.Mesh(vertex_matrix=samples))
+    from_surface = verify._one_sided(ms, sampled=1, target=0, radius=verify.UNLIMITED)
+    return max(to_surface, from_surface) / diag
 
 
 # --- projection onto the primitive ------------------------------------------------------------
