@@ -21,6 +21,7 @@ filters used here draw no random numbers (repeatability across processes is test
 from __future__ import annotations
 
 import math
+import time
 from collections import defaultdict
 
 import numpy as np
@@ -53,6 +54,8 @@ DELAUNAY_CLASSES = ("cube", "cylinder", "sphere", "cone")
 TRIES: dict[tuple[str, str], int] = defaultdict(int)
 """Tries per (remesher, outcome) in this process: "accepted" or the rejection reason
 (read by benchmarks/ood_remeshers.py)."""
+SECONDS: dict[str, float] = defaultdict(float)
+"""CPU seconds per remesher in this process, rejected tries and verification included."""
 
 
 def supports(remesher: str, class_name: str) -> bool:
@@ -81,8 +84,11 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
         if not supports(name, class_name):
             continue
         if name == "qem" and per_remesher:
+            start = time.process_time()
             source["qem"] = _dense(class_name, scale, simple_vertices, simple_faces)
+            SECONDS[name] += time.process_time() - start
         for k in range(per_remesher):
+            start = time.process_time()
             variant = ood_variant(name, k)
             rejected = {}
             for attempt in range(MAX_ATTEMPTS):
@@ -104,6 +110,7 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                         seen.add(key)
                         TRIES[name, "accepted"] += 1
                         out.append(MeshRecord(variant, v, f, distance, params))
+                        SECONDS[name] += time.process_time() - start
                         break
                     reason = "Hausdorff above tolerance"
                 rejected[reason] = rejected.get(reason, 0) + 1
