@@ -187,8 +187,13 @@ def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
 def _run(todo, cfg_json, workers, scheduler, progress):
     from tqdm import tqdm
 
-    ood = cfg_json.get("ood_variants_per_remesher", 0) * len(OOD_REMESHERS)
-    total = sum(cfg_json["variants"] + 1 + ood * (p.split == "test") for _, ps in todo for p in ps)
+    from basic_shapes.remesh import supports
+
+    ood = {c: cfg_json.get("ood_variants_per_remesher", 0) * sum(supports(r, c)
+                                                                 for r in OOD_REMESHERS)
+           for c in cfg_json["classes"]}
+    total = sum(cfg_json["variants"] + 1 + ood[p.class_name] * (p.split == "test")
+                for _, ps in todo for p in ps)
     bar = tqdm(total=total, unit="mesh", disable=not progress or not todo, desc="generate")
     if workers == 0 and scheduler is None:
         for path, plans in todo:
