@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import Shard, dataset_fingerprint, list_shards
+from basic_shapes.shards import Shard, dataset_fingerprint, is_ood_variant, list_shards
 
 BAR = 40
 
@@ -23,7 +23,7 @@ def _histogram(n_faces: np.ndarray) -> list[str]:
 
 def summary(directory: str | Path) -> str:
     per_class = defaultdict(lambda: {"objects": 0, "train": 0, "test": 0, "faces": [],
-                                     "hausdorff": [], "labelled": 0})
+                                     "hausdorff": [], "labelled": 0, "ood": 0})
     shards = list_shards(directory)
     config = None
     for p in shards:
@@ -38,8 +38,10 @@ def summary(directory: str | Path) -> str:
                 d[objs["split"][k]] += 1
                 d["labelled"] += int(s.has_labels)
             cls_of_mesh = objs["class"][table["object_index"]]
+            ood = is_ood_variant(table["variant"])  # counted apart, not in the statistics
             for c in np.unique(cls_of_mesh):
-                sel = cls_of_mesh == c
+                per_class[names[c]]["ood"] += int(np.sum((cls_of_mesh == c) & ood))
+                sel = (cls_of_mesh == c) & ~ood
                 per_class[names[c]]["faces"].append(table["n_faces"][sel])
                 complex_ = sel & (table["variant"] > 0)
                 per_class[names[c]]["hausdorff"].append(table["hausdorff"][complex_])
@@ -50,7 +52,9 @@ def summary(directory: str | Path) -> str:
         faces = np.concatenate(d["faces"])
         h = np.concatenate(d["hausdorff"])
         lines.append(f"\n{name}: {d['objects']} objects ({d['train']} train / {d['test']} test), "
-                     f"{len(faces)} meshes, {d['labelled']} objects radar-labelled")
+                     f"{len(faces)} meshes"
+                     + (f" + {d['ood']} out-of-distribution" if d["ood"] else "")
+                     + f", {d['labelled']} objects radar-labelled")
         lines.append(f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}")
         lines.extend(_histogram(faces))
         if len(h):
