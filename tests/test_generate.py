@@ -101,6 +101,8 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
     (["--classes", "cube,pyramid"], "unknown class pyramid"),
     (["--objects-per-class", "0"], "objects_per_class must be >= 1"),
     (["--variants", "-1"], "variants must be >= 0"),
+    (["--variants", "900"], "900-999 for OOD meshes"),
+    (["--ood-variants", "26"], "ood_variants_per_remesher must be in 0..25"),
     (["--objects-per-class", "100000", "--scale-range", "1.0", "1.1"], "dissimilar scales"),
 ])
 def test_bad_generate_arguments(tmp_path, args, message):
@@ -135,7 +137,7 @@ def test_info_show_export(dataset, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert cli.main(["export", str(dataset), "--format", "stl", "--out", str(tmp_path / "e"), "--object", "0"]) == 0
     files = sorted((tmp_path / "e").rglob("*.stl"))
-    assert len(files) == 4
+    assert len(files) == 4 + 9  # object 0 is a test object: its 9 OOD meshes too
     with Shard(dataset / "shard-00000.h5") as s:
         v, f = s.mesh(3)
     m = trimesh.load(files[3])
