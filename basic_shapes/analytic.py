@@ -27,17 +27,19 @@ _UNIT_EXTENTS = {"cube": (2.0, 2.0, 2.0), "cylinder": (2.0, 2.0, 2.0), "sphere":
                  "cone": (2.0, 2.0, 2.0), "torus": (2.5, 2.5, 0.5)}
 
 SIMULATION_RULE = {
-    "name": "edge-grating-v1",
+    "name": "edge-grating",
     "version": 1,
     # Facet edges along a curved direction form a grating; its first lobe appears once the
     # spacing exceeds half a wavelength, so edges are kept at most this fraction of lambda/2
-    # at the top frequency (docs/RADAR.md, "Object labels: simulation meshes").
-    "edge_half_wavelengths": 0.8,
-    # ...but where the surface is nearly flat the kinks are too weak to matter: an edge may be
-    # as long as a chord of this sagitta (in top-frequency wavelengths), whichever is longer.
-    "sagitta_wavelengths": 1e-3,
-    # and never turn by more than this angle (radians) between neighbouring facets.
-    "max_turn_rad": 0.2,
+    # at the top frequency (docs/RADAR.md, "Object labels: simulation meshes"): strips of
+    # singly curved sides (cylinder, cone) ...
+    "strip_edge_half_wavelengths": 0.7,
+    # ... and doubly curved surfaces (ellipsoid, torus), whose jagged shadow boundary adds an
+    # error that only shrinks with the facets.
+    "surface_edge_half_wavelengths": 0.5,
+    # and never turn by more than this angle (radians) between neighbouring facets, which
+    # only binds on small radii of curvature (the rim of a flat ellipsoid).
+    "max_turn_rad": 0.1,
 }
 
 
@@ -67,7 +69,8 @@ def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
         raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(KINDS)}")
     s = np.asarray(scale, np.float64)
     if s.shape != (3,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
-        raise ValueError(f"{class_name}: scale must be three positive finite extents, got {scale!r}")
+        raise ValueError(f"{class_name}: scale must be three positive finite extents, "
+                         f"got {scale!r}")
     params = dict(params or {})
     if params:
         raise ValueError(f"{class_name}: unknown shape parameter(s) {sorted(params)}")
@@ -84,20 +87,7 @@ def _ellipsoid_implicit(axes):
     inv = 1.0 / axes ** 2
 
     def f(x):
-        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(
-            np.diag(2.0 * inv), (len(x), len(axes), len(axes)))
-    return f
-
-
-def _cone_implicit(a, b, c):
-    """The double cone through the apex (0, 0, c) and the base ellipse (a, b) at z = -c."""
-    def f(x):
-        w = (c - x[:, 2]) / (2.0 * c)
-        value = (x[:, 0] / a) ** 2 + (x[:, 1] / b) ** 2 - w ** 2
-        grad = np.column_stack([2 * x[:, 0] / a ** 2, 2 * x[:, 1] / b ** 2, w / c])
-        hess = np.broadcast_to(np.diag([2 / a ** 2, 2 / b ** 2, -1 / (2 * c * c)]),
-                               (len(x), 3, 3))
-        return value, grad, hess
+        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(2.0 * inv, x.shape)
     return f
 
 
@@ -132,14 +122,36 @@ def _nearest(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
     return out
 
 
-NEWTON_STEPS = 60
+NEWTON_STEPS = 100
+
+
+def _newton_step(res, value, grad, hess, lam):
+    """Solve [[I + lam H, g], [g^T, 0]] (dx, dlam) = -(res, value); H (n, d) is diagonal."""
+    if hess.ndim == 2:
+        dinv = 1.0 / (1.0 + lam[:, None] * hess)
+        dlam = (value - (grad * dinv * res).sum(axis=1)) / (grad * dinv * grad).sum(axis=1)
+        return -dinv * (res + grad * dlam[:, None]), dlam
+    n, d = grad.shape
+    jac = np.zeros((n, d + 1, d + 1))
+    jac[:, :d, :d] = np.eye(d) + lam[:, None, None] * hess
+    jac[:, :d, d] = grad
+    jac[:, d, :d] = grad
+    rhs = -np.concatenate([res, value[:, None]], axis=1)
+    try:
+        step = np.linalg.solve(jac, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        step = np.stack([np.linalg.lstsq(j, r, rcond=None)[0] for j, r in zip(jac, rhs)])
+    return step[:, :d], step[:, d]
 
 
 def _closest_on_implicit(points, starts, implicit):
-    """Critical points of |x - p| on {F = 0} near ``starts`` and whether Newton converged."""
+    """Critical points of |x - p| on {F = 0} near ``starts`` and whether Newton converged.
+
+    Newton on the Lagrange system x - p + lam grad F(x) = 0, F(x) = 0 (quadratic convergence
+    from a start near the closest point; every accepted result is a point of the surface)."""
     p = np.asarray(points, np.float64)
     x = np.array(starts, np.float64)
-    n, d = x.shape
+    n = len(x)
     value, grad, _ = implicit(x)
     lam = ((p - x) * grad).sum(axis=1) / (grad ** 2).sum(axis=1)
     scale = np.abs(p).max() + np.abs(x).max() + 1e-300
@@ -150,18 +162,11 @@ def _closest_on_implicit(points, starts, implicit):
             break
         xi, li = x[idx], lam[idx]
         value, grad, hess = implicit(xi)
-        jac = np.zeros((len(idx), d + 1, d + 1))
-        jac[:, :d, :d] = np.eye(d) + li[:, None, None] * hess
-        jac[:, :d, d] = grad
-        jac[:, d, :d] = grad
-        res = np.concatenate([xi - p[idx] + li[:, None] * grad, value[:, None]], axis=1)
-        try:
-            step = np.linalg.solve(jac, -res[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.stack([np.linalg.lstsq(j, -r, rcond=None)[0] for j, r in zip(jac, res)])
-        x[idx] += step[:, :d]
-        lam[idx] += step[:, d]
-        active[idx] = np.abs(step[:, :d]).max(axis=1) > 1e-15 * scale
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dx, dlam = _newton_step(xi - p[idx] + li[:, None] * grad, value, grad, hess, li)
+        x[idx] += dx
+        lam[idx] += dlam
+        active[idx] = ~(np.abs(dx).max(axis=1) <= 1e-14 * scale)
     value, grad, _ = implicit(x)
     ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
     return x, ok
@@ -174,6 +179,37 @@ def _curve_distance(q: np.ndarray, implicit, samples: np.ndarray) -> np.ndarray:
     d = np.linalg.norm(q - x, axis=1)
     return np.where(ok, np.minimum(d, np.linalg.norm(q - start, axis=1)),
                     np.linalg.norm(q - start, axis=1))
+
+
+def _segment_fit(p, t, a, b, c):
+    """Closest points of the cone's generator segments at angles t (apex -> base rim) to p:
+    the point and d/dt of the squared distance (envelope theorem: w held at its optimum)."""
+    apex = np.array([0.0, 0.0, c])
+    rim = np.stack([a * np.cos(t), b * np.sin(t), np.full(np.shape(t), -c)], -1)
+    e = rim - apex
+    w = np.clip(((p - apex) * e).sum(-1) / (e * e).sum(-1), 0.0, 1.0)
+    x = apex + w[..., None] * e
+    dx_dt = w[..., None] * np.stack([-a * np.sin(t), b * np.cos(t), np.zeros(np.shape(t))], -1)
+    return x, 2.0 * ((x - p) * dx_dt).sum(-1)
+
+
+def _cone_side_distance(p, a, b, c, n_coarse=256, steps=60):
+    """Distance to the cone's side: a ruled surface, so the closest point on each generator is
+    explicit and only its angle t is searched (coarse grid, then bisection on the derivative)."""
+    out = np.empty(len(p))
+    t_grid = np.arange(n_coarse) * (2 * np.pi / n_coarse)
+    for i in range(0, len(p), 4096):
+        q = p[i:i + 4096]
+        x, _ = _segment_fit(q[:, None, :], t_grid[None, :], a, b, c)
+        k = np.argmin(((x - q[:, None, :]) ** 2).sum(-1), axis=1)
+        lo, hi = t_grid[k] - 2 * np.pi / n_coarse, t_grid[k] + 2 * np.pi / n_coarse
+        for _ in range(steps):
+            mid = 0.5 * (lo + hi)
+            rising = _segment_fit(q, mid, a, b, c)[1] > 0
+            hi, lo = np.where(rising, mid, hi), np.where(rising, lo, mid)
+        x, _ = _segment_fit(q, 0.5 * (lo + hi), a, b, c)
+        out[i:i + 4096] = np.linalg.norm(q - x, axis=1)
+    return out
 
 
 def _ellipse_points(a, b, n=256):
@@ -220,15 +256,16 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
         a, b, c = h
         best = np.minimum(np.linalg.norm(p - [0.0, 0.0, c], axis=1),
                           _disk_distance(p, a, b, -c))
-        samples = _cone_side_grid(a, b, c, 128, 32)
-        start = samples[_nearest(p, samples)]
-        x, ok = _closest_on_implicit(p, start, _cone_implicit(a, b, c))
-        ok &= (x[:, 2] >= -c) & (x[:, 2] <= c)
-        side = np.where(ok, np.linalg.norm(p - x, axis=1), np.inf)
-        return np.minimum(best, np.minimum(side, np.linalg.norm(p - start, axis=1)))
+        return np.minimum(best, _cone_side_distance(p, a, b, c))
     if kind == "torus":
         s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
-        return _curve_distance(p, _torus_implicit(s), _torus_grid(s, 96, 24))
+        best = np.full(len(p), np.inf)
+        for start in _torus_starts(p, s):
+            x, ok = _closest_on_implicit(p, start, _torus_implicit(s))
+            far = np.linalg.norm(p - start, axis=1)
+            best = np.minimum(best, np.where(ok, np.minimum(np.linalg.norm(p - x, axis=1), far),
+                                             far))
+        return best
     raise ValueError(f"unknown primitive class {kind!r}")
 
 
@@ -240,14 +277,6 @@ def _ellipsoid_grid(axes, n):
     """Vertices of an equal-angle cube-sphere with n x n cells per face, scaled to ``axes``."""
     v, _ = _cube_sphere(n)
     return v * np.asarray(axes)
-
-
-def _cone_side_grid(a, b, c, n_around, n_along):
-    t = np.arange(n_around) * (2 * np.pi / n_around)
-    s = (np.arange(n_along) + 1.0) / n_along  # 0 would be the apex, where F is singular
-    w = s[:, None]
-    return np.stack([w * a * np.cos(t), w * b * np.sin(t),
-                     np.broadcast_to(c - 2 * c * w, (n_along, n_around))], -1).reshape(-1, 3)
 
 
 def _torus_point(s, u, v):
@@ -263,34 +292,51 @@ def _torus_grid(s, n_u, n_v):
     return _torus_point(s, u, v).reshape(-1, 3)
 
 
-def _cube_sphere(n: int):
-    """Unit-sphere vertices and outward triangles of an equal-angle cube-sphere, n cells/edge.
+def _torus_starts(p, s, n_u=256, n_v=128, m=9, tries=4):
+    """Start points for Newton on a torus scaled per axis, whose tube can be thinner than a
+    coarse grid cell: each of the ``tries`` nearest nodes of an (n_u, n_v) parameter grid,
+    refined on an m x m grid over its neighbouring cells."""
+    grid = _torus_grid(s, n_u, n_v)
+    g2 = (grid ** 2).sum(axis=1)
+    du, dv = 2 * np.pi / n_u, 2 * np.pi / n_v
+    offsets = np.linspace(-1.0, 1.0, m)
+    near = np.concatenate([np.argpartition(g2[None, :] - 2.0 * p[i:i + 4096] @ grid.T,
+                                           tries, axis=1)[:, :tries]
+                           for i in range(0, len(p), 4096)])
+    for k in near.T:
+        u = (k // n_v)[:, None, None] * du + offsets[None, :, None] * du
+        v = (k % n_v)[:, None, None] * dv + offsets[None, None, :] * dv
+        x = _torus_point(s, u, v).reshape(len(p), m * m, 3)
+        yield x[np.arange(len(p)), np.argmin(((x - p[:, None, :]) ** 2).sum(-1), axis=1)]
+
+
+def _cube_sphere(n):
+    """Unit-sphere vertices and outward triangles of an equal-angle cube-sphere with n[i]
+    cells along cube axis i (per-axis counts, so an elongated ellipsoid is not over-refined
+    along its short axes).
 
     Vertices are identified by their integer lattice point on the cube, so shared edges are
     shared exactly; each quad is split along its shorter diagonal.
     """
-    m = n + 1
-    ij = np.arange(m)
-    ii, jj = np.meshgrid(ij, ij, indexing="ij")
-    lattice, quads = [], []
+    n = np.broadcast_to(np.asarray(n, np.int64), (3,))
+    lattice, quads, base = [], [], 0
     for axis in range(3):
-        for side in (0, n):
-            pts = np.zeros((m, m, 3), np.int64)
-            others = [k for k in range(3) if k != axis]
-            pts[..., axis] = side
-            pts[..., others[0]] = ii
-            pts[..., others[1]] = jj
+        o0, o1 = [k for k in range(3) if k != axis]
+        ii, jj = np.meshgrid(np.arange(n[o0] + 1), np.arange(n[o1] + 1), indexing="ij")
+        for side in (0, n[axis]):
+            pts = np.zeros(ii.shape + (3,), np.int64)
+            pts[..., axis], pts[..., o0], pts[..., o1] = side, ii, jj
             lattice.append(pts.reshape(-1, 3))
-            base = sum(len(x) for x in lattice[:-1])
-            g = base + ii * m + jj
+            g = base + ii * (n[o1] + 1) + jj
+            base += ii.size
             quads.append(np.stack([g[:-1, :-1], g[1:, :-1], g[1:, 1:], g[:-1, 1:]],
                                   -1).reshape(-1, 4))
     lattice = np.concatenate(lattice)
-    keys = (lattice[:, 0] * m + lattice[:, 1]) * m + lattice[:, 2]
+    keys = (lattice[:, 0] * (n[1] + 1) + lattice[:, 1]) * (n[2] + 1) + lattice[:, 2]
     _uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    xi = np.tan(np.pi / 4 * (2.0 * lattice[first] / n - 1.0))
-    xi[np.abs(lattice[first] - n / 2) == n / 2] = np.sign(lattice[first] - n / 2)[
-        np.abs(lattice[first] - n / 2) == n / 2]
+    cube = 2.0 * lattice[first] / n - 1.0
+    edge = np.abs(cube) == 1.0
+    xi = np.where(edge, cube, np.tan(np.pi / 4 * cube))  # tan(pi/4) is not exactly 1
     v = xi / np.linalg.norm(xi, axis=1, keepdims=True)
     q = inverse[np.concatenate(quads)]
     d02 = ((v[q[:, 0]] - v[q[:, 2]]) ** 2).sum(axis=1)
@@ -315,22 +361,23 @@ def _outward(v, tri):
 # simulation meshes
 
 
-def _edge_length(radius, wavelength, refine):
-    """Longest allowed edge across a direction of curvature radius ``radius`` (metres),
-    divided by ``refine`` (2: the twice-finer mesh of the convergence study)."""
+def _edge_length(radius, wavelength, refine, surface=False):
+    """Longest allowed edge across a direction of curvature radius ``radius`` (metres) on a
+    strip (or a doubly curved ``surface``), divided by ``refine`` (2: the twice-finer mesh of
+    the convergence study)."""
     rule = SIMULATION_RULE
-    grating = rule["edge_half_wavelengths"] * wavelength / 2.0
-    sagitta = np.sqrt(8.0 * radius * rule["sagitta_wavelengths"] * wavelength)
-    return np.minimum(np.maximum(grating, sagitta), rule["max_turn_rad"] * radius) / refine
+    factor = rule["surface_edge_half_wavelengths" if surface else "strip_edge_half_wavelengths"]
+    grating = factor * wavelength / 2.0
+    return np.minimum(grating, rule["max_turn_rad"] * radius) / refine
 
 
-def _ellipse_angles(a, b, wavelength, refine, minimum=4):
+def _ellipse_angles(a, b, wavelength, refine, minimum=4, surface=False):
     """Quadrant-symmetric parameter angles t (x = a cos t, y = b sin t) with edges per
     _edge_length of the local radius of curvature: a multiple of 4, >= minimum * refine."""
     t = np.linspace(0.0, np.pi / 2, 4097)
     speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
     radius = speed ** 3 / (a * b)
-    density = speed / _edge_length(radius, wavelength, refine)
+    density = speed / _edge_length(radius, wavelength, refine, surface)
     cum = np.concatenate([[0.0], np.cumsum((density[1:] + density[:-1]) / 2 * np.diff(t))])
     m = max(math.ceil(cum[-1]), math.ceil(minimum * refine / 4))
     q = np.interp(np.arange(m + 1) * (cum[-1] / m), cum, t)
@@ -382,18 +429,23 @@ def _torus_mesh(s, u, w):
     return v, f
 
 
-def _ellipsoid_cells(axes, wavelength, refine):
-    """Cells per cube-sphere face edge. Scaling the sphere per axis spaces vertices evenly in
-    the eccentric anomaly t of every principal section; n cells per quarter turn must meet
-    _edge_length(R(t)) for every t of the three principal ellipses."""
-    t = np.linspace(0.0, np.pi / 2, 4097)
-    need = 0.0
-    for i, j in ((0, 1), (1, 2), (0, 2)):
-        a, b = axes[i], axes[j]
-        speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
-        need = max(need, float((speed / _edge_length(speed ** 3 / (a * b), wavelength,
-                                                        refine)).max()))
-    return max(4, math.ceil(need * np.pi / 2))
+def _ellipsoid_cells(axes, edge_length):
+    """Cells along each cube axis for edges of at most ``edge_length(R)`` at radius of
+    curvature R. Scaling the cube-sphere per axis spaces vertices evenly in
+    the eccentric anomaly t of each principal section x_i = a_i cos t, x_j = a_j sin t; for
+    t <= pi/4 (the face across axis i) its cells run along axis j, so n_j quarter-turn cells
+    must meet edge_length(R(t)) there, for every ordered pair (i, j)."""
+    t = np.linspace(0.0, np.pi / 4, 2049)
+    need = [0.0, 0.0, 0.0]
+    for i in range(3):
+        for j in range(3):
+            if i != j:
+                a, b = axes[i], axes[j]
+                speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
+                dens = speed / edge_length(speed ** 3 / (a * b))
+                need[j] = max(need[j], float(dens.max()))
+    # even counts: a vertex at each bbox extreme
+    return tuple(2 * max(2, math.ceil(x * np.pi / 4)) for x in need)
 
 
 def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
@@ -411,7 +463,8 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
     if kind == "cube":
         v, f = _box_mesh(h)
     elif kind == "sphere":
-        unit, f = _cube_sphere(_ellipsoid_cells(h, wavelength, refinement))
+        unit, f = _cube_sphere(_ellipsoid_cells(
+            h, lambda r: _edge_length(r, wavelength, refinement, surface=True)))
         v = unit * h
     elif kind == "cylinder":
         v, f = _cylinder_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
@@ -420,9 +473,9 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
     elif kind == "torus":
         s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
         outer = TORUS_MAJOR + TORUS_MINOR
-        u = _ellipse_angles(outer * s[0], outer * s[1], wavelength, refinement, 16)
-        minor = [_ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8)
-                 for r in (s[0], s[1])]
+        u = _ellipse_angles(outer * s[0], outer * s[1], wavelength, refinement, 16, True)
+        minor = [_ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8,
+                                 True) for r in (s[0], s[1])]
         v, f = _torus_mesh(s, u, max(minor, key=len))
     else:
         raise ValueError(f"unknown primitive class {kind!r}")
@@ -469,7 +522,7 @@ def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
                 parts.append(p.reshape(-1, 3))
         return np.concatenate(parts)
     if kind == "sphere":
-        return _ellipsoid_grid(h, count(np.pi / 2 * h.max()))
+        return _ellipsoid_grid(h, _ellipsoid_cells(h, lambda r: spacing))
     if kind in ("cylinder", "cone"):
         a, b, c = h
         t = around(a, b)

@@ -20,7 +20,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from basic_shapes import primitives, verify
+from basic_shapes import analytic, primitives, verify
 from basic_shapes.shards import MeshRecord
 
 MAX_ATTEMPTS = 64
@@ -45,7 +45,7 @@ NGON_METHODS = ("BEAUTY", "CLIP")
 STAGE_SECONDS: dict[str, float] = defaultdict(float)
 """CPU seconds (all threads) spent per stage in this process, rejected attempts included,
 read by benchmarks/mesh_core.py: simple, primitive, loop_cuts, decimate, extract, checks,
-hausdorff."""
+hausdorff, analytic (the distance to the analytic primitive)."""
 ATTEMPTS: dict[str, int] = defaultdict(int)
 """Built meshes per outcome in this process: accepted or the rejection reason."""
 
@@ -88,9 +88,13 @@ def _object_meshes(spec, class_name, scale, seed, n_variants) -> list[MeshRecord
     error = verify.defect(v0, f0, spec.euler)
     if error:
         raise RuntimeError(f"{class_name}: simple mesh is broken: {error}")
-    reference = verify.Reference(v0, f0)
+    known = class_name in analytic.KINDS  # a registry-only primitive has no analytic shape yet
+    reference = verify.Reference(v0, f0, analytic.solid_for(class_name, scale) if known else None)
+    gap = reference.primitive_distance(v0, f0)
+    if known and not gap <= verify.primitive_tolerance(class_name, simple_params):
+        raise RuntimeError(f"{class_name}: simple mesh is {gap:.3g} diagonals from the primitive")
     _lap("simple", start)
-    records = [MeshRecord(0, v0, f0, 0.0, simple_params)]
+    records = [MeshRecord(0, v0, f0, 0.0, simple_params, gap)]
     seen = {verify.topology_key(f0, len(v0))}
     for variant in range(1, n_variants + 1):
         records.append(_variant(blender, class_name, scale, seed, variant, reference, seen))
@@ -125,13 +129,17 @@ def _variant(blender, class_name, scale, seed, variant, reference, seen) -> Mesh
         if reason is None:
             params["tolerance"] = verify.tolerance(class_name, params)
             distance = reference.distance(v, f)
-            _lap("hausdorff", start)
-            if distance <= params["tolerance"]:
+            start = _lap("hausdorff", start)
+            params["primitive_tolerance"] = verify.primitive_tolerance(class_name, params)
+            gap = reference.primitive_distance(v, f) if distance <= params["tolerance"] else None
+            _lap("analytic", start)
+            if gap is not None and not gap > params["primitive_tolerance"]:
                 seen.add(key)
                 params["attempt"] = attempt
                 ATTEMPTS["accepted"] += 1
-                return MeshRecord(variant, v, f, distance, params)
-            reason = "Hausdorff above tolerance"
+                return MeshRecord(variant, v, f, distance, params, gap)
+            reason = ("Hausdorff above tolerance" if gap is None
+                      else "primitive distance above tolerance")
         ATTEMPTS[reason.split(" (")[0]] += 1
         rejected[reason] = rejected.get(reason, 0) + 1
     raise RuntimeError(f"{class_name} seed {seed}: variant {variant} failed {MAX_ATTEMPTS} "

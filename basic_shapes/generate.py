@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import __version__
+from basic_shapes.analytic import solid_for
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, sample_scales
 from basic_shapes.shards import (OOD_FIRST, OOD_REMESHERS, OOD_SLOT, ObjectRecord, Shard,
                                  ShardError, atomic_path, shard_name, write_shard)
@@ -110,7 +111,8 @@ def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
     t0 = time.perf_counter()
     objects = [ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
                             _with_ood(p, object_meshes(p.class_name, np.array(p.scale), p.seed,
-                                                       cfg_json["variants"]), cfg_json))
+                                                       cfg_json["variants"]), cfg_json),
+                            params=solid_for(p.class_name, p.scale).params)
                for p in plans]
     write_shard(path, objects, cfg_json["classes"], cfg_json, cfg_json["toolkit_version"])
     return {"path": path, "meshes": sum(len(o.meshes) for o in objects),

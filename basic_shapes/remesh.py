@@ -123,7 +123,8 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                     if max(distance, params["primitive_distance"]) <= tol:
                         seen.add(key)
                         TRIES[name, "accepted"] += 1
-                        out.append(MeshRecord(variant, v, f, distance, params))
+                        out.append(MeshRecord(variant, v, f, distance, params,
+                                              params["primitive_distance"]))
                         SECONDS[name] += time.process_time() - start
                         break
                     reason = "Hausdorff above tolerance"

@@ -12,7 +12,7 @@ import hashlib
 import json
 import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
@@ -65,6 +65,7 @@ class MeshRecord:
     faces: np.ndarray  # (F, 3) int32, 0-based
     hausdorff: float  # two-sided, relative to the bbox diagonal of the simple mesh
     params: dict
+    primitive_distance: float = float("nan")  # two-sided to the analytic primitive, same unit
 
 
 @dataclass
@@ -75,6 +76,7 @@ class ObjectRecord:
     seed: int
     split: str  # "train" or "test"
     meshes: list[MeshRecord]
+    params: dict = field(default_factory=dict)  # hidden shape parameters (analytic.Solid)
 
 
 def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_names: list[str],
@@ -98,6 +100,8 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
             _dataset(g, "scale", np.array([o.scale for o in objects], np.float64).reshape(-1, 3))
             _dataset(g, "seed", np.array([o.seed for o in objects], np.uint64))
             _dataset(g, "split", np.array([o.split.encode() for o in objects], "S5"))
+            _dataset(g, "params", np.array([json.dumps(o.params, sort_keys=True).encode()
+                                            for o in objects], dtype=h5py.string_dtype()))
             g = f.create_group("meshes")
             obj_index = np.repeat(np.arange(len(objects)), [len(o.meshes) for o in objects])
             _dataset(g, "object_index", obj_index.astype(np.int32))
@@ -106,6 +110,8 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
             _dataset(g, "face_offset", np.concatenate([[0], np.cumsum(nf)]).astype(np.int64))
             _dataset(g, "n_faces", nf.astype(np.int32))
             _dataset(g, "hausdorff", np.array([m.hausdorff for m in meshes], np.float64))
+            _dataset(g, "primitive_distance",
+                     np.array([m.primitive_distance for m in meshes], np.float64))
             _dataset(g, "params", np.array([json.dumps(m.params, sort_keys=True).encode()
                                             for m in meshes], dtype=h5py.string_dtype()))
             _dataset(g, "vertices", vertices)

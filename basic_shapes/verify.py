@@ -1,5 +1,10 @@
 """Shape checks for generated meshes: two-sided Hausdorff (pymeshlab), tolerances, topology.
 
+Every mesh is compared with two things: the object's simple mesh (Hausdorff, ``tolerance``)
+and the object itself, the analytic primitive (``Reference.primitive_distance``,
+``primitive_tolerance``): mesh samples -> surface by basic_shapes.analytic.surface_distance,
+surface samples -> mesh by pymeshlab.
+
 Hausdorff distances are measured by pymeshlab from an explicit, deterministic point sample
 of each surface to the other mesh. MeshLab's own face sampling (Montecarlo) draws from a
 process-wide random generator that is never reseeded, so it would make the stored distance
@@ -18,13 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes import primitives
+from basic_shapes import analytic, primitives
 
 PLANAR_TOLERANCE = 1e-6
 """Bound for planar-faced shapes: float32 vertex rounding is ~6e-8 of the diagonal."""
 
 SAMPLE_SPACING = 1.0 / 8
 """Target distance between face samples, as a fraction of the bbox diagonal."""
+
+SURFACE_SPACING = 1.0 / 128
+"""Spacing of the analytic surface's samples (fraction of the diagonal): the surface -> mesh
+distance peaks mid-facet (a sagitta) and is flat there, so it is found to second order."""
+
+TOP_FREQUENCY_HZ = 12e9
+"""Top of the default band: distances are also stated in its wavelength (25 mm)."""
 
 MAX_FACE_SUBDIVISION = 8
 """Cap on k: at most k*k samples per face."""
@@ -118,7 +130,8 @@ class Reference:
     mesh next to it and removes it again.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray,
+                 solid: analytic.Solid | None = None):
         self.diagonal = bbox_diagonal(vertices)
         if not self.diagonal > 0:
             raise ValueError("reference mesh has an empty bounding box")
@@ -126,6 +139,11 @@ class Reference:
         self._ms = _pymeshlab().MeshSet()
         self._ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
         self._id = self._ms.current_mesh_id()
+        self.solid = solid
+        if solid is not None:
+            samples = analytic.surface_samples(solid, solid.diagonal * SURFACE_SPACING)
+            self._ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=samples))
+            self._surface_id = self._ms.current_mesh_id()
 
     def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
@@ -140,6 +158,33 @@ class Reference:
             ms.set_current_mesh(other)
             ms.delete_current_mesh()
         return max(to_ref, from_ref) / self.diagonal
+
+    def primitive_distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
+        """Two-sided distance from a mesh to the object's analytic surface, relative to the
+        object's bbox diagonal (NaN for a Reference built without the Solid)."""
+        solid = self.solid
+        if solid is None:
+            return float("nan")
+        v = np.asarray(vertices, np.float64)
+        spacing = solid.diagonal * SURFACE_SPACING * 4
+        points = np.concatenate([v, face_samples(v, faces, spacing)])
+        to_surface = float(analytic.surface_distance(solid, points).max())
+        ms = self._ms
+        ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=v, face_matrix=np.asarray(faces, np.int32)))
+        other = ms.current_mesh_id()
+        try:
+            from_surface = _one_sided(ms, sampled=self._surface_id, target=other,
+                                      radius=SEARCH_RADIUS * solid.diagonal)
+        finally:
+            ms.set_current_mesh(other)
+            ms.delete_current_mesh()
+        return max(to_surface, from_surface) / solid.diagonal
+
+
+def in_wavelengths(relative: float, scale) -> float:
+    """A distance relative to the bbox diagonal of extents ``scale``, in wavelengths at the
+    top frequency of the default band."""
+    return relative * float(np.linalg.norm(scale)) * TOP_FREQUENCY_HZ / analytic.C0
 
 
 def _one_sided(ms, sampled: int, target: int, radius: float) -> float:
@@ -182,6 +227,25 @@ def tolerance(class_name: str, params: dict) -> float:
     # A per-axis scale s maps unit-space displacements d to |diag(s / e0) d| <= max(s / e0)|d|;
     # relative to the diagonal |s| that is at most |d| / min(e0), reached as s approaches an axis.
     return unit_bound / min(spec.extents) + PLANAR_TOLERANCE
+
+
+def primitive_tolerance(class_name: str, params: dict) -> float:
+    """The bound (relative to the bbox diagonal) on a mesh's distance to the analytic primitive.
+
+    Planar-faced shapes: PLANAR_TOLERANCE. A curved tessellation at resolution r, loop-cut or
+    not, is inscribed in the smooth surface (every face is a planar polygon with its vertices on
+    it): gap(r) / min(e0). A decimated variant has no such structure; it passed ``tolerance``
+    against the simple mesh, itself within gap(default) / min(e0) of the surface, so the
+    triangle inequality bounds it by the sum (GENERATOR.md, "Distance to the primitive").
+    """
+    bound = tolerance(class_name, params)
+    spec = primitives.get(class_name)
+    if spec.planar:
+        return bound
+    resolution = (params or {}).get("resolution") or spec.default_resolution()
+    if (params or {}).get("decimate", {}).get("kind", "none") == "none":
+        return spec.gap(resolution) / min(spec.extents) + PLANAR_TOLERANCE
+    return bound + spec.gap(spec.default_resolution()) / min(spec.extents)
 
 
 def topology_key(faces: np.ndarray, n_vertices: int) -> tuple:

@@ -26,7 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives  # noqa: E402
 
-STAGES = ("simple", "primitive", "loop_cuts", "decimate", "extract", "checks", "hausdorff")
+STAGES = ("simple", "primitive", "loop_cuts", "decimate", "extract", "checks", "hausdorff",
+          "analytic")
 
 
 def measure(class_name: str, n_objects: int, n_variants: int, seed: int) -> dict:

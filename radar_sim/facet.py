@@ -18,9 +18,9 @@ loses digits when two phases nearly coincide; this module provides
   three phases lie within 0.5 rad), with double-double phases and areas: relative error about
   1e-15 against the exact integral of the given floats in every hard case (absolute, about
   eps/D, at the integral's own zeros);
-* the frequency-independent forms used by the fast path (``field.py``): regular weights, and
-  exact series for nearly coincident pairs and nearly specular facets (polynomials in k on the
-  vertices), with the rule (``classify``) that sends what is left to the stable evaluation.
+* double-double area vectors (``area_vectors_split``) for projected areas at grazing incidence,
+  and the constants of the frequency-independent forms evaluated by ``po_kernel``: exact
+  series for nearly coincident pairs and nearly specular facets (polynomials in k).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ SERIES_TERMS = 16        # h_n terms for spreads <= 0.5 rad (last term < 1e-17)
 # e^{jx}, fast and accurate: table of e^{j 2π i/N} times a short polynomial of the remainder.
 # numpy's float64 sin/cos are scalar libm calls (~15-20 ns each); this is a few vector ops.
 _TABLE_BITS = 12
-_N = 1 << _TABLE_BITS
+_N = CIS_TABLE_SIZE = 1 << _TABLE_BITS
 _TWO_PI_HI, _TWO_PI_LO = 6.283185307179586, 2.4492935982947064e-16   # 2π as a double-double
 _H_HI = float(np.round(_TWO_PI_HI / _N * 2.0 ** 29) / 2.0 ** 29)      # 20 significant bits
 _H_LO = ((_TWO_PI_HI - _N * _H_HI) + _TWO_PI_LO) / _N
@@ -67,7 +67,8 @@ def _table() -> np.ndarray:
     return cos + 1j * sin
 
 
-_TAB = _table()
+_TAB = CIS_TABLE = _table()
+CIS_STEP_HI, CIS_STEP_LO, CIS_INV_STEP, CIS_LIMIT = _H_HI, _H_LO, _INV_H, _CIS_LIMIT
 
 
 def cis(x: np.ndarray, x_lo: np.ndarray | None = None) -> np.ndarray:
@@ -212,8 +213,25 @@ def _cross_terms(triangles):
 
 def area_vectors(triangles):
     """½ (r_1 − r_0) × (r_2 − r_0), each component correctly rounded up to ~eps (slivers too)."""
+    return area_vectors_split(triangles)[0]
+
+
+def area_vectors_split(triangles):
+    """``area_vectors`` as double-doubles (hi, lo), hi + lo exact to ~eps² of the terms: the
+    projected area r̂·(hi + lo) of a facet seen at grazing angle θ keeps relative precision
+    (r̂·hi alone has relative error ~eps/θ)."""
     triangles = np.asarray(triangles, dtype=np.float64)
-    return 0.5 * np.stack([_compensated_sum(t) for t in _cross_terms(triangles)], axis=-1)
+    his, los = [], []
+    for terms in _cross_terms(triangles):
+        total = terms[0]
+        comp = np.zeros_like(total)
+        for term in terms[1:]:
+            total, err = _two_sum(total, term)
+            comp = comp + err
+        hi, lo = _two_sum(total, comp)
+        his.append(0.5 * hi)
+        los.append(0.5 * lo)
+    return np.stack(his, axis=-1), np.stack(los, axis=-1)
 
 
 def projected_area(triangles, direction):
@@ -263,96 +281,15 @@ def facet_field(triangles: np.ndarray, direction: np.ndarray, k: np.ndarray,
 
 
 # ---------------------------------------------------------------------------------------------
-# Frequency-independent forms for the fast path. A lit facet's field is written as
-#     A_f(k) = Σ_v e^{j 2k s_v} Σ_p W_v,p k^p,   p in CHANNELS,
-# with W depending on geometry only. Differences a = s0 − s1, b = s1 − s2, c = s2 − s0.
+# Constants of the frequency-independent forms of the fast path (``po_kernel``), where a lit
+# facet's field is Σ_v e^{j2k s_v}·(polynomial in k on the vertex). Near pair (two phases within
+# g, the third at e from their middle), with D = 2P/(√π(4e² − g²)) and T(y) = tan(y)/y:
+#     A_f = D·{ (e^{j2ks_a} + e^{j2ks_b})/2 · (1/k − j2e T(kg)) − e^{j2ks_c}/k },
+# T truncated after y¹⁴; near specular: e^{j2ks_mid} Σ_n (2/√π) P (2jk)^n h_n/(n+2)! · k.
 
-CHANNELS = np.arange(-1, 17)         # powers of k carried by the special forms
-# tan(y)/y = Σ_m _TAN[m] y^{2m}; the first omitted coefficient is _TAN_NEXT
-_TAN = (1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835, 1382 / 155925, 21844 / 6081075,
-        929569 / 638512875)
-_TAN_NEXT = 6404582 / 10854718875
-_SERIES_N = 16                       # h_0 … h_15: channels k¹ … k¹⁶
-_SERIES_NEXT = 17.0 / 6402373705728000.0   # (n+1)/(n+2)! of the first omitted term, n = 16
-
-
-def regular_weights(proj, a, b, c):
-    """k⁻¹ weights of the three vertices: P/(2√π abc) · (b, c, a)."""
-    q = proj / ((2.0 * SQRT_PI) * (a * b * c))
-    return q * b, q * c, q * a
-
-
-def pair_coefficients(proj, e, g):
-    """Two vertices a, b close in phase (g = s_a − s_b), the third c at e = (s_a + s_b)/2 − s_c.
-
-    Exactly, with D = 2P/(√π(4e² − g²)) and T(y) = tan(y)/y:
-        A_f = D·{ (e^{j2ks_a} + e^{j2ks_b})/2 · (1/k − j2e T(kg)) − e^{j2ks_c}/k }.
-    T is truncated after y¹⁴. Returns (coefficients of each pair vertex, of the third vertex),
-    each (n, len(CHANNELS)) complex.
-    """
-    d = (2.0 / SQRT_PI) * proj / (4.0 * e * e - g * g)
-    n = len(d)
-    pair = np.zeros((n, len(CHANNELS)), dtype=np.complex128)
-    third = np.zeros((n, len(CHANNELS)), dtype=np.complex128)
-    pair[:, 0] = 0.5 * d
-    third[:, 0] = -d
-    g2 = g * g
-    term = -1j * e * d
-    for m, coef in enumerate(_TAN):
-        pair[:, 1 + 2 * m] = term * coef
-        term = term * g2
-    return pair, third
-
-
-def series_coefficients(proj, lo, hi):
-    """All three phases close: expansion about the middle vertex, σ = s − s_mid (lo <= 0 <= hi).
-
-    exp[z] = e^{j2ks_mid} Σ_n (j2k)^n h_n(σ_lo, σ_hi)/(n+2)!, so A_f carries the k^{n+1}
-    coefficients (2P/√π)(2j)^n h_n/(n+2)! on the middle vertex (n < 16).
-    """
-    n = len(proj)
-    out = np.zeros((n, len(CHANNELS)), dtype=np.complex128)
-    h = np.ones(n)
-    lo_pow = np.ones(n)
-    fact = 2.0
-    unit = 1.0 + 0.0j
-    for order in range(_SERIES_N):
-        if order:
-            lo_pow = lo_pow * lo
-            h = hi * h + lo_pow
-            fact *= order + 2
-            unit *= 2j
-        out[:, order + 2] = (2.0 / SQRT_PI) * proj * unit * h / fact
-    return out
-
-
-REGULAR, PAIR, SERIES, STABLE = 0, 1, 2, 3
-
-
-def classify(a, b, c, k_lo, k_hi, phase_error, tol):
-    """Which form evaluates each facet within ``tol`` of its specular magnitude P k/√π.
-
-    * REGULAR: the vertex phasor error (``phase_error`` radians) amplified by Σ|weights| is
-      d_max·phase_error/(k_lo²|abc|) <= tol;
-    * SERIES: remainder of the 16-term series (2k_hi d_max)¹⁶·17/18! <= tol;
-    * PAIR: the smallest gap g and e ~ d_max: truncation _TAN_NEXT·(k_hi g)¹⁶/(k_lo e) plus the
-      amplified phasor error phase_error·(1/(k_lo e) + 1/(k_lo e)²) <= tol;
-    * STABLE: the per-frequency evaluation ``exp_divided_difference``.
-    Returns int8 kinds.
-    """
-    aa, bb, cc = np.abs(a), np.abs(b), np.abs(c)
-    d_max = np.maximum(np.maximum(aa, bb), cc)
-    d_min = np.minimum(np.minimum(aa, bb), cc)
-    abc = aa * bb * cc
-    out = np.full(a.shape, STABLE, dtype=np.int8)
-    regular = (abc > 0) & (d_max * phase_error <= tol * k_lo * k_lo * abc)
-    series = ~regular & ((2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol)
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        ke = k_lo * d_max
-        pair_err = (_TAN_NEXT * (k_hi * d_min) ** 16 / ke
-                    + phase_error * (1.0 / ke + 1.0 / (ke * ke)))
-    pair = ~regular & ~series & (pair_err <= tol)
-    out[regular] = REGULAR
-    out[series] = SERIES
-    out[pair] = PAIR
-    return out
+# tan(y)/y = Σ_m TAN_SERIES[m] y^{2m}; the first omitted coefficient is TAN_NEXT
+TAN_SERIES = (1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835, 1382 / 155925, 21844 / 6081075,
+              929569 / 638512875)
+TAN_NEXT = 6404582 / 10854718875
+SERIES_N = 16                        # h_0 … h_15: powers k¹ … k¹⁶
+SERIES_NEXT = 17.0 / 6402373705728000.0   # (n+1)/(n+2)! of the first omitted term, n = 16

@@ -1,18 +1,12 @@
 """The monostatic PO field of a mesh for many directions and frequencies.
 
-One geometric pass per direction serves every frequency: each lit facet becomes three vertex
-scatterers with frequency-independent weights (``facet.regular_weights``), summed onto the
+One geometric pass per direction serves every frequency (``po_kernel``, compiled): each lit
+facet becomes three vertex scatterers with frequency-independent weights, summed onto the
 mesh's unique vertices, so the frequency sum runs over V scatterers instead of 3F. Facets
-where those weights would lose digits (phases nearly coincident) get exact series forms that
-are polynomials in k on their vertices, or, rarely, the stable per-frequency evaluation
-(``facet.classify``, docs/RADAR.md "Numerics").
-
-The frequency sum Σ_v W_v e^{j2k_n s_v} for uniformly spaced k_n = k_0 + nΔk is a batched
-complex matrix product: with n = qP + r, e^{j2k_n s} = [e^{j2k_0 s} e^{j2qPΔk s}]·e^{j2rΔk s},
-so per direction a (P × V) by (V × q) product, and only 1 + q + P phasors per vertex built by
-multiplication from three accurate ones. Those three are computed from the exact product
-2k·s (Dekker's two-product), so every vertex phasor is accurate to a few ulp in absolute phase:
-that keeps near-degenerate weights usable (their error is the phasor error times Σ|W|).
+where those weights would lose digits (phases nearly coincident) get exact series forms
+(polynomials in k) or, rarely, the stable per-frequency evaluation (docs/RADAR.md "Numerics").
+The vertex sums Σ_v W_v e^{j2k_n s_v} become binned Taylor moments per direction, contracted
+with one direction-independent matrix for all directions at once (``_Moments``).
 
 Shadowing (mode "shadowed") casts one Embree ray per lit facet from its centroid towards the
 radar; "bounce2" adds the second and third bounces by shooting and bouncing rays
@@ -26,17 +20,17 @@ import ctypes.util
 import functools
 
 import numpy as np
-import scipy.sparse as sp
 
-from radar_sim import facet
+from radar_sim import facet, po_kernel
 from radar_sim.geometry import Mesh, RayCaster, check_units, mode_of, prepare
 
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
 DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular magnitude P k/√π
-BATCH = 16              # directions per geometric batch (keeps the working set in L2)
-SPECIAL_CHUNK = 1024    # special-facet scatterers per frequency-sum chunk
-PHASOR_ULPS = 64.0      # absolute phase error of a fast-path phasor, in units of eps (bound)
+GROUP = 64              # directions per kernel call (same in every mode: same bytes)
+VERTEX_TERM_COST = 8.0        # one moment update per vertex / one multiply-add of the contraction
+MOMENT_EPS = facet.EPS / 16    # Taylor remainder of a vertex phasor in the binned sums
+MOMENT_BUDGET = 64 << 20       # bytes of moments (or contraction matrix) held at a time
 
 
 def _cis_of_product(s, s_parts, c) -> np.ndarray:
@@ -107,162 +101,125 @@ def mesh_field(mesh: Mesh, k: np.ndarray, directions: np.ndarray, mode: str,
     return field[inverse.reshape(-1)]
 
 
-def _batches(d: np.ndarray, size: int) -> list[np.ndarray]:
-    """Groups of at most ``size`` nearby directions (recursive bisection along the widest
-    coordinate): the directions of a group light nearly the same vertices, so the union of
-    their lit vertices, over which the group's frequency sums run, stays small."""
-    out = []
-    stack = [np.arange(len(d))]
-    while stack:
-        idx = stack.pop()
-        if len(idx) <= size:
-            out.append(idx)
-            continue
-        pts = d[idx]
-        axis = int(np.argmax(pts.max(axis=0) - pts.min(axis=0)))
-        idx = idx[np.argsort(pts[:, axis], kind="stable")]
-        cut = int(np.ceil(len(idx) / size / 2)) * size
-        stack += [idx[cut:], idx[:cut]]
-    return out
-
-
-class _Scatter:
-    """Geometry shared by every batch: facet corners and the corner -> vertex incidence."""
+class _Geometry:
+    """Per-mesh arrays of the kernel: facet area vectors (double-double) and corners."""
 
     def __init__(self, mesh: Mesh):
-        v, f = mesh.vertices, mesh.faces
-        self.v = v
-        self.f = f
-        self.area = mesh.area_vectors
+        self.v = np.ascontiguousarray(mesh.vertices)
+        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.area, self.area_lo = facet.area_vectors_split(self.v[self.f])
+        self.area_split = np.concatenate(facet.split(self.area), axis=1)    # (F, 6)
         self.two_sided = not mesh.closed
-        edges = np.stack([v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 1]],
-                          v[f[:, 0]] - v[f[:, 2]]])
-        self.longest = np.sqrt(np.max(np.einsum("eij,eij->ei", edges, edges), axis=0))
-        n_f = len(f)
-        self.incidence = sp.csr_matrix(
-            (np.ones(3 * n_f), (f.T.reshape(-1), np.arange(3 * n_f))), shape=(len(v), 3 * n_f))
         self.centroids = mesh.centroids
         self.normals = self.area / np.linalg.norm(self.area, axis=1, keepdims=True)
 
 
+class _Moments:
+    """Bins and Taylor terms of ``po_kernel``'s frequency sums, and their contraction.
+
+    Bin width h, a power of two with x = κ_max·h <= 2 (κ = k − k_mid), and M terms, the
+    fewest with x^M/M! <= eps/16: the h that minimizes the estimated work per direction,
+    M updates per lit vertex (cost VERTEX_TERM_COST each) + n_bins·M·n_k multiply-adds of
+    the contraction. Bins cover |r̂·r| <= R. ``phase_error`` bounds the absolute phase error
+    of a vertex phasor so represented: (9 + 1.5x)·e^x ulps of rounding (docs/RADAR.md), twice
+    over, and at least that of the special facets' phasors (16 eps)."""
+
+    def __init__(self, k: np.ndarray, radius: float, n_vertices: int):
+        self.k = k
+        self.k_mid = 0.5 * (float(k.min()) + float(k.max()))
+        kappa = k - self.k_mid
+        spread = float(np.abs(kappa).max())
+        h = 2.0 ** np.ceil(np.log2(2.0 * radius))           # one bin suffices without spread
+        if spread > 0:
+            h = min(h, 2.0 ** np.floor(np.log2(2.0 / spread)))
+        best = None
+        for _ in range(8):                                   # x = 2, 1, 1/2, ... 1/128
+            x = spread * h
+            terms, bound = 1, x
+            while bound > MOMENT_EPS:
+                terms += 1
+                bound *= x / terms
+            n_bins = 2 * (int(np.ceil(radius / h)) + 1) + 1
+            cost = terms * (VERTEX_TERM_COST * 0.5 * n_vertices + n_bins * len(k))
+            if best is None or cost < best[0]:
+                best = (cost, h, x, terms, n_bins)
+            h *= 0.5
+        _, self.h, x, self.terms, self.n_bins = best
+        self.b_min = -(self.n_bins // 2)
+        self.width = self.n_bins * self.terms
+        self.phase_error = max(16.0, 2.0 * ((9.0 + 1.5 * x) * np.exp(x) + 1.0)) * facet.EPS
+        self.two_dk = _uniform_step(k) * 2.0
+        step = 1j * kappa * self.h
+        taylor = [np.ones_like(step)]
+        for m in range(1, self.terms):
+            taylor.append(taylor[-1] * step / m)
+        self.taylor = np.array(taylor)                                       # (M, n_k)
+        self.chunk = max(1, MOMENT_BUDGET // (self.terms * len(k) * 16))   # bins per block
+        self._matrix = self._block(0, self.n_bins) if self.n_bins <= self.chunk else None
+
+    def _block(self, lo: int, hi: int) -> np.ndarray:
+        """Rows (b, m) of e^{j2k_n c_b}(jκ_n h)^m/m! for bins lo <= b - b_min < hi."""
+        centres = (np.arange(lo, hi) + self.b_min) * self.h                  # exact
+        centre = facet.cis(*facet.two_product(centres[:, None], 2.0 * self.k[None, :]))
+        return (centre[:, None, :] * self.taylor[None]).reshape(-1, len(self.k))
+
+    def contract(self, mom: np.ndarray) -> np.ndarray:
+        """Σ_(b,m) mom[:, (b,m)] · matrix[(b,m), :]: the k⁻¹-weighted frequency sums."""
+        if self._matrix is not None:
+            return mom @ self._matrix
+        out = np.zeros((len(mom), len(self.k)), dtype=np.complex128)
+        for lo in range(0, self.n_bins, self.chunk):
+            hi = min(lo + self.chunk, self.n_bins)
+            out += mom[:, lo * self.terms:hi * self.terms] @ self._block(lo, hi)
+        return out
+
+
+def _uniform_step(k: np.ndarray) -> float:
+    """Δk of a uniform grid, k_n = k_0 + nΔk to 4 ulp (the phase error that leaves in the
+    series facets' phasors is within the 8·eps·2kR term of docs/RADAR.md), else 0."""
+    if len(k) < 2:
+        return 0.0
+    dk = (k[-1] - k[0]) / (len(k) - 1)
+    grid = k[0] + dk * np.arange(len(k))
+    return float(dk) if dk > 0 and np.all(np.abs(grid - k) <= 4 * facet.EPS * k) else 0.0
+
+
 def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | None,
               tol: float) -> np.ndarray:
-    """First-bounce PO: regular facets through batched vertex sums, the rest afterwards."""
-    geo = _Scatter(mesh)
-    sums = _PhaseSums(k)
-    k_lo = float(k.min())
-    quick = geo.longest[:, None] * sums.phase_error
-    scale = tol * k_lo * k_lo
+    """First-bounce PO by ``po_kernel`` in groups of directions (memory of the moments and
+    shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too."""
+    geo = _Geometry(mesh)
+    plan = _Moments(k, mesh.radius, len(mesh.vertices))
+    group = max(1, min(GROUP, MOMENT_BUDGET // (16 * plan.width)))
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
-    n_f = len(geo.f)
-    f0, f1, f2 = geo.f[:, 0], geo.f[:, 1], geo.f[:, 2]
-    stacked = np.empty((3 * n_f, BATCH))
-    special_faces, special_dirs, special_proj = [], [], []
-    for batch in _batches(dirs, BATCH):
-        r = dirs[batch]
-        nb = len(r)
-        s = geo.v @ r.T                                   # (V, B) phase positions r̂·r_v
-        signed = geo.area @ r.T                           # (F, B) projected areas
-        proj = np.abs(signed) if geo.two_sided else np.maximum(signed, 0.0)
-        if caster is not None:
-            _shadow(proj, signed, r, geo, caster)
-        s0, s1, s2 = s[f0], s[f1], s[f2]
-        a = s0 - s1
-        b = s1 - s2
-        c = s2 - s0
-        abc = a * b * c
-        lit = proj > 0
-        regular = np.abs(abc) * scale >= quick            # Σ|weights|·phasor error small
-        special = lit & ~regular
-        regular &= lit
-        q = np.zeros_like(abc)
-        np.divide(proj, (2.0 * facet.SQRT_PI) * abc, out=q, where=regular)
-        x = stacked[:, :nb]
-        np.multiply(q, b, out=x[:n_f])
-        np.multiply(q, c, out=x[n_f:2 * n_f])
-        np.multiply(q, a, out=x[2 * n_f:])
-        w = geo.incidence @ x                             # (V, B) k⁻¹ vertex weights
-        if special.any():
-            fi, bi = np.nonzero(special)
-            special_faces.append(fi)
-            special_dirs.append(batch[bi])
-            special_proj.append(proj[fi, bi])
-        active = np.flatnonzero(np.any(w != 0, axis=1))
-        if len(active):
-            st = np.ascontiguousarray(s[active].T)
-            wt = np.ascontiguousarray(w[active].T)
-            out[batch] = sums.weighted(sums.phasors(st), wt) / k
-    if special_faces:
-        _special_field(out, np.concatenate(special_faces), np.concatenate(special_dirs),
-                       np.concatenate(special_proj), geo, dirs, sums, tol)
+    no_shadow = np.zeros((0, 0), dtype=np.uint8)
+    for lo in range(0, len(dirs), group):
+        r = dirs[lo:lo + group]
+        blocked = no_shadow if caster is None else _blocked(r, geo, caster)
+        mom = np.zeros((len(r), plan.width), dtype=np.complex128)
+        part = out[lo:lo + group]
+        idx, val = po_kernel.first_bounce(
+            geo.v, geo.f, geo.area, geo.area_lo, geo.area_split, r, blocked, geo.two_sided, k,
+            plan.two_dk, tol, plan.phase_error, 1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid, mom, part)
+        part += plan.contract(mom) / k
+        if len(idx):
+            x = 2.0 * val[:, 1:, None] * k
+            dd = facet.exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])
+            _add_rows(part, idx[:, 1], (2.0 / facet.SQRT_PI) * val[:, :1] * k * dd)
     return out
 
 
-def _shadow(proj, signed, r, geo: _Scatter, caster: RayCaster) -> None:
-    """Zero the projected area of lit facets whose centroid cannot see the radar."""
-    fi, bi = np.nonzero(proj > 0)
-    if not len(fi):
-        return
-    normals = geo.normals[fi] * np.sign(signed[fi, bi])[:, None]
-    blocked = caster.occluded(geo.centroids[fi], r[bi], normals)
-    proj[fi[blocked], bi[blocked]] = 0.0
-
-
-def _special_field(out, fi, di, proj, geo: _Scatter, dirs, sums: "_PhaseSums", tol) -> None:
-    """Facets that failed the quick test, all directions at once: exact classification, then
-    regular weights, the near-pair or near-specular series (polynomials in k on vertices), or
-    the stable per-frequency integral. Positions are recomputed here so that each facet's
-    weights and phasors use the very same r̂·r values."""
-    k = sums.k
-    corners = geo.f[fi]                                              # (n, 3)
-    s = np.einsum("nij,nj->ni", geo.v[corners], dirs[di])            # (n, 3)
-    a, b, c = s[:, 0] - s[:, 1], s[:, 1] - s[:, 2], s[:, 2] - s[:, 0]
-    kind = facet.classify(a, b, c, float(k.min()), float(k.max()), sums.phase_error, tol)
-    entries = []                       # (facets, which corner, coefficients per channel)
-    sel = np.flatnonzero(kind == facet.REGULAR)
-    if len(sel):
-        for corner, wv in enumerate(facet.regular_weights(proj[sel], a[sel], b[sel], c[sel])):
-            coef = np.zeros((len(sel), len(facet.CHANNELS)), dtype=np.complex128)
-            coef[:, 0] = wv                                          # channel k⁻¹
-            entries.append((sel, corner, coef))
-    sel = np.flatnonzero(kind == facet.SERIES)
-    if len(sel):
-        order = np.argsort(s[sel], axis=1)
-        ordered = np.take_along_axis(s[sel], order, axis=1)
-        coef = facet.series_coefficients(proj[sel], ordered[:, 0] - ordered[:, 1],
-                                         ordered[:, 2] - ordered[:, 1])
-        entries.append((sel, order[:, 1], coef))
-    sel = np.flatnonzero(kind == facet.PAIR)
-    if len(sel):
-        gaps = np.abs(np.stack([a[sel], b[sel], c[sel]], axis=1))
-        i = np.argmin(gaps, axis=1)              # pair (i, i+1), third i+2 (mod 3)
-        j, m = (i + 1) % 3, (i + 2) % 3
-        si, sj, sm = s[sel, i], s[sel, j], s[sel, m]
-        pair_coef, third_coef = facet.pair_coefficients(proj[sel], 0.5 * (si + sj) - sm, si - sj)
-        entries += [(sel, i, pair_coef), (sel, j, pair_coef), (sel, m, third_coef)]
-    if entries:
-        rows = np.concatenate([di[sel] for sel, _, _ in entries])
-        verts = np.concatenate([corners[sel, x] for sel, x, _ in entries])
-        pos = np.concatenate([s[sel, x] for sel, x, _ in entries])
-        key = rows * len(geo.v) + verts
-        keys, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-        merge = sp.csr_matrix((np.ones(len(key)), (inverse, np.arange(len(key)))),
-                              shape=(len(keys), len(key)))
-        merged = merge @ np.concatenate([coef for _, _, coef in entries])   # (entries, channels)
-        used = np.flatnonzero(np.any(merged != 0, axis=0))
-        merged, powers = merged[:, used], sums.powers[used]
-        ph = sums.phasors(pos[first][None, :])
-        rows = rows[first]                                           # sorted (keys are)
-        for lo in range(0, len(keys), SPECIAL_CHUNK):               # (chunk, n_k) in cache
-            sl = slice(lo, lo + SPECIAL_CHUNK)
-            cols = np.arange(lo, min(lo + SPECIAL_CHUNK, len(keys)))
-            terms = (merged[sl] @ powers) * sums.select(ph, np.zeros(len(cols), dtype=int), cols)
-            _add_rows(out, rows[sl], terms)
-    sel = np.flatnonzero(kind == facet.STABLE)
-    if len(sel):
-        x = 2.0 * s[sel][:, :, None] * k
-        dd = facet.exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])
-        _add_rows(out, di[sel], (2.0 / facet.SQRT_PI) * proj[sel, None] * k * dd)
+def _blocked(r: np.ndarray, geo: _Geometry, caster: RayCaster) -> np.ndarray:
+    """(n_faces, n_dirs) uint8: 1 where a lit facet's centroid cannot see the radar."""
+    signed = geo.area @ r.T
+    lit = signed != 0 if geo.two_sided else signed > 0
+    fi, bi = np.nonzero(lit)
+    out = np.zeros(signed.shape, dtype=np.uint8)
+    if len(fi):
+        normals = geo.normals[fi] * np.sign(signed[fi, bi])[:, None]
+        hidden = caster.occluded(geo.centroids[fi], r[bi], normals)
+        out[fi[hidden], bi[hidden]] = 1
+    return out
 
 
 def _add_rows(out, rows, values) -> None:
@@ -280,7 +237,6 @@ class _PhaseSums:
     def __init__(self, k: np.ndarray):
         self.k = k
         n = len(k)
-        self.powers = k[None, :] ** facet.CHANNELS[:, None]          # (channels, n_k)
         self.q = 16 if n >= 64 else max(1, int(np.ceil(np.sqrt(n))))
         self.p = int(np.ceil(n / self.q))
         self.uniform = False
@@ -291,9 +247,6 @@ class _PhaseSums:
             self.dk = dk
         if self.uniform:
             self._steps = np.array([2.0 * k[0], 2.0 * self.dk, 2.0 * self.dk * self.q])[:, None, None]
-        extra = self.p + self.q if self.uniform else 0
-        # absolute phase error of each computed phasor (radians): cis and the recurrences
-        self.phase_error = facet.EPS * (PHASOR_ULPS + 2.0 * extra)
 
     def phasors(self, s: np.ndarray):
         parts = facet.split(s)
@@ -323,14 +276,6 @@ class _PhaseSums:
             step = step * step
         return pm, qm
 
-    def weighted(self, ph, w: np.ndarray) -> np.ndarray:
-        if not self.uniform:
-            return np.einsum("bv,bvn->bn", w, ph)
-        pm, qm = ph
-        nb = len(w)
-        x = pm * w[:, None, :]
-        return np.matmul(x, qm.transpose(0, 2, 1)).reshape(nb, -1)[:, :len(self.k)]
-
     def weighted_channels(self, ph, w: np.ndarray) -> np.ndarray:
         """Σ_v w_c,v exp(j2k s_v) for several weight rows c over one batch row of phasors."""
         if not self.uniform:
@@ -338,14 +283,6 @@ class _PhaseSums:
         pm, qm = ph
         x = pm[0][None] * w[:, None, :]                               # (c, p, V)
         return np.matmul(x, qm[0].T[None]).reshape(len(w), -1)[:, :len(self.k)]
-
-    def select(self, ph, rows, cols) -> np.ndarray:
-        """Full phasor rows (n, n_k) of chosen (batch row, vertex) pairs."""
-        if not self.uniform:
-            return ph[rows, cols]
-        pm, qm = ph
-        full = pm[rows, :, cols][:, :, None] * qm[rows, :, cols][:, None, :]
-        return full.reshape(len(rows), -1)[:, :len(self.k)]
 
 
 # ---------------------------------------------------------------------------------------------

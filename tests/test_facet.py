@@ -192,3 +192,70 @@ def test_fast_path_matches_stable_sum_on_a_mesh():
         proj = np.maximum(0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) @ d, 0)
         scale = proj.sum() * k / np.sqrt(np.pi)
         assert np.all(np.abs(row - ref) <= 1e-10 * scale)
+
+
+def rotation(seed):
+    """A rotation in general orientation (no axis-aligned edges or normals)."""
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return q
+
+
+@pytest.mark.parametrize("angle", [1e-12, 1e-9, 1e-6, 1e-3])
+def test_grazing_facet_in_general_orientation(angle):
+    """A facet seen ``angle`` rad above its plane, both in general orientation: the projected
+    area r̂·A is ~angle·|A|, so a float64 r̂·A alone would carry a relative error ~eps/angle;
+    both paths must keep relative precision against mpmath (bound relative to |P| k/√π)."""
+    rot = rotation(7)
+    tri = TRI @ rot.T
+    normal = np.array([0.0, 0.0, 1.0]) @ rot.T
+    along = unit(1.0, 0.3, 0.0) @ rot.T
+    direction = unit(*(np.cos(angle) * along + np.sin(angle) * normal))
+    freqs = K * C0 / (2 * np.pi)
+    fast = monostatic_field(tri, [[0, 1, 2]], freqs, direction, mode="convex", tol=1e-13)[0]
+    stable = facet.facet_field(tri[None], direction, K, two_sided=True)[0]
+    for k, g, s in zip(K, fast, stable):
+        ref, spec = field_ref(tri, direction, k)
+        assert 0.1 * angle < spec / (np.linalg.norm(facet.area_vectors(tri)) * k / np.sqrt(np.pi))
+        assert abs(s - ref) <= 1e-12 * abs(ref), (k, s, ref)
+        assert abs(g - ref) <= 1e-12 * spec, (k, g, ref, abs(g - ref) / spec)
+
+
+def uv_ellipsoid(segments, rings, axes):
+    """A closed UV-sphere mesh scaled per axis: poles and rings give exactly equal phases
+    (near-pair facets) at axis-aligned views, and small facets near the poles."""
+    theta = np.pi * np.arange(1, rings) / rings
+    phi = 2 * np.pi * np.arange(segments) / segments
+    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
+                     np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments))], -1)
+    v = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * axes
+    idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
+    nxt = np.roll(idx, -1, axis=1)
+    south = len(v) - 1
+    f = np.concatenate([np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
+                        np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
+                        np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1)])
+    return v, f
+
+
+@pytest.mark.parametrize("grid", ["uniform", "irregular"])
+def test_fast_path_matches_stable_sum_on_a_uv_ellipsoid(grid):
+    """The same on a fine UV ellipsoid with exactly axis-aligned views (whole rings of
+    equal-phase pairs), near-specular facets and general views, on a uniform frequency grid
+    (phasor recurrences of the special facets) and an irregular one."""
+    v, f = uv_ellipsoid(48, 40, np.array([0.5, 0.7, 0.9]))
+    rng = np.random.default_rng(4)
+    dirs = np.concatenate([np.eye(3), -np.eye(3), [unit(1, 1, 0), unit(0, 1, 1)],
+                           rng.normal(size=(8, 3))])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    freqs = np.linspace(8e9, 12e9, 64)
+    if grid == "irregular":
+        freqs = np.sort(rng.uniform(8e9, 12e9, 64))
+    k = 2 * np.pi * freqs / C0
+    fast = monostatic_field(v, f, freqs, dirs, mode="convex")
+    tri = v[f]
+    for d, row in zip(dirs, fast):
+        ref = facet.facet_field(tri, d, k).sum(axis=0)
+        proj = np.maximum(facet.area_vectors(tri) @ d, 0)
+        scale = proj.sum() * k / np.sqrt(np.pi)
+        assert np.all(np.abs(row - ref) <= 1e-10 * scale), np.max(np.abs(row - ref) / scale)

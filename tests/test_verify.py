@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from basic_shapes import primitives, verify
+from basic_shapes import analytic, primitives, verify
 
 
 def box(extents, center=(0.0, 0.0, 0.0)):
@@ -155,3 +155,56 @@ def test_registry_entries_are_consistent(name):
         assert res.allows(res.default), key
     assert spec.resolutions() and all(len(r) == len(spec.resolution) for r in spec.resolutions())
     assert 0 < verify.tolerance(name, {}) < 0.1
+
+
+def test_primitive_distance_of_an_inscribed_prism_is_its_sagitta():
+    # A regular n-gon prism inscribed in the unit-radius cylinder of height 2: the farthest
+    # surface point is mid-side, 1 - cos(pi/n) from the mesh; nothing on the mesh is farther.
+    solid = analytic.solid_for("cylinder", (2.0, 2.0, 2.0))
+    for n in (24, 48):
+        v, f = prism(n)
+        d = verify.Reference(v, f, solid).primitive_distance(v, f) * solid.diagonal
+        assert d == pytest.approx(1 - math.cos(math.pi / n), rel=1e-3)
+
+
+def test_primitive_distance_of_boxes_is_exact_and_two_sided():
+    va, fa = box((1.0, 2.0, 3.0))
+    exact = analytic.solid_for("cube", (1.0, 2.0, 3.0))
+    ref = verify.Reference(va, fa, exact)
+    assert ref.primitive_distance(va, fa) < 1e-15
+    # a mesh inside the object: only the surface -> mesh half sees the 0.2 m gap (MeshLab
+    # measures in float32)
+    vb, fb = box((1.0, 2.0, 2.6))
+    assert ref.primitive_distance(vb, fb) * exact.diagonal == pytest.approx(0.2, rel=1e-7)
+    # and without the Solid there is nothing to compare with
+    assert math.isnan(verify.Reference(va, fa).primitive_distance(va, fa))
+
+
+def test_primitive_tolerance_per_class_and_variant_kind():
+    assert verify.primitive_tolerance("cube", {}) == verify.PLANAR_TOLERANCE
+    spec = primitives.get("cylinder")
+    inscribed = {"resolution": {"vertices": 24}, "decimate": {"kind": "none"}}
+    assert verify.primitive_tolerance("cylinder", inscribed) == pytest.approx(
+        (1 - math.cos(math.pi / 24)) / 2 + verify.PLANAR_TOLERANCE)
+    decimated = {"resolution": {"vertices": 24}, "decimate": {"kind": "collapse"}}
+    assert verify.primitive_tolerance("cylinder", decimated) == pytest.approx(
+        verify.tolerance("cylinder", decimated) + spec.gap(spec.default_resolution()) / 2)
+    # the simple mesh of the largest object is ~0.5 wavelength from the primitive at 12 GHz
+    rel = verify.primitive_tolerance("cylinder", {"resolution": {"vertices": 32}})
+    assert verify.in_wavelengths(rel, (2.0, 2.0, 2.0)) == pytest.approx(
+        rel * math.sqrt(12) / (299_792_458.0 / 12e9))
+
+
+def test_the_writer_stores_primitive_distances_and_object_params(tmp_path):
+    import h5py
+
+    from basic_shapes.shards import MeshRecord, ObjectRecord, write_shard
+
+    v, f = box((1.0, 2.0, 3.0))
+    meshes = [MeshRecord(0, v, f, 0.0, {}, 1e-9), MeshRecord(1, v, f, 2e-7, {}, 3e-8)]
+    path = tmp_path / "s.h5"
+    write_shard(path, [ObjectRecord(0, 0, np.array([1.0, 2.0, 3.0]), 1, "train", meshes)],
+                ["cube"], {}, "test")
+    with h5py.File(path) as h5:
+        assert h5["meshes/primitive_distance"][()].tolist() == [1e-9, 3e-8]
+        assert h5["objects/params"].asstr()[()].tolist() == ["{}"]

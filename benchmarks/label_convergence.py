@@ -1,0 +1,140 @@
+"""Is an object's label converged? The simulation-mesh rule against twice its resolution.
+
+    python benchmarks/label_convergence.py [--grid full|coarse] [--classes cube,sphere,...]
+                                           [--independent] [--faces-sample N]
+
+For the largest objects of each class (2 x 2 x 2 m and the flattened / elongated 0.2 x 2 x 2,
+2 x 2 x 0.2), the label is simulated on basic_shapes.analytic.simulation_mesh and on the same
+rule with every edge-length limit halved (refinement 2). The error is the benchmark metric:
+MSE over the whole response of T = 20 log10(max(|range profile|, 1e-4)), in dB^2. The rule
+is converged when that MSE is <= 0.1 dB^2 on the full default grid ("xband-v1").
+``--independent`` also compares the label with an independent fine mesh of the same primitive
+(trimesh icosphere / cylinder / cone, scaled per axis); the issue's bound is 1 dB^2.
+``--faces-sample N`` reports mean / max faces over N log-uniform scales (0.2 - 2 m per axis).
+Writes benchmarks/results/label_convergence.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core: seconds comparable with the per-core goals
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+
+import radar_sim  # noqa: E402
+from basic_shapes import analytic  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+FLOOR = 1e-4
+SCALES = [(2.0, 2.0, 2.0), (0.2, 2.0, 2.0), (2.0, 2.0, 0.2)]
+GRIDS = {"full": radar_sim.RadarConfig.named("xband-v1"),
+         "coarse": radar_sim.RadarConfig(name="coarse", n_aspect=16, n_roll=5)}
+
+
+def target(profiles: np.ndarray) -> np.ndarray:
+    """The benchmark's target: 20 log10 of the range-profile magnitude, floored."""
+    return 20.0 * np.log10(np.maximum(np.abs(profiles), FLOOR))
+
+
+def label(vertices, faces, config, kind):
+    """Range profiles of a mesh and the seconds they took."""
+    mode = "shadowed" if kind == "torus" else "convex"  # the torus sees itself (first bounce)
+    start = time.perf_counter()
+    result = radar_sim.simulate(vertices, faces, config, mode=mode)
+    return result.range_profiles, time.perf_counter() - start
+
+
+def independent_mesh(kind: str, scale) -> tuple[np.ndarray, np.ndarray] | None:
+    """A fine mesh of the primitive built by trimesh (not by our rule), scaled per axis."""
+    if kind == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=8)
+        m.apply_scale(0.5)  # radius 1 -> unit-diameter; then per axis
+    elif kind == "cylinder":
+        m = trimesh.creation.cylinder(radius=0.5, height=1.0, sections=2048)
+    elif kind == "cone":
+        m = trimesh.creation.cone(radius=0.5, height=1.0, sections=2048)
+        m.apply_translation([0.0, 0.0, -0.5])  # apex at +z/2 like Blender's cone
+    else:
+        return None
+    v = np.asarray(m.vertices, np.float64) * np.asarray(scale, np.float64)
+    return v, np.asarray(m.faces, np.int32)
+
+
+def mse(a, b) -> float:
+    return float(np.mean((target(a) - target(b)) ** 2))
+
+
+def faces_sample(kind: str, n: int, seed: int = 0) -> dict:
+    """Mean / max simulation-mesh faces over n scales drawn log-uniform in 0.2-2 m per axis."""
+    rng = np.random.default_rng(seed)
+    scales = np.exp(rng.uniform(np.log(0.2), np.log(2.0), (n, 3)))
+    counts = [len(analytic.simulation_mesh(analytic.solid_for(kind, s), F_MAX)[1])
+              for s in scales]
+    return {"n": n, "mean_faces": float(np.mean(counts)), "max_faces": int(np.max(counts))}
+
+
+F_MAX = GRIDS["full"].f_stop_hz
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--grid", choices=sorted(GRIDS), default="full")
+    parser.add_argument("--classes", default=",".join(analytic.KINDS))
+    parser.add_argument("--scales", default=None,
+                        help="semicolon-separated extents, e.g. '2,2,2;0.2,2,2' (default: 3)")
+    parser.add_argument("--independent", action="store_true")
+    parser.add_argument("--faces-sample", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULTS / "label_convergence.json")
+    args = parser.parse_args(argv)
+    config = GRIDS[args.grid]
+    scales = ([tuple(float(x) for x in s.split(",")) for s in args.scales.split(";")]
+              if args.scales else SCALES)
+    rows = []
+    header = (f"{'class':9} {'extents (m)':15} {'faces':>8} {'faces 2x':>8} {'MSE 2x':>9} "
+              f"{'MSE indep':>9} {'s':>7}")
+    print(f"grid {config.name}: {config.n_aspect} aspects x {config.n_roll} rolls x "
+          f"{config.n_freq} freqs; rule {json.dumps(analytic.SIMULATION_RULE)}")
+    print(header)
+    for kind in args.classes.split(","):
+        for scale in scales:
+            solid = analytic.solid_for(kind, scale)
+            v1, f1 = analytic.simulation_mesh(solid, F_MAX)
+            v2, f2 = analytic.simulation_mesh(solid, F_MAX, refinement=2.0)
+            p1, seconds = label(v1, f1, config, kind)
+            p2, _ = label(v2, f2, config, kind)
+            row = {"class": kind, "extents_m": list(scale), "faces": len(f1),
+                   "faces_2x": len(f2), "mse_vs_2x_db2": mse(p1, p2), "seconds": seconds}
+            ref = independent_mesh(kind, scale) if args.independent else None
+            if ref is not None:
+                row["independent_faces"] = len(ref[1])
+                row["mse_vs_independent_db2"] = mse(p1, label(*ref, config, kind)[0])
+            rows.append(row)
+            ind = row.get("mse_vs_independent_db2")
+            print(f"{kind:9} {'x'.join(f'{x:g}' for x in scale):15} {len(f1):8d} {len(f2):8d} "
+                  f"{row['mse_vs_2x_db2']:9.4f} {'' if ind is None else f'{ind:9.4f}':>9} "
+                  f"{seconds:7.1f}", flush=True)
+    sample = {kind: faces_sample(kind, args.faces_sample)
+              for kind in args.classes.split(",")} if args.faces_sample else {}
+    for kind, s in sample.items():
+        print(f"faces over {s['n']} log-uniform scales, {kind}: mean {s['mean_faces']:.0f}, "
+              f"max {s['max_faces']}")
+    out = {"grid": config.name, "config": json.loads(config.to_json()),
+           "rule": analytic.SIMULATION_RULE, "rows": rows, "faces_sample": sample,
+           "machine": platform.processor() or platform.machine()}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(out, indent=1) + "\n")
+    tmp.replace(args.out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,306 @@
+"""Compiled (numba) first-bounce PO kernel: one pass over the facets per direction.
+
+Per direction, every lit facet is classified (docs/RADAR.md, "Numerics") and either scattered
+as three frequency-independent k⁻¹ vertex weights onto the mesh's vertices, or, when its
+phases nearly coincide, evaluated at once on the frequency grid by an exact series (near-pair
+or near-specular, ``facet`` forms), or handed back for the stable per-frequency integral.
+
+The vertex weights' frequency sums Σ_v w_v e^{j2k_n s_v} are reduced to binned Taylor
+moments: with bins of width h (a power of two) centred at c_b = b·h, δ = s − c_b is exact,
+and e^{j2k_n s} = e^{j2k_n c_b} · e^{j2k_mid δ} · Σ_m (jκ_n h)^m/m! · u^m with κ_n =
+k_n − k_mid and u = 2δ/h in [−1, 1]. Per direction each lit vertex adds M moments
+Σ_v w_v e^{j2k_mid δ_v} u_v^m to its bin; ``field`` contracts the moments of all directions
+with the direction-independent matrix e^{j2k_n c_b}(jκ_n h)^m/m! in one matrix product. That
+is about M + 10 real multiply-adds per lit vertex and direction instead of 4 × n_k.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from radar_sim import facet
+
+_TAB_RE = np.ascontiguousarray(facet.CIS_TABLE.real)
+_TAB_IM = np.ascontiguousarray(facet.CIS_TABLE.imag)
+_MASK = facet.CIS_TABLE_SIZE - 1
+_INV_H = facet.CIS_INV_STEP
+_H_HI = facet.CIS_STEP_HI
+_H_LO = facet.CIS_STEP_LO
+_LIMIT = facet.CIS_LIMIT
+_TWO_OVER_SQRT_PI = 2.0 / facet.SQRT_PI
+_TAN = np.array(facet.TAN_SERIES)
+_TAN_NEXT = facet.TAN_NEXT
+_SERIES_N = facet.SERIES_N
+_SERIES_NEXT = facet.SERIES_NEXT
+
+
+@njit(cache=True)
+def _split(a):
+    t = a * 134217729.0
+    hi = t - (t - a)
+    return hi, a - hi
+
+
+@njit(cache=True)
+def _two_product(a, b):
+    p = a * b
+    ah, al = _split(a)
+    bh, bl = _split(b)
+    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
+
+
+@njit(cache=True)
+def _two_sum(a, b):
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+@njit(cache=True)
+def _cis(x, x_lo):
+    """(cos, sin) of x + x_lo: ``facet.cis`` (table and short polynomial), libm beyond."""
+    if abs(x) > _LIMIT:
+        c, s = math.cos(x), math.sin(x)
+        return c - s * x_lo, s + c * x_lo
+    m = math.floor(x * _INV_H + 0.5)
+    r = x - m * _H_HI
+    r -= m * _H_LO
+    r += x_lo
+    r2 = r * r
+    cm1 = r2 * (-0.5 + r2 * (1.0 / 24.0))
+    sn = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0)))
+    i = int(m) & _MASK
+    tr = _TAB_RE[i]
+    ti = _TAB_IM[i]
+    return tr + (tr * cm1 - ti * sn), ti + (tr * sn + ti * cm1)
+
+
+@njit(cache=True)
+def _cis_of_product(s, two_k):
+    hi, lo = _two_product(s, two_k)
+    return _cis(hi, lo)
+
+
+@njit(cache=True)
+def _projected(area, area_lo, area_split, f, r0, r1, r2, r_split):
+    """r̂·A to relative error <= 42 eps (1e-14): plain when |r̂·A| >= Σ|A_i r_i|/12, else from
+    the double-double area vector by exact products (grazing incidence)."""
+    a0, a1, a2 = area[f, 0], area[f, 1], area[f, 2]
+    p0, p1, p2 = a0 * r0, a1 * r1, a2 * r2
+    p = p0 + p1 + p2
+    if 12.0 * abs(p) >= abs(p0) + abs(p1) + abs(p2):
+        return p
+    e0 = ((area_split[f, 0] * r_split[0] - p0) + area_split[f, 0] * r_split[3]
+          + area_split[f, 3] * r_split[0]) + area_split[f, 3] * r_split[3]
+    e1 = ((area_split[f, 1] * r_split[1] - p1) + area_split[f, 1] * r_split[4]
+          + area_split[f, 4] * r_split[1]) + area_split[f, 4] * r_split[4]
+    e2 = ((area_split[f, 2] * r_split[2] - p2) + area_split[f, 2] * r_split[5]
+          + area_split[f, 5] * r_split[2]) + area_split[f, 5] * r_split[5]
+    t, c1 = _two_sum(p0, p1)
+    t, c2 = _two_sum(t, p2)
+    low = area_lo[f, 0] * r0 + area_lo[f, 1] * r1 + area_lo[f, 2] * r2
+    return t + (((c1 + c2) + (e0 + e1 + e2)) + low)
+
+
+@njit(cache=True)
+def _phasors(s, k, two_dk, re, im):
+    """e^{j2k_n s} into (re, im): accurate (two-product and table, 2 eps) at every 4th
+    frequency and multiplied on by e^{j2Δk s} in between on a uniform grid (two_dk > 0):
+    at most 3 steps of 4 eps each, so within 16 eps (``field._Moments.phase_error``)."""
+    if two_dk > 0.0:
+        sr, si = _cis_of_product(s, two_dk)
+    for n in range(len(k)):
+        if two_dk <= 0.0 or n % 4 == 0:
+            c, sn = _cis_of_product(s, 2.0 * k[n])
+        else:
+            c, sn = c * sr - sn * si, c * si + sn * sr
+        re[n] = c
+        im[n] = sn
+
+
+@njit(cache=True)
+def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im):
+    """Near-specular facet: e^{j2k s_mid} Σ_n (2/√π) P (2jk)^n h_n(σ_lo, σ_hi)/(n+2)! · k,
+    truncated where (2k_max d)^N (N+1)/(N+2)! <= tol/2 (at most 16 terms)."""
+    if s0 > s1:
+        s0, s1 = s1, s0
+    if s1 > s2:
+        s1, s2 = s2, s1
+    if s0 > s1:
+        s0, s1 = s1, s0
+    lo = s0 - s1
+    hi = s2 - s1
+    x = 2.0 * k.max() * (hi - lo)
+    coef = np.empty(_SERIES_N)         # real parts of (2/√π) P 2^n h_n/(n+2)!, sign of j^n in
+    h = 1.0
+    lo_pow = 1.0
+    fact = 2.0
+    scale = _TWO_OVER_SQRT_PI * proj
+    bound = 1.0                        # x^n (n+1)/(n+2)! of the next term
+    terms = _SERIES_N
+    for n in range(_SERIES_N):
+        if n:
+            lo_pow *= lo
+            h = hi * h + lo_pow
+            fact *= n + 2
+            scale *= 2.0
+        sign = 1.0 if (n % 4) < 2 else -1.0
+        coef[n] = sign * scale * h / fact
+        bound *= x * (n + 2) / ((n + 1) * (n + 3)) if n else x / 3.0
+        if bound <= 0.5 * tol:
+            terms = n + 1
+            break
+    _phasors(s1, k, two_dk, re, im)
+    for i in range(len(k)):
+        kk = k[i]
+        pr = 0.0
+        pi = 0.0
+        for n in range(terms - 1, -1, -1):        # Horner in k: even n real, odd n imaginary
+            if n % 2:
+                pi = pi * kk + coef[n]
+                pr = pr * kk
+            else:
+                pr = pr * kk + coef[n]
+                pi = pi * kk
+        pr *= kk
+        pi *= kk
+        row[i] += complex(pr * re[i] - pi * im[i], pr * im[i] + pi * re[i])
+
+
+@njit(cache=True)
+def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2):
+    """The k⁰⁺ part of a near pair: −j e D T(kg) (e^{j2ks_i} + e^{j2ks_j}), T = tan(y)/y
+    truncated where TAN_m (k_max g)^{2m}/(k_min e) <= tol/2 (at most 8 terms)."""
+    n_tan = len(_TAN)
+    y2_max = (k.max() * g) ** 2
+    bound = 1.0 / abs(k.min() * e)
+    terms = n_tan
+    for m in range(1, n_tan):
+        bound *= y2_max
+        if _TAN[m] * bound <= 0.5 * tol:
+            terms = m
+            break
+    _phasors(si, k, two_dk, re, im)
+    _phasors(sj, k, two_dk, re2, im2)
+    for i in range(len(k)):
+        kk = k[i]
+        y2 = (kk * g) * (kk * g)
+        t = _TAN[terms - 1]
+        for m in range(terms - 2, -1, -1):
+            t = t * y2 + _TAN[m]
+        amp = -e * d * t                            # times j
+        row[i] += complex(-amp * (im[i] + im2[i]), amp * (re[i] + re2[i]))
+
+
+@njit(cache=True)
+def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, k, two_dk,
+                 tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out):
+    """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights, series facets
+    added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
+    (face, direction) index pairs, their projected areas and their three positions r̂·r_i.
+    ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none); ``area_split``
+    holds the Veltkamp halves of ``area`` (hi parts, then lo parts); ``two_dk`` is 2Δk of a
+    uniform frequency grid (0: not uniform)."""
+    n_v = len(v)
+    n_f = len(faces)
+    k_lo = k.min()
+    k_hi = k.max()
+    k_lo2 = k_lo * k_lo
+    h = 1.0 / inv_h
+    shadowed = blocked.size > 0
+    s = np.empty(n_v)
+    w = np.empty(n_v)
+    r_split = np.empty(6)
+    scratch = np.empty((4, len(k)))
+    cap = 64
+    st_idx = np.empty((cap, 2), dtype=np.int64)
+    st_val = np.empty((cap, 4))
+    n_st = 0
+    for d in range(len(dirs)):
+        r0, r1, r2 = dirs[d, 0], dirs[d, 1], dirs[d, 2]
+        for c in range(3):
+            r_split[c], r_split[3 + c] = _split(dirs[d, c])
+        for i in range(n_v):
+            s[i] = v[i, 0] * r0 + v[i, 1] * r1 + v[i, 2] * r2
+            w[i] = 0.0
+        row = out[d]
+        for f in range(n_f):
+            p = _projected(area, area_lo, area_split, f, r0, r1, r2, r_split)
+            if two_sided:
+                p = abs(p)
+            if not p > 0.0 or (shadowed and blocked[f, d]):
+                continue
+            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+            s0, s1, s2 = s[i0], s[i1], s[i2]
+            a = s0 - s1
+            b = s1 - s2
+            c = s2 - s0
+            abc = a * b * c
+            aa, bb, cc = abs(a), abs(b), abs(c)
+            d_max = max(aa, bb, cc)
+            if abc != 0.0 and d_max * phase_error <= tol * k_lo2 * abs(abc):
+                q = p / ((2.0 * facet.SQRT_PI) * abc)
+                w[i0] += q * b
+                w[i1] += q * c
+                w[i2] += q * a
+                continue
+            if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
+                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1])
+                continue
+            d_min = min(aa, bb, cc)
+            ke = k_lo * d_max
+            if ke > 0.0 and (_TAN_NEXT * (k_hi * d_min) ** 16 / ke
+                             + phase_error * (1.0 / ke + 1.0 / (ke * ke))) <= tol:
+                if aa == d_min:                      # pair (0, 1), third 2
+                    pi_, pj, pm = i0, i1, i2
+                    si, sj, sm = s0, s1, s2
+                elif bb == d_min:                    # pair (1, 2), third 0
+                    pi_, pj, pm = i1, i2, i0
+                    si, sj, sm = s1, s2, s0
+                else:                                # pair (2, 0), third 1
+                    pi_, pj, pm = i2, i0, i1
+                    si, sj, sm = s2, s0, s1
+                e = 0.5 * (si + sj) - sm
+                g = si - sj
+                dd = _TWO_OVER_SQRT_PI * p / (4.0 * e * e - g * g)
+                w[pi_] += 0.5 * dd
+                w[pj] += 0.5 * dd
+                w[pm] -= dd
+                _add_pair_tan(row, k, two_dk, tol, dd, e, g, si, sj, scratch[0], scratch[1],
+                              scratch[2], scratch[3])
+                continue
+            if n_st == cap:
+                cap *= 2
+                grown_idx = np.empty((cap, 2), dtype=np.int64)
+                grown_val = np.empty((cap, 4))
+                grown_idx[:n_st] = st_idx
+                grown_val[:n_st] = st_val
+                st_idx, st_val = grown_idx, grown_val
+            st_idx[n_st, 0] = f
+            st_idx[n_st, 1] = d
+            st_val[n_st, 0] = p
+            st_val[n_st, 1] = s0
+            st_val[n_st, 2] = s1
+            st_val[n_st, 3] = s2
+            n_st += 1
+        m_row = mom[d]
+        two_over_h = 2.0 * inv_h
+        for i in range(n_v):
+            wi = w[i]
+            if wi == 0.0:
+                continue
+            bf = math.floor(s[i] * inv_h + 0.5)
+            delta = s[i] - bf * h                     # exact: h is a power of two
+            u = delta * two_over_h
+            c, sn = _cis_of_product(delta, two_k_mid)
+            wr = wi * c
+            wim = wi * sn
+            base = (int(bf) - b_min) * n_terms
+            pw = 1.0
+            for m in range(n_terms):
+                m_row[base + m] += complex(wr * pw, wim * pw)
+                pw *= u
+    return st_idx[:n_st], st_val[:n_st]
