@@ -40,6 +40,10 @@ def build_parser() -> ArgumentParser:
     g.add_argument("--variants", type=number(int, minimum=0, maximum=999),
                    default=GenerateConfig.variants,
                    help="complex variants per object, besides the simple mesh (default: %(default)s)")
+    g.add_argument("--ood-variants", type=number(int, minimum=0, maximum=25),
+                   default=GenerateConfig.ood_variants_per_remesher,
+                   help="out-of-distribution meshes per remesher per test object, variants 900-999 "
+                        "(default: %(default)s; 0 = none)")
     g.add_argument("--seed", type=number(int, minimum=0, maximum=2**63 - 1), default=0,
                    help="dataset seed (default: %(default)s)")
     g.add_argument("--workers", type=number(int, minimum=0), default=None,
@@ -83,6 +87,7 @@ def _main(argv: list[str]) -> int:
 
         cfg = GenerateConfig(classes=args.classes, objects_per_class=args.objects_per_class,
                              variants=args.variants, seed=args.seed,
+                             ood_variants_per_remesher=args.ood_variants,
                              objects_per_shard=args.objects_per_shard,
                              scale_range=tuple(args.scale_range),
                              min_scale_distance=args.min_scale_distance)

@@ -22,7 +22,8 @@ from basic_shapes import __version__
 from basic_shapes.analytic import solid_for
 from basic_shapes.infra import atomic_path, load_json
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, ScaleError, capacity, sample_scales
-from basic_shapes.shards import ObjectRecord, Shard, ShardError, shard_name, write_shard
+from basic_shapes.shards import (OOD_FIRST, OOD_REMESHERS, OOD_SLOT, ObjectRecord, Shard,
+                                 ShardError, shard_name, write_shard)
 
 CONFIG_FILE = "dataset.json"
 TEST_FRACTION = 0.1
@@ -45,6 +46,7 @@ class GenerateConfig:
     min_scale_distance: float = MIN_DISTANCE
     test_fraction: float = TEST_FRACTION
     val_fraction: float = VAL_FRACTION
+    ood_variants_per_remesher: int = 3
     toolkit_version: str = field(default=__version__)
 
     def validate(self) -> None:
@@ -58,8 +60,12 @@ class GenerateConfig:
         for name, lo in (("objects_per_class", 1), ("variants", 0), ("objects_per_shard", 1)):
             if getattr(self, name) < lo:
                 raise ValueError(f"{name} must be >= {lo}, got {getattr(self, name)}")
-        if self.variants >= 1000:
-            raise ValueError(f"variants must be < 1000 (mesh ids reserve 3 digits), got {self.variants}")
+        if self.variants >= OOD_FIRST:
+            raise ValueError(f"variants must be < {OOD_FIRST} (mesh ids reserve 3 digits, "
+                             f"{OOD_FIRST}-999 for OOD meshes), got {self.variants}")
+        if not 0 <= self.ood_variants_per_remesher <= OOD_SLOT:
+            raise ValueError(f"ood_variants_per_remesher must be in 0..{OOD_SLOT}, "
+                             f"got {self.ood_variants_per_remesher}")
         if not 0 <= self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
         if not 0 <= self.val_fraction < 1 - self.test_fraction:
@@ -140,13 +146,27 @@ def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
 
     t0 = time.perf_counter()
     objects = [ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
-                            object_meshes(p.class_name, np.array(p.scale), p.seed,
-                                          cfg_json["variants"]),
+                            _with_ood(p, object_meshes(p.class_name, np.array(p.scale), p.seed,
+                                                       cfg_json["variants"]), cfg_json),
                             params=solid_for(p.class_name, p.scale).params)
                for p in plans]
     write_shard(path, objects, cfg_json["classes"], cfg_json, cfg_json["toolkit_version"])
     return {"path": path, "meshes": sum(len(o.meshes) for o in objects),
             "seconds": time.perf_counter() - t0}
+
+
+def _with_ood(p: ObjectPlan, meshes: list, cfg_json: dict) -> list:
+    """A test object's meshes followed by its out-of-distribution ones (basic_shapes/remesh.py,
+    variants OOD_FIRST..999): other remeshers than the training variants', test split only."""
+    per = cfg_json.get("ood_variants_per_remesher", 0)
+    if p.split != "test" or not per:
+        return meshes
+    from basic_shapes.remesh import ood_meshes
+    from basic_shapes.verify import topology_key
+
+    seen = {topology_key(m.faces, len(m.vertices)) for m in meshes}
+    return meshes + ood_meshes(p.class_name, np.array(p.scale), p.seed, meshes[0].vertices,
+                               meshes[0].faces, per, seen)
 
 
 def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
@@ -229,8 +249,14 @@ def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -
 def _run(todo, cfg_json, workers, scheduler, progress):
     from tqdm import tqdm
 
-    bar = tqdm(total=sum(len(p) for _, p in todo) * (cfg_json["variants"] + 1), unit="mesh",
-               disable=not progress or not todo, desc="generate")
+    from basic_shapes.remesh import supports
+
+    ood = {c: cfg_json.get("ood_variants_per_remesher", 0) * sum(supports(r, c)
+                                                                 for r in OOD_REMESHERS)
+           for c in cfg_json["classes"]}
+    total = sum(cfg_json["variants"] + 1 + ood[p.class_name] * (p.split == "test")
+                for _, ps in todo for p in ps)
+    bar = tqdm(total=total, unit="mesh", disable=not progress or not todo, desc="generate")
     if workers == 0 and scheduler is None:
         for path, plans in todo:
             r = build_shard(path, plans, cfg_json)

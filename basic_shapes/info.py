@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, label_fingerprint,
-                                 list_shards)
+from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, is_ood_variant,
+                                 label_fingerprint, list_shards)
 
 BAR = 40
 
@@ -34,7 +34,7 @@ def _labels(directory) -> str:
 
 def summary(directory: str | Path) -> str:
     per_class = defaultdict(lambda: {"objects": 0, "train": 0, "val": 0, "test": 0, "faces": [],
-                                     "hausdorff": [], "labelled": 0})
+                                     "hausdorff": [], "labelled": 0, "ood": 0})
     shards = list_shards(directory)
     config = None
     for p in shards:
@@ -49,8 +49,10 @@ def summary(directory: str | Path) -> str:
                 d[objs["split"][k]] += 1
                 d["labelled"] += int(s.has_labels)
             cls_of_mesh = objs["class"][table["object_index"]]
+            ood = is_ood_variant(table["variant"])  # counted apart, not in the statistics
             for c in np.unique(cls_of_mesh):
-                sel = cls_of_mesh == c
+                per_class[names[c]]["ood"] += int(np.sum((cls_of_mesh == c) & ood))
+                sel = (cls_of_mesh == c) & ~ood
                 per_class[names[c]]["faces"].append(table["n_faces"][sel])
                 complex_ = sel & (table["variant"] > 0)
                 per_class[names[c]]["hausdorff"].append(table["hausdorff"][complex_])
@@ -61,8 +63,10 @@ def summary(directory: str | Path) -> str:
     for name, d in per_class.items():
         faces = np.concatenate(d["faces"])
         h = np.concatenate(d["hausdorff"])
-        lines.append(f"\n{name}: {d['objects']} objects ({d['train']} train / {d['val']} val / {d['test']} test), "
-                     f"{len(faces)} meshes, {d['labelled']} objects radar-labelled")
+        lines.append(f"\n{name}: {d['objects']} objects ({d['train']} train / {d['val']} val / "
+                     f"{d['test']} test), {len(faces)} meshes"
+                     + (f" + {d['ood']} out-of-distribution" if d["ood"] else "")
+                     + f", {d['labelled']} objects radar-labelled")
         lines.append(f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}")
         lines.extend(_histogram(faces))
         if len(h):

@@ -580,3 +580,34 @@ def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, n
                                     (response[k] for k in range(len(response))))
     g.attrs["label_fingerprint"] = fingerprint
     return fingerprint
+
+
+OOD_REMESHERS = ("isotropic", "qem", "delaunay")
+"""Remeshers of the out-of-distribution test meshes (basic_shapes/remesh.py), in slot order."""
+OOD_FIRST = 900
+"""Variants OOD_FIRST..MAX_VARIANTS-1 are reserved for OOD meshes, never training variants."""
+OOD_SLOT = 25
+"""Variant numbers per remesher: remesher r owns OOD_FIRST + r * OOD_SLOT + (0..OOD_SLOT-1)."""
+
+
+def is_ood_variant(variant) -> bool | np.ndarray:
+    """Whether a variant number (or array of them) is an out-of-distribution test mesh."""
+    v = np.asarray(variant)
+    out = (v >= OOD_FIRST) & (v < MAX_VARIANTS)
+    return bool(out) if out.ndim == 0 else out
+
+
+def ood_remesher(variant: int) -> str | None:
+    """The remesher that made an OOD variant (None for the simple mesh and training variants)."""
+    if not is_ood_variant(variant):
+        return None
+    return OOD_REMESHERS[(int(variant) - OOD_FIRST) // OOD_SLOT]
+
+
+def ood_variant(remesher: str, k: int) -> int:
+    """Variant number of the k-th OOD mesh of ``remesher`` (0 <= k < OOD_SLOT)."""
+    if remesher not in OOD_REMESHERS:
+        raise ValueError(f"unknown remesher {remesher!r}; known: {', '.join(OOD_REMESHERS)}")
+    if not 0 <= k < OOD_SLOT:
+        raise ValueError(f"OOD mesh index {k} outside 0..{OOD_SLOT - 1}")
+    return OOD_FIRST + OOD_REMESHERS.index(remesher) * OOD_SLOT + k

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.scales import SCALE_RANGE
-from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, label_fingerprint,
+from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, is_ood_variant,
+                                 label_fingerprint,
                                  list_shards, mesh_uid)
 
 FLOOR_AMPLITUDE = 1e-4
@@ -103,7 +104,7 @@ class BenchmarkData:
 
     ``objects`` and ``meshes`` are dicts of equal-length arrays (global rows across shards):
     objects: shard, row, id, class_index, scale (n,3), split;
-    meshes: shard, row, object (row into objects), variant, n_faces, uid.
+    meshes: shard, row, object (row into objects), variant, n_faces, uid, ood.
     Shard files are opened lazily, once per process (safe with DataLoader workers).
     """
 
@@ -141,8 +142,11 @@ class BenchmarkData:
         self.meshes["uid"] = np.array([mesh_uid(i, v) for i, v in zip(
             self.objects["id"][self.meshes["object"]], self.meshes["variant"])], np.int64)
         order = np.lexsort((self.meshes["variant"], self.meshes["object"]))
-        self._by_object = np.split(order, np.cumsum(np.bincount(self.meshes["object"],
-                                                                minlength=n_obj))[:-1])
+        self.meshes["ood"] = is_ood_variant(self.meshes["variant"])
+        self._by_object, self._ood_by_object = (  # OOD meshes never reach meshes_of/mesh_rows
+            np.split(rows, np.cumsum(np.bincount(self.meshes["object"][rows],
+                                                 minlength=n_obj))[:-1])
+            for rows in (order[~self.meshes["ood"][order]], order[self.meshes["ood"][order]]))
         self._handles: dict[int, Shard] = {}
         self._pid = os.getpid()
 
@@ -204,8 +208,14 @@ class BenchmarkData:
         return np.concatenate(rows) if rows else np.zeros(0, np.int64)
 
     def meshes_of(self, obj: int) -> np.ndarray:
-        """Global mesh rows of object row ``obj``, sorted by variant (simple first)."""
+        """Global mesh rows of object row ``obj``, sorted by variant (simple first), without its
+        out-of-distribution meshes (``ood_meshes_of``), which no training reader may see."""
         return self._by_object[obj]
+
+    def ood_meshes_of(self, obj: int) -> np.ndarray:
+        """Global rows of object row ``obj``'s OOD test meshes (variants 900-999), by variant;
+        the remesher of each is ``basic_shapes.shards.ood_remesher(variant)``."""
+        return self._ood_by_object[obj]
 
     # --- content --------------------------------------------------------------------------
     def _shard(self, k: int) -> Shard:

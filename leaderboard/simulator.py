@@ -19,7 +19,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from basic_shapes.shards import Shard
+from basic_shapes.shards import Shard, is_ood_variant
 from benchmark.data import BenchmarkData, db_target
 from benchmark.evaluate import speed_block
 from benchmark.metrics import Scorer
@@ -42,8 +42,9 @@ def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
             for j, row in enumerate(radar.mesh_index.tolist()):
                 mesh = by_row[row]
                 obj = int(data.meshes["object"][mesh])
-                if obj in test:
-                    physics.setdefault(obj, {})[int(data.meshes["variant"][mesh])] = j
+                variant = int(data.meshes["variant"][mesh])
+                if obj in test and not is_ood_variant(variant):  # OOD meshes: scored apart
+                    physics.setdefault(obj, {})[variant] = j
             for obj, variants in sorted(physics.items()):
                 if 0 not in variants:
                     continue

@@ -56,9 +56,11 @@ def analytic_label(cls: str, scale: np.ndarray, aspect_deg, roll_deg, range_m) -
 
 def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_class: int = 2,
                  n_shards: int = 2, grid: tuple[int, int, int] = (7, 5, 16), seed: int = 0,
-                 n_val_per_class: int = 0) -> Path:
+                 n_val_per_class: int = 0, ood: tuple[int, ...] = ()) -> Path:
     """Write ``n_shards`` labelled shards into ``directory``; return it. Per class, the first
-    ``n_test_per_class`` objects are test, the next ``n_val_per_class`` val, the rest train."""
+    ``n_test_per_class`` objects are test, the next ``n_val_per_class`` val, the rest train.
+    ``ood``: variant numbers appended to every object (copies of its last variant), as OOD
+    meshes would be."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -73,6 +75,8 @@ def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_c
                                  faces=m.faces.astype(np.int32), hausdorff=0.0,
                                  params={"fixture": cls, "n_faces": len(m.faces)})
                       for v, m in enumerate(variants(cls, scale))]
+            meshes += [MeshRecord(v, meshes[-1].vertices, meshes[-1].faces, 0.0,
+                                  {"remesher": "fixture"}) for v in ood]
             objects.append(ObjectRecord(id=len(objects), class_index=c, scale=scale,
                                         seed=seed * 1000 + len(objects),
                                         split="test" if j < n_test_per_class else "val"

@@ -50,7 +50,8 @@ def test_bytes_do_not_depend_on_workers(dataset, tmp_path):
 def test_dataset_content(dataset):
     seen = set()
     for _, obj, meshes in iter_objects(dataset):
-        assert [m[0] for m in meshes] == [0, 1, 2, 3]
+        ood = [900, 901, 902, 925, 926, 927, 950, 951, 952] if obj["split"] == "test" else []
+        assert [m[0] for m in meshes] == [0, 1, 2, 3, *ood]  # OOD meshes: test objects only
         v0 = meshes[0][1]
         np.testing.assert_allclose(v0.max(0) - v0.min(0), obj["scale"], rtol=1e-6)
         for _, v, f in meshes:  # same bbox, closed surface, same enclosed volume as the simple mesh
@@ -104,6 +105,8 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
     (["--classes", "cube,pyramid"], "unknown class pyramid"),
     (["--objects-per-class", "0"], "argument --objects-per-class: '0' must be >= 1"),
     (["--variants", "-1"], "argument --variants: '-1' must be >= 0"),
+    (["--variants", "900"], "900-999 for OOD meshes"),
+    (["--ood-variants", "26"], "argument --ood-variants: '26' must be <= 25"),
     (["--objects-per-class", "100000", "--scale-range", "1.0", "1.1"], "dissimilar scales"),
 ])
 def test_bad_generate_arguments(tmp_path, args, message):
@@ -138,7 +141,7 @@ def test_info_show_export(dataset, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert cli.main(["export", str(dataset), "--format", "stl", "--out", str(tmp_path / "e"), "--object", "0"]) == 0
     files = sorted((tmp_path / "e").rglob("*.stl"))
-    assert len(files) == 4
+    assert len(files) == 4 + 9  # object 0 is a test object: its 9 OOD meshes too
     with Shard(dataset / "shard-00000.h5") as s:
         v, f = s.mesh(3)
     m = trimesh.load(files[3])

@@ -1,0 +1,425 @@
+"""Out-of-distribution representation meshes: remeshers that never make training variants.
+
+Training variants come from Blender (loop cuts, Decimate, Triangulate, tessellation choice,
+``blender.py``). The test split also gets meshes from three other remeshers, so a benchmark can
+ask whether a model that looks invariant on Blender's meshes stays so on meshes made another
+way (docs/GENERATOR.md, "Out-of-distribution meshes"):
+
+* ``isotropic``: MeshLab's isotropic explicit remeshing of the simple mesh, feature edges kept;
+* ``qem``: MeshLab's quadric edge-collapse decimation of a dense isotropic remesh;
+* ``delaunay``: random points on the surface, convex hull, planar faces re-triangulated by 2D
+  Delaunay.
+
+Each remesher serves the classes in SUPPORTED (all three for the default classes).
+
+After remeshing, every vertex is moved onto the analytic primitive (in unit space, then scaled
+per axis), so each mesh is inscribed in the object like Blender's tessellations; it is then
+checked like every variant (closed, oriented, manifold, distinct topology, within
+``verify.tolerance`` of the simple mesh) and against the smooth primitive (``analytic``,
+within the same bound). All randomness comes from ``(seed, variant, attempt)``; MeshLab's
+filters used here draw no random numbers and run on one OpenMP thread; their smoothing and
+adaptive modes are not used (not repeatable). Repeatability across processes, histories and
+thread counts is tested.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import math
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from basic_shapes import analytic, primitives, verify
+from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
+
+MAX_ATTEMPTS = 32
+"""Tries per OOD mesh before giving up (each try draws new parameters)."""
+
+FACE_RANGE = {"cube": (12, 4000), "cylinder": (300, 4000), "sphere": (900, 4000),
+              "cone": (300, 4000), "torus": (1200, 4000)}
+"""Target triangle counts per class, drawn log-uniformly: the range of the training variants,
+less the coarse end where a remesher's triangles would stray beyond the class tolerance. The
+lower end grows by 1.5x with every rejected try."""
+
+FEATURE_DEG = 40.0
+"""Dihedral angle above which an edge is a feature: the box's edges and the cylinder's rims
+(90 degrees) stay sharp; the simple meshes' curved tessellations turn by 11.25 degrees before
+per-axis scaling (edges a flat scale sharpens past this are kept too, which is harmless)."""
+
+DENSE_FACES = 6000
+"""Triangle count of the dense remesh that ``qem`` decimates."""
+
+ON_PLANE = 1e-6
+"""Unit-space distance within which a vertex counts as lying on a flat face of the primitive
+(the simple mesh is float32: about 6e-8)."""
+
+SUPPORTED = {"isotropic": ("cube", "cylinder", "sphere", "torus"),
+             "qem": ("cube", "cylinder", "sphere", "torus"),
+             "delaunay": ("cube", "cylinder", "sphere", "cone")}
+"""Classes each remesher represents within tolerance. The MeshLab remeshers miss the cone:
+near its apex the side's circles shrink, and their near-isotropic triangles span too wide an
+angle there (measured 0.0043 vs the bound 0.0043 on a 6000-triangle remesh); the hull needs a
+convex solid (no torus)."""
+
+TRIES: dict[tuple[str, str], int] = defaultdict(int)
+"""Tries per (remesher, outcome) in this process: "accepted" or the rejection reason
+(read by benchmarks/ood_remeshers.py)."""
+SECONDS: dict[str, float] = defaultdict(float)
+"""CPU seconds per remesher in this process, rejected tries and verification included."""
+
+
+def supports(remesher: str, class_name: str) -> bool:
+    """Whether ``remesher`` makes meshes of ``class_name`` (SUPPORTED)."""
+    return class_name in SUPPORTED[remesher]
+
+
+def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: np.ndarray,
+               simple_faces: np.ndarray, per_remesher: int,
+               seen: set | None = None) -> list[MeshRecord]:
+    """``per_remesher`` verified meshes of one object from each remesher that supports its class.
+
+    ``simple_*`` is the object's simple mesh (variant 0), the Hausdorff reference; ``seen``
+    holds the topology keys of the object's other meshes (``verify.topology_key``), which the
+    OOD meshes must all differ from.
+    """
+    spec = primitives.get(class_name)
+    scale = np.asarray(scale, np.float64)
+    reference = verify.Reference(simple_vertices, simple_faces)
+    seen = set(seen or ()) | {verify.topology_key(simple_faces, len(simple_vertices))}
+    tol = verify.tolerance(class_name, {})
+    solid = analytic.solid_for(class_name, scale)
+    source = {"isotropic": (simple_vertices, simple_faces)}
+    out = []
+    for name in OOD_REMESHERS:
+        if not supports(name, class_name):
+            continue
+        if name == "qem" and per_remesher:
+            start = time.process_time()
+            source["qem"] = _dense(class_name, scale, simple_vertices, simple_faces)
+            SECONDS[name] += time.process_time() - start
+        for k in range(per_remesher):
+            start = time.process_time()
+            variant = ood_variant(name, k)
+            rejected = {}
+            for attempt in range(MAX_ATTEMPTS):
+                rng = np.random.default_rng([seed, variant, attempt])
+                lo, hi = FACE_RANGE[class_name]
+                lo = min(hi, lo * 1.5 ** attempt)  # a rejected try was most likely too coarse
+                params = {"remesher": name, "attempt": attempt, "tolerance": tol,
+                          "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi))))}
+                v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng)
+                v, f = v.astype(np.float32), f.astype(np.int32)
+                key = verify.topology_key(f, len(v))
+                reason = "duplicate topology" if key in seen else verify.defect(v, f, spec.euler)
+                if reason is None and len(f) > FACE_RANGE[class_name][1]:
+                    reason = "too many triangles"
+                if reason is None:
+                    distance = reference.distance(v, f)
+                    params["primitive_distance"] = primitive_distance(solid, v, f)
+                    if max(distance, params["primitive_distance"]) <= tol:
+                        seen.add(key)
+                        TRIES[name, "accepted"] += 1
+                        out.append(MeshRecord(variant, v, f, distance, params,
+                                              params["primitive_distance"]))
+                        SECONDS[name] += time.process_time() - start
+                        break
+                    reason = "Hausdorff above tolerance"
+                rejected[reason] = rejected.get(reason, 0) + 1
+                TRIES[name, reason.split(" (")[0]] += 1
+            else:
+                raise RuntimeError(f"{class_name} seed {seed}: {name} mesh {k} failed "
+                                   f"{MAX_ATTEMPTS} attempts ({rejected})")
+    return out
+
+
+PRIMITIVE_SPACING = 1.0 / 64
+"""Spacing of the primitive's surface samples, relative to its diagonal."""
+
+FACE_SUBDIVISION = 3
+"""Deep faces are sampled at their 9 sub-triangle centroids and edge midpoints: centroids alone
+missed the class bound by 4 % on a cylinder (tests/test_remesh.py's independent check)."""
+
+DEEP_FRACTION = 0.5
+"""Faces whose centroid lies at least this fraction of the deepest centroid's distance from
+the surface get the dense samples (all of them cost 4x the CPU time on a sphere)."""
+
+
+def primitive_distance(solid: analytic.Solid, vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Two-sided Hausdorff distance between a mesh and the object's smooth surface, relative to
+    the object's diagonal: mesh vertices, face centroids and, on the faces whose centroid lies
+    deepest (DEEP_FRACTION), edge midpoints and the centroids of FACE_SUBDIVISION^2
+    sub-triangles to the analytic surface; and the primitive's own samples
+    (``analytic.surface_samples``) to the mesh's triangles (MeshLab, as in ``verify``)."""
+    diag = solid.diagonal
+    v = np.asarray(vertices, np.float64)
+    corners = v[faces]
+    centroid = analytic.surface_distance(solid, corners.mean(axis=1))
+    deep = corners[centroid >= DEEP_FRACTION * centroid.max()]
+    edges = (deep + np.roll(deep, 1, axis=1)) / 2
+    inner = np.einsum("sk,fkd->fsd", verify._WEIGHTS[FACE_SUBDIVISION], deep)
+    points = np.concatenate([v, edges.reshape(-1, 3), inner.reshape(-1, 3)])
+    to_surface = max(float(centroid.max()), float(analytic.surface_distance(solid, points).max()))
+    samples = analytic.surface_samples(solid, diag * PRIMITIVE_SPACING)
+    pm, ms = _meshlab(vertices, faces)
+    ms.add_mesh(pm.Mesh(vertex_matrix=samples))
+    from_surface = verify._one_sided(ms, sampled=1, target=0, radius=verify.UNLIMITED)
+    return max(to_surface, from_surface) / diag
+
+
+# --- projection onto the primitive ------------------------------------------------------------
+def _to_unit(class_name: str, scale: np.ndarray) -> np.ndarray:
+    """Per-axis factor from metres to the primitive's unit space."""
+    return np.asarray(primitives.get(class_name).extents) / scale
+
+
+def project(class_name: str, scale: np.ndarray, vertices: np.ndarray,
+            faces: np.ndarray) -> np.ndarray:
+    """Vertices moved onto the scaled primitive's surface (float64), keeping flat faces flat.
+
+    Works in unit space, where the primitive is Blender's default one, and scales back, so every
+    returned point lies on the object exactly (to rounding). A vertex lies on a flat face when
+    it is within ON_PLANE of its plane; on the cylinder and cone it is a rim vertex when it also
+    belongs to a triangle off that plane (found from the faces, not from its radius).
+    """
+    k = _to_unit(class_name, scale)
+    u = np.asarray(vertices, np.float64) * k
+    if class_name == "cube":
+        u = np.where(np.abs(np.abs(u) - 1) < ON_PLANE, np.sign(u), u)
+    elif class_name == "sphere":
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+    elif class_name in ("cylinder", "cone"):
+        caps = (1.0, -1.0) if class_name == "cylinder" else (-1.0,)
+        on_cap = np.zeros(len(u), bool)
+        for z in caps:
+            on_cap |= np.abs(u[:, 2] - z) < ON_PLANE
+        cap_face = on_cap[faces].all(axis=1) & (np.ptp(u[faces, 2], axis=1) < ON_PLANE)
+        side = np.zeros(len(u), bool)
+        side[faces[~cap_face].ravel()] = True
+        u[on_cap, 2] = np.round(u[on_cap, 2])
+        u[:, 2] = np.clip(u[:, 2], -1.0, 1.0)
+        if class_name == "cone":
+            apex = np.argmax(u[:, 2])
+            u[apex] = (0.0, 0.0, 1.0)
+            side[apex] = False
+        radius = 1.0 if class_name == "cylinder" else (1.0 - u[side, 2]) / 2
+        u[side, :2] *= (radius / np.linalg.norm(u[side, :2], axis=1))[:, None]
+    elif class_name == "torus":
+        ring = u.copy()
+        ring[:, 2] = 0
+        ring /= np.linalg.norm(ring, axis=1, keepdims=True)
+        d = u - ring
+        u = ring + 0.25 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    else:
+        raise ValueError(f"no projection onto {class_name!r}")
+    return u / k
+
+
+# --- MeshLab remeshers ------------------------------------------------------------------------
+@functools.cache
+def _openmp_threads():
+    """``omp_set_num_threads`` of the OpenMP runtime pymeshlab ships (a no-op without one)."""
+    lib = Path(verify._pymeshlab().__file__).parent / "lib" / "libgomp.so.1"
+    return ctypes.CDLL(str(lib)).omp_set_num_threads if lib.exists() else (lambda n: None)
+
+
+def _meshlab(vertices: np.ndarray, faces: np.ndarray):
+    """A MeshSet holding one mesh. MeshLab's OpenMP loops run on one thread, so no result can
+    depend on the thread count (Dask workers have OMP_NUM_THREADS=1, an in-process run has
+    every core)."""
+    pm = verify._pymeshlab()
+    _openmp_threads()(1)
+    ms = pm.MeshSet()
+    ms.add_mesh(pm.Mesh(vertex_matrix=np.asarray(vertices, np.float64),
+                        face_matrix=np.asarray(faces, np.int32)))
+    return pm, ms
+
+
+def _result(ms) -> tuple[np.ndarray, np.ndarray]:
+    m = ms.current_mesh()
+    return m.vertex_matrix(), m.face_matrix()
+
+
+def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    v = np.asarray(vertices, np.float64)
+    return 0.5 * float(np.sqrt(verify._twice_area_squared(*(v[faces[:, i]] for i in range(3))))
+                       .sum())
+
+
+def _edge_for(area: float, n_faces: float) -> float:
+    """Edge length of ``n_faces`` equilateral triangles covering ``area``."""
+    return math.sqrt(4 * area / (math.sqrt(3) * n_faces))
+
+
+def _remesh(class_name, scale, vertices, faces, edge, iterations, flips):
+    """MeshLab's isotropic remeshing (split, collapse, flip, reprojection), then projection onto
+    the primitive. Neither its curvature-adaptive mode nor its tangential smoothing is used: with
+    either, the vertices depended on what had run before in the process and on the OpenMP thread
+    count (measured)."""
+    pm, ms = _meshlab(vertices, faces)
+    ms.meshing_isotropic_explicit_remeshing(
+        iterations=iterations, adaptive=False, targetlen=pm.PureValue(edge),
+        featuredeg=FEATURE_DEG, swapflag=flips, smoothflag=False, reprojectflag=True)
+    v, f = _result(ms)
+    return project(class_name, scale, v, f), f
+
+
+def _isotropic(class_name, scale, source, params, rng):
+    """Isotropic explicit remeshing (split, collapse, flip, tangential smoothing, reprojection
+    onto the simple mesh), then projection onto the primitive."""
+    vertices, faces = source
+    params["edge_length"] = round(_edge_for(_area(vertices, faces), params["target_faces"]), 6)
+    params["iterations"] = int(rng.integers(3, 11))
+    params["edge_flips"] = bool(rng.uniform() < 0.75)
+    params["feature_deg"] = FEATURE_DEG
+    return _remesh(class_name, scale, vertices, faces, params["edge_length"],
+                   params["iterations"], params["edge_flips"])
+
+
+def _dense(class_name, scale, vertices, faces):
+    """The dense isotropic remesh ``qem`` decimates (one per object)."""
+    return _remesh(class_name, scale, vertices, faces,
+                   _edge_for(_area(vertices, faces), DENSE_FACES), 6, True)
+
+
+def _qem(class_name, scale, dense, params, rng):
+    """Quadric edge-collapse decimation (Garland-Heckbert) of the dense remesh to the target
+    count, normals and topology preserved, then projection onto the primitive."""
+    params["dense_faces"] = DENSE_FACES
+    params["quality_threshold"] = round(float(rng.uniform(0.1, 0.5)), 4)
+    params["optimal_placement"] = bool(rng.integers(2))
+    params["planar_quadric"] = bool(rng.integers(2))
+    _, ms = _meshlab(*dense)
+    ms.meshing_decimation_quadric_edge_collapse(
+        targetfacenum=params["target_faces"], qualitythr=params["quality_threshold"],
+        preservenormal=True, preservetopology=True, preserveboundary=True,
+        optimalplacement=params["optimal_placement"], planarquadric=params["planar_quadric"],
+        autoclean=True)
+    v, f = _result(ms)
+    return project(class_name, scale, v, f), f
+
+
+# --- random points, hull and planar Delaunay --------------------------------------------------
+FLAT_FACES = {"cube": [(a, c) for a in range(3) for c in (-1.0, 1.0)],
+              "cylinder": [(2, -1.0), (2, 1.0)], "sphere": [], "cone": [(2, -1.0)]}
+"""The primitive's flat faces in unit space, as (axis, coordinate) planes."""
+
+UNIT_AREA = {"cube": 24.0, "cylinder": 6 * math.pi, "sphere": 4 * math.pi,
+             "cone": math.pi * (1 + math.sqrt(5))}
+
+BULGE = 0.125
+"""Box faces are triangulated with their edge points pushed out by up to BULGE x the point
+spacing, so that collinear edge points become hull vertices of the face (no zero-area ears)."""
+
+
+def _delaunay(class_name, scale, _source, params, rng):
+    """Random points on the surface (features first, then thinned to a minimum spacing), their
+    convex hull for the curved part, and a 2D Delaunay triangulation of each flat face."""
+    from scipy.spatial import ConvexHull, Delaunay
+
+    n_points = params["target_faces"] // 2 + 2  # a closed genus-0 triangle mesh: F = 2V - 4
+    spacing = 0.8 * math.sqrt(UNIT_AREA[class_name] / n_points)
+    params["spacing_unit"] = round(spacing, 6)
+    u = _thin(_candidates(class_name, n_points, spacing, rng), spacing)
+    k = _to_unit(class_name, scale)
+    metric = u / k
+    tris = []
+    planes = FLAT_FACES[class_name]
+    on = [u[:, a] == c for a, c in planes]
+    if class_name != "cube":
+        hull = ConvexHull(u).simplices
+        flat = np.zeros(len(hull), bool)
+        for mask in on:
+            flat |= mask[hull].all(axis=1)
+        tris.append(hull[~flat])
+    for (a, _), mask in zip(planes, on):
+        idx = np.flatnonzero(mask)
+        b, c = [i for i in range(3) if i != a]
+        uv = metric[idx][:, [b, c]]
+        if class_name == "cube":  # bulge each edge's points out along a parabola
+            ub, uc = u[idx, b], u[idx, c]
+            uv[:, 0] += np.where(np.abs(ub) == 1, ub * BULGE * spacing * (1 - uc ** 2), 0) / k[b]
+            uv[:, 1] += np.where(np.abs(uc) == 1, uc * BULGE * spacing * (1 - ub ** 2), 0) / k[c]
+        tris.append(idx[Delaunay(uv).simplices])
+    f = np.concatenate(tris)
+    p = metric[f]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    flip = np.einsum("ij,ij->i", normal, p.mean(axis=1)) < 0
+    f[flip] = f[flip][:, ::-1]
+    params["points"] = len(u)
+    return metric, f
+
+
+def _candidates(class_name: str, n: int, spacing: float, rng) -> np.ndarray:
+    """Candidate points on the unit primitive, features first: corners and the bbox extremes,
+    then points on edges and rims, then the rest (flat-face points kept spacing/2 inside)."""
+    m = 4 * n
+    inset = 1 - spacing / 2
+    if class_name == "cube":
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+        edges = []
+        for a in range(3):
+            t = rng.uniform(-1, 1, (m // 8, 1))
+            for s1 in (-1, 1):
+                for s2 in (-1, 1):
+                    e = np.empty((len(t), 3))
+                    e[:, a] = t[:, 0]
+                    e[:, [i for i in range(3) if i != a]] = (s1, s2)
+                    edges.append(e[rng.permutation(len(e))[:len(e) // 4]])
+        faces = rng.uniform(-inset, inset, (m, 3))
+        axis = rng.integers(3, size=m)
+        faces[np.arange(m), axis] = rng.choice([-1.0, 1.0], size=m)
+        edge_pts = np.concatenate(edges)
+        return np.concatenate([corners, edge_pts[rng.permutation(len(edge_pts))], faces])
+    if class_name == "sphere":
+        extremes = np.concatenate([np.eye(3), -np.eye(3)])
+        g = rng.normal(size=(m, 3))
+        return np.concatenate([extremes, g / np.linalg.norm(g, axis=1, keepdims=True)])
+    rims = (-1.0, 1.0) if class_name == "cylinder" else (-1.0,)
+    quarter = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], float)
+    first = [np.column_stack([quarter, np.full(4, z)]) for z in rims]
+    if class_name == "cone":
+        first.append(np.array([[0.0, 0.0, 1.0]]))
+    rim = []
+    for z in rims:
+        th = rng.uniform(0, 2 * np.pi, m // 4)
+        rim.append(np.column_stack([np.cos(th), np.sin(th), np.full(len(th), z)]))
+    th = rng.uniform(0, 2 * np.pi, m)
+    if class_name == "cylinder":
+        z = rng.uniform(-inset, inset, m)
+        side = np.column_stack([np.cos(th), np.sin(th), z])
+        side_area, cap_area = 4 * np.pi, 2 * np.pi
+    else:
+        t = np.sqrt(rng.uniform(0, 1, m))  # distance from the apex: area-uniform on the side
+        side = np.column_stack([t * np.cos(th), t * np.sin(th), 1 - 2 * t])
+        side_area, cap_area = np.pi * math.sqrt(5), np.pi
+    n_cap = round(m * cap_area / side_area)
+    caps = []
+    for z in rims:
+        rho = inset * np.sqrt(rng.uniform(0, 1, n_cap))
+        phi = rng.uniform(0, 2 * np.pi, n_cap)
+        caps.append(np.column_stack([rho * np.cos(phi), rho * np.sin(phi), np.full(n_cap, z)]))
+    rest = np.concatenate([side, *caps])
+    return np.concatenate([*first, *rim, rest[rng.permutation(len(rest))]])
+
+
+def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Greedy dart throwing in the given order: keep a point unless an earlier kept point lies
+    within ``spacing`` (so features, listed first, always survive)."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(spacing, output_type="ndarray")
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    starts = np.searchsorted(pairs[:, 0], np.arange(len(points) + 1))
+    keep = np.ones(len(points), bool)
+    for i in range(len(points)):
+        if keep[i]:
+            keep[pairs[starts[i]:starts[i + 1], 1]] = False
+    return points[keep]
+
+
+REMESHERS = {"isotropic": _isotropic, "qem": _qem, "delaunay": _delaunay}
+"""name -> f(class_name, scale, source mesh, params (filled in), rng) -> (vertices, faces)."""
