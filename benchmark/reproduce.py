@@ -21,7 +21,6 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from dataclasses import asdict, dataclass, fields
@@ -44,11 +43,9 @@ PRETRAINING = {"basic": "none", "classification": "classification", "autoencoder
 
 @dataclass(frozen=True)
 class Preset:
-    """A dataset size, radar grid and model/training size that fit a time budget."""
+    """A dataset version and a model/training size that fit a time budget."""
 
-    objects_per_class: int
-    variants: int
-    radar: dict  # changes to the "xband-v1" RadarConfig (coarser grids for CPU presets)
+    dataset: str  # a registered version (benchmark.versions), built unless --data is given
     train: dict  # TrainConfig fields
     workers: int | None  # Dask workers for generate/label (0: in-process, None: per core)
     jobs: int = 1  # rows trained at once, in separate single-threaded processes (CPU)
@@ -58,29 +55,31 @@ class Preset:
     findings: bool = True  # False: too small to decide any claim (the table says why)
 
 
+SMALL_MODEL = dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
+                   codebook_size=64, pretrain_meshes=1500, pretrain_epochs=8,
+                   pretrain_max_faces=400)
+"""CPU-sized models: complex meshes reach ~4000 faces, so self-attention over faces dominates;
+one aggregator layer, two heads, one thread per job with two jobs at once."""
+
 PRESETS = {
     # For the test suite: every row on a few objects, with models too small to learn much.
     "tiny": Preset(
-        objects_per_class=2, variants=2, workers=0,
-        radar={"n_aspect": 7, "n_roll": 3},
+        dataset="tiny-v1", workers=0,
         train=dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32,
                    codebook_size=16, epochs=2, batch_size=8, pretrain_meshes=20,
                    pretrain_epochs=1, pretrain_max_faces=100),
-        expected="under a minute on 2 CPU cores", seeds=(0,), findings=False),
-    # The CPU reproduction (2 cores, at most 60 minutes; see docs/RESULTS.md for the budget).
-    # Complex meshes reach ~6000 faces, so self-attention over faces dominates: one
-    # aggregator layer, two heads, and one thread per job with two rows trained at once.
+        expected="about a minute on 2 CPU cores", seeds=(0,), findings=False),
+    # The demo's dataset with the CPU models: a quick look, too few test objects for findings.
     "small": Preset(
-        objects_per_class=60, variants=9, workers=None, jobs=2,
-        radar={"n_aspect": 31, "n_roll": 7},
-        train=dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
-                   codebook_size=64, epochs=30, batch_size=8, pretrain_meshes=1500,
-                   pretrain_epochs=8, pretrain_max_faces=400),
-        expected="estimated (not measured) 60-90 minutes on 2 CPU cores: 3 seeds, one seed "
-                 "took 20 minutes idle and 29 on the shared machine"),
+        dataset="demo-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, epochs=30, batch_size=8),
+        expected="about 10 minutes on 2 CPU cores", seeds=(0,), findings=False),
+    # The CPU benchmark (docs/RESULTS.md): 150 test objects, 3 seeds, paired intervals.
+    "cpu": Preset(
+        dataset="cpu-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, epochs=8, batch_size=16),
+        expected="estimated 4-6 hours on 2 CPU cores (resumable: rerun to continue)"),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
-        objects_per_class=1000, variants=99, workers=None, radar={},
+        dataset="paper-v1", workers=None,
         train=dict(dim=256, embed_layers=5, agg_layers=6, n_heads=8, decoder_hidden=1024,
                    codebook_size=512, epochs=100, batch_size=32, pretrain_meshes=20000,
                    pretrain_epochs=30, pretrain_max_faces=800, lr=3e-4, pretrain_lr=3e-4),
@@ -92,54 +91,15 @@ PRESETS = {
 
 
 # --- dataset ----------------------------------------------------------------------------------
-def _tool(name: str, module: str) -> list[str]:
-    """The console script next to this interpreter, else ``python -m module``."""
-    script = Path(sys.executable).with_name(name)
-    return [str(script)] if script.exists() else [sys.executable, "-m", module]
+def make_dataset(preset: Preset, directory: Path, quiet: bool) -> dict:
+    """Build the preset's dataset version (generate + label; both resume)."""
+    from benchmark import versions
 
-
-def _call(cmd: list[str], what: str, quiet: bool) -> float:
-    t0 = time.perf_counter()
-    result = subprocess.run(cmd, stdout=subprocess.PIPE if quiet else None,
-                            stderr=subprocess.PIPE, text=True)
-    if result.returncode != 0:
-        tail = (result.stderr or "").strip().splitlines()
-        raise SystemExit(f"benchmark reproduce: {what} failed ({' '.join(cmd)}): "
-                         f"{tail[-1] if tail else 'exit code ' + str(result.returncode)}")
-    return time.perf_counter() - t0
-
-
-def radar_config_file(preset: Preset, path: Path) -> Path:
-    """Write the preset's radar config (``xband-v1`` with a coarser grid) as JSON."""
-    import dataclasses
-
-    from radar_sim import RadarConfig
-
-    config = RadarConfig.named("xband-v1")
-    if preset.radar:
-        grid = "x".join(str(preset.radar.get(k, getattr(config, k)))
-                        for k in ("n_aspect", "n_roll", "n_range"))
-        config = dataclasses.replace(config, name=f"xband-v1-{grid}", **preset.radar)
-    with atomic_path(path) as tmp:
-        tmp.write_text(config.to_json())
-    return path
-
-
-def make_dataset(preset: Preset, directory: Path, seed: int, quiet: bool) -> dict:
-    """Generate and label the preset's dataset (both steps resume / skip finished shards)."""
-    directory.parent.mkdir(parents=True, exist_ok=True)
-    radar = radar_config_file(preset, directory.parent / "radar_config.json")
-    workers = [] if preset.workers is None else ["--workers", str(preset.workers)]
-    t_gen = _call([*_tool("basic-shapes", "basic_shapes.cli"), "generate", "--out", str(directory),
-                   "--objects-per-class", str(preset.objects_per_class),
-                   "--variants", str(preset.variants), "--seed", str(seed), *workers],
-                  "basic-shapes generate", quiet)
-    # radar-sim label always runs on Dask (at least one worker); 0 means in-process only
-    # for generate
-    workers = [] if preset.workers is None else ["--workers", str(max(1, preset.workers))]
-    t_label = _call([*_tool("radar-sim", "radar_sim.cli"), "label", str(directory),
-                     "--config", str(radar), *workers], "radar-sim label", quiet)
-    return {"generate_s": t_gen, "label_s": t_label}
+    try:
+        return versions.build(versions.get(preset.dataset), directory, workers=preset.workers,
+                              quiet=quiet)
+    except versions.VersionError as exc:
+        raise SystemExit(f"benchmark reproduce: {exc}") from None
 
 
 # --- rows ---------------------------------------------------------------------------------
@@ -215,9 +175,11 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
     if trained is not None:  # trained earlier, evaluation missing or interrupted
         train_seconds = trained["train_seconds"]
     elif preset.launcher == "torchrun" and nproc > 1:
-        _call([sys.executable, "-m", "torch.distributed.run", f"--nproc_per_node={nproc}",
-               "-m", "benchmark.cli", "train", "--data", str(data_dir), "--out", str(ckpt),
-               "--quiet", *_train_flags(cfg)], f"training {job_name(cfg)}", quiet=False)
+        from benchmark.versions import run_tool
+
+        run_tool([sys.executable, "-m", "torch.distributed.run", f"--nproc_per_node={nproc}",
+                  "-m", "benchmark.cli", "train", "--data", str(data_dir), "--out", str(ckpt),
+                  "--quiet", *_train_flags(cfg)], f"training {job_name(cfg)}", quiet=False)
         train_seconds = json.loads((ckpt / "config.json").read_text())["train_seconds"]
     else:
         from benchmark.data import BenchmarkData
@@ -559,14 +521,11 @@ def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
 # --- CLI --------------------------------------------------------------------------------------
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", choices=tuple(PRESETS), required=True,
-                        help="; ".join(f"{k}: {v.objects_per_class} objects/class x "
-                                       f"{v.variants + 1} meshes, {len(v.seeds)} seed(s), "
-                                       f"{v.expected}"
-                                       for k, v in PRESETS.items()))
+                        help="; ".join(f"{k}: dataset {v.dataset}, {len(v.seeds)} seed(s), "
+                                       f"{v.expected}" for k, v in PRESETS.items()))
     parser.add_argument("--out", required=True, help="output directory (table.md, table.json, "
                         "speed_vs_error.png, checkpoints/, results/, data/)")
     parser.add_argument("--data", help="reuse this labelled dataset instead of generating one")
-    parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     parser.add_argument("--seeds", help="comma-separated training seeds (default: the preset's)")
     parser.add_argument("--rows", help="comma-separated subset of rows, e.g. graph-basic,graph-ideal "
                         f"(default: all {len(ROWS)})")
@@ -658,7 +617,7 @@ def run(args: argparse.Namespace) -> None:
         data_dir = Path(args.data)
     else:
         data_dir = out / "data"
-        timing.update(make_dataset(preset, data_dir, args.seed, args.quiet))
+        timing.update(make_dataset(preset, data_dir, args.quiet))
     try:
         with BenchmarkData(data_dir) as data:
             fingerprint, description = data.fingerprint, data.describe()
@@ -675,7 +634,7 @@ def run(args: argparse.Namespace) -> None:
         t0 = time.perf_counter()
         tc = preset.train
         corpus_path = str(corpus_mod.build_corpus_file(
-            out / "corpus.h5", tc["pretrain_meshes"], args.seed, tc["pretrain_max_faces"],
+            out / "corpus.h5", tc["pretrain_meshes"], 0, tc["pretrain_max_faces"],
             progress=not args.quiet))
         timing["corpus_s"] = time.perf_counter() - t0
     records: dict[str, dict[int, dict]] = {}
@@ -748,12 +707,10 @@ def _table(args, preset: Preset, seeds: list[int], records: dict, fingerprint: s
     for flag in ("data", "rows", "shapenet", "seeds"):
         if getattr(args, flag):
             command += f" --{flag} {getattr(args, flag)}"
-    if args.seed:
-        command += f" --seed {args.seed}"
     rows = table_rows(records, ref_scorers, ref_rows)
     table = {"preset": args.preset, "command": command, "preset_config": asdict(preset),
              "dataset": {"fingerprint": fingerprint, "description": description,
-                         "seed": args.seed},
+                         "version": preset.dataset},
              "seeds": seeds, "hardware": hw, "python": platform.python_version(),
              "timing": timing, "references": ref_rows,
              "strongest_reference": references.strongest(ref_rows), "rows": rows,

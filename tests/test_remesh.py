@@ -20,7 +20,7 @@ from basic_shapes.shards import (
     ood_remesher,
     ood_variant,
 )
-from benchmark.data import BenchmarkData, MeshDataset
+from benchmark.data import BasicShapes, BenchmarkData
 
 SCALES = [np.array([0.6, 1.3, 0.9]), np.array([2.0, 0.2, 0.35])]  # the second: aspect 10
 
@@ -192,6 +192,6 @@ def test_training_readers_never_see_ood_meshes(tmp_path):
         for obj in range(len(data.objects["id"])):
             assert list(data.meshes["variant"][data.meshes_of(obj)]) == [0, 1, 2]
             assert tuple(data.meshes["variant"][data.ood_meshes_of(obj)]) == ood
-        ideal = MeshDataset(data, "train", "all")
+        ideal = BasicShapes(data, "train", "all")
         uids = [int(ideal[i]["mesh_uid"]) for i in range(len(ideal))]
         assert len(uids) == 18 and max(u % 1000 for u in uids) == 2
