@@ -36,7 +36,11 @@ def test_two_objects_by_hand():
     assert (r["simple_mse"], r["complex_mse"], r["variation_mse"]) == (1.5, 1.0, 1.5)
     assert r["per_class"]["cube"] == {"simple_mse": 1.0, "complex_mse": 2.0, "variation_mse": 1.0,
                                       "n_objects": 1, "simple_mse_ci": [1.0, 1.0],
-                                      "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0]}
+                                      "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0],
+                                      **dict.fromkeys(("ood_complex_mse", "ood_complex_mse_ci",
+                                                       "ood_variation_mse",
+                                                       "ood_variation_mse_ci"))}
+    assert r["ood_complex_mse"] is None and r["per_remesher"] == {}  # no OOD meshes
     assert r["per_class"]["cylinder"]["complex_mse"] == 0.0
     assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: nothing to draw
     assert (r["n_objects"], r["n_meshes"]) == (2, 5)
