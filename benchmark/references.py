@@ -28,7 +28,7 @@ import numpy as np
 
 from basic_shapes.shards import ood_remesher
 from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, skill_test
+from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
 from benchmark.uncertainty import paired, verdict
 
 REFERENCES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
@@ -190,11 +190,12 @@ def reference_scores(data: BenchmarkData) -> tuple[np.ndarray, dict[str, Scorer]
 
 
 def summary(scorer: Scorer) -> dict:
-    """A reference's row: the metrics with intervals (OOD ones included) and its no-skill
-    flag, overall only."""
+    """A reference's row: the metrics with intervals (OOD ones included, also per remesher)
+    and its no-skill flag, overall only."""
     po = scorer.per_object()
     return {**metric_block(po, po["class_index"]),
-            "no_skill": skill_test(po, po["class_index"])["no_skill"]}
+            "no_skill": skill_test(po, po["class_index"])["no_skill"],
+            "per_remesher": per_remesher(po, po["class_index"])}
 
 
 def strongest(rows: dict[str, dict]) -> str:

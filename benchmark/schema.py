@@ -180,7 +180,9 @@ def check_metrics(m, where: str = "metrics") -> dict:
         if not isinstance(refs, dict) or set(refs) - set(REFERENCE_NAMES):
             raise SchemaError(f"{where}.references must map {', '.join(REFERENCE_NAMES)} to rows")
         for name, block in refs.items():
-            check_fields(block, REFERENCE, f"{where}.references.{name}")
+            check_fields(block, REFERENCE, f"{where}.references.{name}", extra=("per_remesher",))
+            if "per_remesher" in block:
+                check_per_remesher(block["per_remesher"], f"{where}.references.{name}.per_remesher")
     if "skill" in m:
         check_skill(m["skill"], f"{where}.skill")
     if "per_remesher" in m:
