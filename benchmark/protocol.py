@@ -27,9 +27,9 @@ import h5py
 import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
+from basic_shapes.shards import ood_remesher
 from benchmark import __version__
 from benchmark.data import BenchmarkData
-from basic_shapes.shards import ood_remesher
 from benchmark.metrics import METRIC_NAMES, Scorer, ood_keys
 from benchmark.schema import SchemaError, check_results
 

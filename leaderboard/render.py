@@ -277,7 +277,8 @@ def markdown(groups: list[dict]) -> str:
         out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
         if g["models"]:
             out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | OOD Complex MSE "
-                    "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware | Date |",
+                    "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware "
+                    "| Date |",
                     "|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|---|"]
             for rank, e in enumerate(g["models"], 1):
                 m = e["metrics"]
