@@ -24,8 +24,7 @@ browser:
 
 # The main job on a small default: 12 objects x 10 meshes, every step of the data flow.
 demo: install
-	$(BIN)/basic-shapes generate --out $(OUT)/data --objects-per-class 4 --variants 9 --seed 0
-	$(BIN)/radar-sim label $(OUT)/data --mesh-labels all
+	$(BIN)/benchmark dataset demo-v1 --out $(OUT)/data
 	$(BIN)/basic-shapes info $(OUT)/data
 	$(BIN)/basic-shapes show $(OUT)/data --object 5 --out $(OUT)/shapes.png
 	$(BIN)/radar-sim plot $(OUT)/data --object 1 --roll 30 --out $(OUT)/radar.png

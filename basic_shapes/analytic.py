@@ -23,8 +23,8 @@ KINDS = ("cube", "cylinder", "sphere", "cone", "torus")
 TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
 """Blender's default torus (radii in the default mesh, before scaling)."""
 
-_UNIT_EXTENTS = {"cube": (2.0, 2.0, 2.0), "cylinder": (2.0, 2.0, 2.0), "sphere": (2.0, 2.0, 2.0),
-                 "cone": (2.0, 2.0, 2.0), "torus": (2.5, 2.5, 0.5)}
+TORUS_EXTENTS = (2.5, 2.5, 0.5)
+"""Bounding-box extents of the default torus: a torus object is it scaled by scale / these."""
 
 SIMULATION_RULE = {
     "name": "edge-grating",
@@ -258,7 +258,7 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
                           _disk_distance(p, a, b, -c))
         return np.minimum(best, _cone_side_distance(p, a, b, c))
     if kind == "torus":
-        s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
+        s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         best = np.full(len(p), np.inf)
         for start in _torus_starts(p, s):
             x, ok = _closest_on_implicit(p, start, _torus_implicit(s))
@@ -300,9 +300,9 @@ def _torus_starts(p, s, n_u=256, n_v=128, m=9, tries=4):
     g2 = (grid ** 2).sum(axis=1)
     du, dv = 2 * np.pi / n_u, 2 * np.pi / n_v
     offsets = np.linspace(-1.0, 1.0, m)
-    near = np.concatenate([np.argpartition(g2[None, :] - 2.0 * p[i:i + 4096] @ grid.T,
+    near = np.concatenate([np.argpartition(g2[None, :] - 2.0 * p[i:i + 1024] @ grid.T,
                                            tries, axis=1)[:, :tries]
-                           for i in range(0, len(p), 4096)])
+                           for i in range(0, len(p), 1024)])
     for k in near.T:
         u = (k // n_v)[:, None, None] * du + offsets[None, :, None] * du
         v = (k % n_v)[:, None, None] * dv + offsets[None, None, :] * dv
@@ -471,7 +471,7 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
     elif kind == "cone":
         v, f = _cone_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
     elif kind == "torus":
-        s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
+        s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         outer = TORUS_MAJOR + TORUS_MINOR
         u = _ellipse_angles(outer * s[0], outer * s[1], wavelength, refinement, 16, True)
         minor = [_ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8,
@@ -539,7 +539,7 @@ def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
             caps = [disk(a, b, -c)]
         return np.concatenate([side.reshape(-1, 3)] + caps)
     if kind == "torus":
-        s = np.asarray(solid.scale) / np.asarray(_UNIT_EXTENTS["torus"])
+        s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         n_u = 4 * count(np.pi / 2 * (TORUS_MAJOR + TORUS_MINOR) * max(s[0], s[1]), 1)
         n_v = 4 * count(np.pi / 2 * TORUS_MINOR * s.max(), 1)
         return _torus_grid(s, n_u, n_v)

@@ -137,29 +137,37 @@ def build(version: DatasetVersion, directory: str | Path, *, workers: int | None
 
 def fingerprints(directory: str | Path) -> dict:
     """{"mesh": ..., "label": ...} of a dataset directory."""
-    from basic_shapes.shards import dataset_fingerprint, dataset_label_fingerprint
+    from basic_shapes.shards import dataset_fingerprint, label_fingerprint
 
-    return {"mesh": dataset_fingerprint(directory), "label": dataset_label_fingerprint(directory)}
+    return {"mesh": dataset_fingerprint(directory), "label": label_fingerprint(directory)}
 
 
-def identify(directory: str | Path) -> DatasetVersion:
+def _generator_config(version: DatasetVersion) -> dict:
+    """The generator config ``build`` asks for (toolkit version aside)."""
+    from basic_shapes.generate import GenerateConfig
+
+    cfg = GenerateConfig(classes=tuple(version.classes), objects_per_class=version.objects_per_class,
+                         variants=version.variants, seed=version.seed).to_json()
+    cfg.pop("toolkit_version")
+    return cfg
+
+
+def identify(directory: str | Path, registry: dict | None = None) -> DatasetVersion:
     """The registered version a dataset directory was built as, by its generator and radar
-    configs (not by its name); VersionError if it is none of them."""
+    configs (not by its name or path); VersionError if it is none of them."""
     from basic_shapes.shards import Shard, list_shards
 
     with Shard(list_shards(directory)[0]) as s:
-        gen = s.config
-        radar = s.radar.config_json if s.has_labels else None
+        gen = dict(s.config)
+        radar = s.radar.config if s.has_labels else None
     if radar is None:
         raise VersionError(f"{directory}: not labelled, so not a registered dataset version")
-    for v in VERSIONS.values():
-        if (gen.get("classes") == list(v.classes)
-                and gen.get("objects_per_class") == v.objects_per_class
-                and gen.get("variants") == v.variants and gen.get("seed") == v.seed
-                and json.loads(radar) == json.loads(v.radar_config().to_json())):
+    gen.pop("toolkit_version", None)
+    for v in (registry or VERSIONS).values():
+        if gen == _generator_config(v) and radar == json.loads(v.radar_config().to_json()):
             return v
-    raise VersionError(f"{directory}: not a registered dataset version (benchmark dataset "
-                       f"--list names them; build one with benchmark dataset NAME --out DIR)")
+    raise VersionError(f"{directory}: not a registered dataset version (see `benchmark dataset "
+                       f"--list`; build one with `benchmark dataset NAME --out DIR`)")
 
 
 def add_arguments(p) -> None:

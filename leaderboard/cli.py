@@ -28,6 +28,12 @@ def build_parser() -> ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     entries = {"default": DEFAULT_ENTRIES, "type": Path,
                "help": "entries folder (default: %(default)s)"}
+    # Writing commands never default to the repository's own board: the folder is named.
+    new_entries = {"required": True, "type": Path,
+                   "help": f"entries folder to write into (the published board: {DEFAULT_ENTRIES})"}
+    unregistered = {"action": "store_true",
+                    "help": "accept a dataset that is not a registered version (benchmark "
+                    "dataset --list): a private board; the entry says so"}
 
     s = sub.add_parser("submit", help="re-score a results JSON + predictions file and add an entry",
                        description="Score the predictions file again against the dataset (nothing "
@@ -37,7 +43,8 @@ def build_parser() -> ArgumentParser:
     s.add_argument("results", type=Path, help="results JSON written by `benchmark evaluate`")
     s.add_argument("--predictions", type=Path, required=True, help="predictions HDF5 file")
     s.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
-    s.add_argument("--entries", **entries)
+    s.add_argument("--entries", **new_entries)
+    s.add_argument("--unregistered", **unregistered)
     s.add_argument("--name", help="name on the board (default: the results' model.name)")
     s.add_argument("--link", help="http(s) URL of a paper or code for this entry")
 
@@ -47,7 +54,8 @@ def build_parser() -> ArgumentParser:
                        "the board are skipped; every refusal is listed, then the exit is non-zero.")
     d.add_argument("--from", dest="from_dir", type=Path, required=True, help="reproduce output dir")
     d.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
-    d.add_argument("--entries", **entries)
+    d.add_argument("--entries", **new_entries)
+    d.add_argument("--unregistered", **unregistered)
     d.add_argument("--link", help="http(s) URL shared by the seeded entries")
 
     m = sub.add_parser("simulator", help="record the physics simulator's point for a dataset",
@@ -55,7 +63,7 @@ def build_parser() -> ArgumentParser:
                        "between per-mesh physics labels of one object (0 without them), speed = "
                        "timing radar_sim on the example object's meshes, or --ms-per-mesh.")
     m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
-    m.add_argument("--entries", **entries)
+    m.add_argument("--entries", **new_entries)
     m.add_argument("--ms-per-mesh", type=number(minimum=0),
                    help="record this speed instead of timing radar_sim")
     m.add_argument("--hardware", help="hardware description (default: this machine's CPU)")
@@ -80,11 +88,13 @@ def build_parser() -> ArgumentParser:
 def run(args) -> None:
     if args.command == "submit":
         from leaderboard.submit import submit
-        path = submit(args.results, args.predictions, args.data, args.entries, args.name, args.link)
+        path = submit(args.results, args.predictions, args.data, args.entries, args.name, args.link,
+                      unregistered=args.unregistered)
         print(f"accepted: {path}")
     elif args.command == "seed":
         from leaderboard.submit import seed
-        accepted, skipped, refused = seed(args.from_dir, args.data, args.entries, args.link)
+        accepted, skipped, refused = seed(args.from_dir, args.data, args.entries, args.link,
+                                          unregistered=args.unregistered)
         for path in accepted:
             print(f"accepted: {path}")
         for msg in skipped:

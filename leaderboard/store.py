@@ -139,7 +139,10 @@ def validate_entry(entry) -> dict:
     if not isinstance(classes, list) or len(classes) > schema.MAX_CLASSES \
             or not all(isinstance(c, str) and len(c) <= MAX_NAME for c in classes):
         raise EntryError("dataset.classes must be a list of class names")
-    if set(dataset) - {"fingerprint", "label_fingerprint", "classes", "test_objects",
+    version = dataset.get("version")
+    if version is not None and not re.fullmatch(r"[a-z0-9][a-z0-9.-]{0,39}", str(version)):
+        raise EntryError("dataset.version must be a registered version name or null")
+    if set(dataset) - {"fingerprint", "label_fingerprint", "version", "classes", "test_objects",
                        "test_meshes"}:
         raise EntryError("dataset has unknown fields")
     unknown = sorted(str(k)[:40] for k in set(entry) - set(ENTRY_FIELDS))

@@ -79,9 +79,23 @@ def _now() -> str:
     return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
+def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
+    """The registered version (``benchmark.versions``) the dataset is, by its generator and
+    radar configs; a dataset that is none is refused unless ``unregistered`` (a private board:
+    its entries say so and the site lists them apart)."""
+    from benchmark.versions import VersionError, identify
+
+    try:
+        return identify(data_dir).name
+    except VersionError as exc:
+        if unregistered:
+            return None
+        raise SubmissionError(f"{exc}; pass --unregistered for a private board") from None
+
+
 def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
            data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
-           name: str | None = None, link: str | None = None) -> Path:
+           name: str | None = None, link: str | None = None, unregistered: bool = False) -> Path:
     """Verify one submission and write its entry; raise SubmissionError (nothing written) if refused."""
     try:
         results = load_results(results_path)
@@ -97,6 +111,7 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         fingerprint, labels = data.fingerprint, data.label_fingerprint
     except (OSError, ValueError) as exc:
         raise _refuse(data_dir, exc) from None
+    version = dataset_version(data_dir, unregistered)
     if results["dataset_fingerprint"] != fingerprint:
         raise SubmissionError(f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
                               f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)")
@@ -129,7 +144,7 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         "params": results["model"].get("params"),
         "benchmark_version": results["benchmark_version"],
         "dataset": {"fingerprint": fingerprint, "label_fingerprint": labels,
-                    "classes": data.class_names,
+                    "version": version, "classes": data.class_names,
                     "test_objects": test_objects, "test_meshes": test_meshes},
         "metrics": check_metrics(rescored, "re-scored metrics"),
         "speed": {**results["speed"],
@@ -161,7 +176,8 @@ def _check_duplicate(entries_dir, predictions_path, container_sha: str, content_
 
 
 def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
-         entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None):
+         entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None,
+         unregistered: bool = False):
     """Submit every ``<row>/results.json`` + ``<row>/predictions.h5`` of a reproduce output dir.
 
     Each entry is named after its row directory (unique per table row, unlike model names).
@@ -179,7 +195,8 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
             continue
         try:
             accepted.append(submit(results, predictions, data_dir, entries_dir,
-                                   name=results.parent.name, link=link))
+                                   name=results.parent.name, link=link,
+                                   unregistered=unregistered))
         except DuplicateSubmission as exc:
             skipped.append(str(exc))
         except ValueError as exc:

@@ -115,8 +115,8 @@ def ws(tmp_path_factory) -> dict:
     write_results(results, evaluate(data, predictions=pred, progress=False))
     entries = root / "entries"
     proc = subprocess.run([sys.executable, "-m", "leaderboard.cli", "submit", results,
-                           "--predictions", pred, "--data", data, "--entries", entries],
-                          capture_output=True, text=True, cwd=ROOT)
+                           "--predictions", pred, "--data", data, "--entries", entries,
+                           "--unregistered"], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     return {"root": root, "data": data, "pred": pred, "results": results, "entries": entries,
             "uids": uids, "targets": targets, "fp": fp, "labels": labels, "shape": shape}
@@ -176,7 +176,8 @@ def evaluate_refuses(ws, predictions, phrase, tmp: Path):
 
 def submit_refuses(ws, results, predictions, phrase, data=None):
     return cli("leaderboard", "submit", results, "--predictions", predictions,
-               "--data", data or ws["data"], "--entries", ws["entries"], phrase=phrase,
+               "--data", data or ws["data"], "--entries", ws["entries"], "--unregistered",
+               phrase=phrase,
                watch=[ws["entries"], ws["data"]])
 
 

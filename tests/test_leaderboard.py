@@ -164,7 +164,10 @@ def submission(data, tmp_path_factory):
 
 
 def run(*args) -> None:
-    cli.main([str(a) for a in args])
+    """The CLI; submissions of these fixture datasets (no registered version) go to a
+    private board (``--unregistered``)."""
+    extra = ["--unregistered"] if args[0] in ("submit", "seed") else []
+    cli.main([str(a) for a in args] + extra)
 
 
 def refused(*args) -> str:
@@ -505,3 +508,21 @@ def test_what_benchmark_evaluate_writes_is_accepted(data, tmp_path):
     claimed = json.loads(results.read_text())
     assert entry["name"] == "nearest-scale" and entry["metrics"] == claimed["metrics"]
     assert entry["speed"]["ms_per_mesh"] == claimed["speed"]["ms_per_mesh"] > 0
+
+
+def test_unregistered_dataset_is_refused_unless_asked(data, tmp_path):
+    """Only registered dataset versions reach the public board; a private board says so."""
+    pred = write_predictions(tmp_path / "p.h5", data)
+    results = write_results(tmp_path / "results.json", data, pred)
+    entries = tmp_path / "e"
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["submit", str(results), "--predictions", str(pred), "--data", str(data),
+                  "--entries", str(entries)])
+    assert "not a registered dataset version" in str(exc.value.code)
+    assert not entries.exists()
+    with pytest.raises(SystemExit) as exc:  # nothing is written into the repository by default
+        cli.main(["submit", str(results), "--predictions", str(pred), "--data", str(data)])
+    assert exc.value.code == 2
+    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    (entry,) = entries.glob("*.json")
+    assert json.loads(entry.read_text())["dataset"]["version"] is None

@@ -35,12 +35,13 @@ def site(tmp_path_factory):
         pred = write_predictions(root / f"{name}.h5", data, offsets={k: (s, c) for k in CLASSES})
         cli.main(["submit", str(write_results(root / f"{name}.json", data, pred, name=name,
                                               ms_per_mesh=ms)),
-                  "--predictions", str(pred), "--data", str(data), "--entries", str(entries)])
+                  "--predictions", str(pred), "--data", str(data), "--entries", str(entries),
+                  "--unregistered"])
     flat = write_predictions(root / "flat.h5", data, collapse=True)
     cli.main(["submit", str(write_results(root / "flat.json", data, flat, name="flat-net",
                                           ms_per_mesh=0.01)),
               "--predictions", str(flat), "--data", str(data), "--entries", str(entries),
-              "--link", "https://example.org/flat"])
+              "--link", "https://example.org/flat", "--unregistered"])
     cli.main(["simulator", "--data", str(data), "--entries", str(entries), "--ms-per-mesh", "120"])
     cli.main(["render", "--out", str(root / "site"), "--entries", str(entries)])
     server = make_server(root / "site", port=0)

@@ -188,6 +188,8 @@ def test_tiny_preset_end_to_end(tmp_path):
     assert leaderboard_cli.main(["seed", "--from", str(out / "results"), "--data", str(out / "data"),
                                  "--entries", str(entries)]) is None
     assert len(list(entries.glob("*.json"))) == 13
+    assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} \
+        == {"tiny-v1"}  # reproduce built the registered version, and submit identified it
     assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None
     assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])
 
