@@ -18,9 +18,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES
+from benchmark.metrics import METRIC_NAMES, OOD_METRIC_NAMES
 from benchmark.protocol import (Model, ModelError, Predictions, PredictionsWriter, check_prediction,
-                                make_results, score, why)
+                                make_results, score, scored_mesh_rows, why)
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 
@@ -79,12 +79,12 @@ def speed_block(ms_per_mesh: float | None, threads: int | None = None,
 
 def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLike,
                        batch_size: int = 16, who: str = "model", progress: bool = True) -> float:
-    """Run ``model.predict`` over every test mesh, write a predictions file; return ms per mesh.
+    """Run ``model.predict`` over every test mesh (the OOD meshes included), write a
+    predictions file; return ms per mesh.
 
     The time counted is the wall time inside ``predict`` only (not reading meshes).
     """
-    data.test_objects()  # refuses a dataset without a test split
-    rows = data.mesh_rows("test")
+    rows = scored_mesh_rows(data)  # refuses a dataset without a test split
     elapsed = 0.0
     with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape,
                            label_fingerprint=data.label_fingerprint) as writer:
@@ -168,14 +168,18 @@ def format_metrics(results: dict) -> str:
     """A plain-text table: the model and the reference rows with 95% intervals, per class,
     its skill against the strongest reference, and its speed."""
     m = results["metrics"]
-    head = f"{'':20} {'simple':>24} {'complex':>24} {'variation':>24} {'objects':>7}"
+    keys = METRIC_NAMES + OOD_METRIC_NAMES
+    head = (f"{'':20} " + " ".join(f"{t:>24}" for t in ("simple", "complex", "variation",
+                                                          "OOD complex", "OOD variation"))
+            + f" {'objects':>7}")
 
     def line(label, block):
-        return (f"{label:20} " + " ".join(f"{_ci(block[k], block.get(k + '_ci')):>24}"
-                                          for k in METRIC_NAMES) + f" {block['n_objects']:>7}")
+        return (f"{label:20} " + " ".join(f"{_ci(block.get(k), block.get(k + '_ci')):>24}"
+                                          for k in keys) + f" {block['n_objects']:>7}")
 
     lines = [head, line(str(results["model"]["name"])[:20], m)]
     lines += [line(f"  {c}"[:20], b) for c, b in m["per_class"].items()]
+    lines += [line(f"  OOD {r}"[:20], b) for r, b in m.get("per_remesher", {}).items()]
     for name, block in m.get("references", {}).items():
         lines.append(line(f"ref {name}"[:20], block))
     sk = m.get("skill")
@@ -214,7 +218,7 @@ class Evaluator:
         with BenchmarkData(self.root) as data:
             self.fingerprint = data.fingerprint
             self.target_shape = data.target_shape
-            self.test_mesh_uid = data.meshes["uid"][data.mesh_rows("test")]
+            self.test_mesh_uid = data.meshes["uid"][scored_mesh_rows(data)]
 
     @property
     def expected_input_format(self) -> str:
@@ -222,7 +226,9 @@ class Evaluator:
                 f"{{'mesh_uid': mesh_uid, 'target_db': target_db}}\n"
                 f"- mesh_uid: int64 array (M,), every test-split mesh exactly once, any order "
                 f"(M = {len(self.test_mesh_uid)}; BasicShapes(root, split='test', "
-                f"variants='all') yields them as item['mesh_uid'])\n"
+                f"variants='all') yields all but the out-of-distribution ones as "
+                f"item['mesh_uid'], BenchmarkData.ood_meshes_of lists those; "
+                f"Evaluator.test_mesh_uid holds them all)\n"
                 f"- target_db: real array (M, {', '.join(map(str, self.target_shape))}): the "
                 f"predicted dB response of each mesh (aspect, roll, range bin), row i for "
                 f"mesh_uid[i]; values below -80 dB are scored as -80 dB\n"
@@ -232,8 +238,10 @@ class Evaluator:
     def expected_output_format(self) -> str:
         return ("==== Expected output format\n"
                 "{'simple_mse', 'complex_mse', 'variation_mse' (dB², None without complex "
-                "meshes), each with '<name>_ci' [lo, hi] (95%, bootstrap over test objects), "
-                "'n_objects', 'n_meshes', 'per_class', 'no_skill', 'no_skill_test', "
+                "meshes), 'ood_complex_mse', 'ood_variation_mse' (None without OOD meshes), "
+                "each with '<name>_ci' [lo, hi] (95%, bootstrap over test objects), "
+                "'n_objects', 'n_meshes', 'per_class', 'per_remesher', 'no_skill', "
+                "'no_skill_test', "
                 "'references', 'skill'} (docs/BENCHMARK.md, \"Results JSON\")")
 
     def eval(self, input_dict: dict) -> dict:

@@ -12,6 +12,18 @@ and the reported numbers are the means over test objects (per class: over that c
 objects), each with a 95% interval (``benchmark.uncertainty``: bootstrap over test objects,
 stratified by class). Objects without complex meshes count only towards Simple MSE.
 
+**Out-of-distribution meshes.** Test objects also carry meshes o = 1..K made by remeshers that
+never make training variants (``basic_shapes.shards.OOD_REMESHERS``, variants 900-999); with
+R̂_o the prediction on each:
+
+    ood_complex   = mean_o MSE(R, R̂_o)
+    ood_variation = mean_o MSE(R̂_s, R̂_o)
+
+reported beside the three, overall, per class and per remesher (the same means restricted to
+that remesher's meshes, over the objects that have some), with the same intervals. They ask
+whether a model that is invariant on Blender's meshes stays invariant on meshes made another
+way. Objects without OOD meshes do not count towards them (None when no object has any).
+
 **One floor.** Targets are floored at FLOOR_DB (-80 dB); predictions are clipped at the same
 floor before scoring. A value below the floor is never closer to a target than the floor
 itself (every target is >= the floor), so unclipped predictions were penalized for nothing
@@ -43,11 +55,24 @@ from __future__ import annotations
 
 import numpy as np
 
+from basic_shapes.shards import OOD_REMESHERS
 from benchmark.data import FLOOR_DB
 from benchmark.uncertainty import interval
 
 INTENSITY_TAU_DB = 10.0
 METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
+OOD_METRIC_NAMES = ("ood_complex_mse", "ood_variation_mse")
+
+
+def remesher_key(metric: str, remesher: str) -> str:
+    """Per-object array name of an OOD metric restricted to one remesher's meshes."""
+    return f"{metric}:{remesher}"
+
+
+def ood_keys() -> tuple[str, ...]:
+    """Every OOD per-object array name: the two metrics, then per remesher (slot order)."""
+    return OOD_METRIC_NAMES + tuple(remesher_key(m, r) for r in OOD_REMESHERS
+                                    for m in OOD_METRIC_NAMES)
 
 
 def clip_prediction(pred) -> np.ndarray:
@@ -78,6 +103,25 @@ def object_errors(target: np.ndarray, simple: np.ndarray,
             float(np.mean([mse(simple, c) for c in complex_])))
 
 
+def ood_errors(target: np.ndarray, simple: np.ndarray, ood: np.ndarray,
+               remeshers: list[str]) -> dict[str, float]:
+    """OOD Complex and Variation MSE of one object (module docstring), overall and per
+    remesher, keyed as ``ood_keys``; NaN where the object has no such mesh."""
+    out = dict.fromkeys(ood_keys(), np.nan)
+    if len(ood) != len(remeshers):
+        raise ValueError(f"{len(ood)} OOD predictions but {len(remeshers)} remesher names")
+    if not len(ood):
+        return out
+    simple = clip_prediction(simple)
+    pairs = [(mse(target, c), mse(simple, c)) for c in map(clip_prediction, ood)]
+    out["ood_complex_mse"], out["ood_variation_mse"] = np.mean(pairs, axis=0).tolist()
+    for r in set(remeshers):
+        sel = [p for p, name in zip(pairs, remeshers) if name == r]
+        for m, v in zip(OOD_METRIC_NAMES, np.mean(sel, axis=0).tolist()):
+            out[remesher_key(m, r)] = v
+    return out
+
+
 class Scorer:
     """Accumulates objects one at a time (bounded memory) and reports the metrics dict.
 
@@ -89,12 +133,17 @@ class Scorer:
         self.class_names = list(class_names)
         self.train_mean = None if train_mean is None else np.asarray(train_mean, np.float64)
         self.rows: list[tuple] = []  # (class, simple, complex, variation, A, B, C) per object
+        self.ood: list[dict] = []  # ``ood_errors`` per object
         self.ids: list[int] = []
         self.n_meshes = 0
 
     def add(self, class_index: int, target: np.ndarray, simple: np.ndarray,
-            complex_: np.ndarray, object_id: int | None = None) -> None:
+            complex_: np.ndarray, object_id: int | None = None, ood: np.ndarray = (),
+            ood_remeshers: list[str] = ()) -> None:
+        """One test object: its label, the predictions on its simple mesh, its complex meshes
+        (C, ...) and its OOD meshes (K, ...), with the remesher of each OOD mesh."""
         errors = object_errors(target, simple, complex_)
+        self.ood.append(ood_errors(target, simple, ood, list(ood_remeshers)))
         abc = (np.nan,) * 3
         if self.train_mean is not None:
             d = np.asarray(target, np.float64) - self.train_mean
@@ -102,14 +151,15 @@ class Scorer:
             abc = (float(np.mean(d * d)), float(np.mean(p * p)), float(np.mean(d * p)))
         self.rows.append((int(class_index), *errors, *abc))
         self.ids.append(len(self.ids) if object_id is None else int(object_id))
-        self.n_meshes += 1 + len(complex_)
+        self.n_meshes += 1 + len(complex_) + len(ood)
 
     def per_object(self) -> dict:
         """Per-object arrays (NaN where an object lacks a metric): what intervals resample."""
         r = np.array([[np.nan if x is None else x for x in row] for row in self.rows], np.float64)
         return {"object_id": np.array(self.ids, np.int64), "class_index": r[:, 0].astype(np.int64),
                 **{name: r[:, k] for k, name in enumerate(METRIC_NAMES, start=1)},
-                "truth_spread": r[:, 4], "prediction_spread": r[:, 5], "co_spread": r[:, 6]}
+                "truth_spread": r[:, 4], "prediction_spread": r[:, 5], "co_spread": r[:, 6],
+                **{k: np.array([o[k] for o in self.ood], np.float64) for k in ood_keys()}}
 
     def result(self) -> dict:
         if not self.rows:
@@ -117,7 +167,7 @@ class Scorer:
         po = self.per_object()
         cls = po["class_index"]
         out = {**metric_block(po, cls), "n_meshes": self.n_meshes, **skill_test(po, cls),
-               "per_class": {}}
+               "per_class": {}, "per_remesher": per_remesher(po, cls)}
         for c, name in enumerate(self.class_names):
             sel = cls == c
             if sel.any():
@@ -125,14 +175,32 @@ class Scorer:
         return out
 
 
-def metric_block(po: dict, strata: np.ndarray) -> dict:
-    """Mean of each metric over the objects that have it (None if none has), with intervals."""
+def _means(po: dict, strata: np.ndarray, names: dict[str, str]) -> dict:
+    """``{name: mean of po[key] over objects that have it (None if none has), name_ci}``."""
     out = {}
-    for name in METRIC_NAMES:
-        v = po[name]
+    for name, key in names.items():
+        v = po[key]
         out[name] = None if np.all(np.isnan(v)) else float(np.nanmean(v))
         out[name + "_ci"] = interval(v, strata)
-    out["n_objects"] = int(len(strata))
+    return out
+
+
+def metric_block(po: dict, strata: np.ndarray) -> dict:
+    """Mean of each metric over the objects that have it (None if none has), with intervals;
+    the OOD metrics when ``po`` has them."""
+    names = [n for n in METRIC_NAMES + OOD_METRIC_NAMES if n in po]
+    return {**_means(po, strata, {n: n for n in names}), "n_objects": int(len(strata))}
+
+
+def per_remesher(po: dict, strata: np.ndarray) -> dict:
+    """OOD metrics per remesher, over the objects that have that remesher's meshes (intervals
+    still stratified by class over all objects, so they match the overall ones)."""
+    out = {}
+    for r in OOD_REMESHERS:
+        key = remesher_key(OOD_METRIC_NAMES[0], r)
+        if key in po and not np.all(np.isnan(po[key])):
+            out[r] = {**_means(po, strata, {m: remesher_key(m, r) for m in OOD_METRIC_NAMES}),
+                      "n_objects": int(np.sum(~np.isnan(po[key])))}
     return out
 
 
@@ -155,11 +223,14 @@ def skill_test(po: dict, strata: np.ndarray) -> dict:
 
 def score_arrays(class_index: np.ndarray, targets: np.ndarray, simple: np.ndarray,
                  complex_: np.ndarray, class_names: list[str],
-                 train_mean: np.ndarray | None = None) -> dict:
-    """Metrics for in-memory arrays: targets/simple (N, ...), complex_ (N, C, ...)."""
+                 train_mean: np.ndarray | None = None, ood: np.ndarray | None = None,
+                 ood_remeshers: list[str] = ()) -> dict:
+    """Metrics for in-memory arrays: targets/simple (N, ...), complex_ (N, C, ...), ood
+    (N, K, ...) with ``ood_remeshers`` the remesher of each of the K OOD meshes."""
     scorer = Scorer(class_names, train_mean)
-    for c, t, s, cx in zip(class_index, targets, simple, complex_):
-        scorer.add(c, t, s, cx)
+    for k, (c, t, s, cx) in enumerate(zip(class_index, targets, simple, complex_)):
+        scorer.add(c, t, s, cx, ood=() if ood is None else ood[k], ood_remeshers=(
+            () if ood is None else ood_remeshers))
     return scorer.result()
 
 

@@ -27,9 +27,10 @@ import h5py
 import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
+from basic_shapes.shards import ood_remesher
 from benchmark import __version__
 from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, Scorer
+from benchmark.metrics import METRIC_NAMES, Scorer, ood_keys
 from benchmark.schema import SchemaError, check_results
 
 RESULTS_MAX_BYTES = 1 << 20
@@ -156,6 +157,14 @@ class NearestScaleModel:
 
 
 # --- predictions files ------------------------------------------------------------------------
+def scored_mesh_rows(data: BenchmarkData, ood: bool = True) -> np.ndarray:
+    """Global rows of every mesh a predictions file must cover: per test object its regular
+    meshes (simple first), then (``ood``) its out-of-distribution meshes."""
+    rows = [np.concatenate([data.meshes_of(o), data.ood_meshes_of(o)]) if ood
+            else data.meshes_of(o) for o in data.test_objects()]
+    return np.concatenate(rows)
+
+
 class PredictionsWriter:
     """Write a predictions file row block by row block; the file appears only when complete."""
 
@@ -248,7 +257,7 @@ class Predictions:
         expected = (len(uid), *data.target_shape)
         if tgt.shape != expected or tgt.dtype != np.float32:
             self._fail(f"/target_db is {tgt.dtype}{tgt.shape}, expected float32{expected}")
-        test = data.meshes["uid"][data.mesh_rows("test")]
+        test = data.meshes["uid"][scored_mesh_rows(data)]
         if len(uid) > 2 * len(test) + 1:  # never read more uids than could be meant
             self._fail(f"{len(uid)} rows for {len(test)} test meshes")
         uids = require_dataset(f, "mesh_uid", "i", 1, PredictionsError, self.path)[()]
@@ -257,9 +266,16 @@ class Predictions:
         dup = self.sorted_uids[1:][self.sorted_uids[1:] == self.sorted_uids[:-1]]
         if len(dup):
             self._fail(f"{len(dup)} duplicated mesh_uid rows (first {dup[0]})")
+        regular = data.meshes["uid"][scored_mesh_rows(data, ood=False)]
+        missing = np.setdiff1d(regular, self.sorted_uids)
+        if len(missing):
+            self._fail(f"missing {len(missing)} of {len(regular)} test meshes (first mesh_uid "
+                       f"{missing[0]})")
         missing = np.setdiff1d(test, self.sorted_uids)
         if len(missing):
-            self._fail(f"missing {len(missing)} of {len(test)} test meshes (first mesh_uid {missing[0]})")
+            self._fail(f"missing {len(missing)} of {len(test) - len(regular)} out-of-distribution "
+                       f"test meshes (variants 900-999, first mesh_uid {missing[0]}); predict "
+                       f"them too (BenchmarkData.ood_meshes_of lists them)")
         extra = np.setdiff1d(self.sorted_uids, test)
         if len(extra):
             self._fail(f"{len(extra)} rows are not test-split meshes of the dataset "
@@ -313,10 +329,11 @@ def score(data: BenchmarkData, predictions: Predictions, per_object: bool = Fals
     train_mean, ref_scorers = references.reference_scores(data)
     scorer = Scorer(data.class_names, train_mean)
     for obj in data.test_objects():
-        rows = data.meshes_of(obj)
-        pred = predictions.read(data.meshes["uid"][rows])
-        scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0], pred[1:],
-                   int(data.objects["id"][obj]))
+        rows, ood = data.meshes_of(obj), data.ood_meshes_of(obj)
+        pred = predictions.read(data.meshes["uid"][np.concatenate([rows, ood])])
+        scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0],
+                   pred[1:len(rows)], int(data.objects["id"][obj]), ood=pred[len(rows):],
+                   ood_remeshers=[ood_remesher(v) for v in data.meshes["variant"][ood]])
     metrics = scorer.result()
     po = scorer.per_object()
     metrics["references"] = {n: references.summary(s) for n, s in ref_scorers.items()}
@@ -327,9 +344,10 @@ def score(data: BenchmarkData, predictions: Predictions, per_object: bool = Fals
 
 
 def per_object_json(po: dict) -> dict:
-    """Per-object arrays as JSON lists (null where an object lacks a metric)."""
+    """Per-object arrays as JSON lists (null where an object lacks a metric), the OOD ones
+    included (``metric:remesher`` per remesher)."""
     out = {"object_id": po["object_id"].tolist(), "class_index": po["class_index"].tolist()}
-    for name in METRIC_NAMES:
+    for name in METRIC_NAMES + ood_keys():
         out[name] = [None if np.isnan(x) else float(x) for x in po[name]]
     return out
 

@@ -11,6 +11,9 @@ same ``Scorer`` as any model (so the same floor, intervals and no-skill rule app
 * ``class-scale-nn``: the class inferred from each mesh (``MeshClassifier``), then the mean
   target of the ``K_NEAREST`` training objects of that class nearest in log scale.
 
+They are scored on the out-of-distribution meshes too; only ``class-scale-nn`` reads the mesh,
+so only it can be fooled there (a remeshed cube whose class is read wrong).
+
 K_NEAREST = 3 because a reference should be the strongest cheap bar, not a strawman: on the
 small preset's dataset (180 objects, 18 test) one neighbour gives Complex MSE 120.7
 (scale) / 69.1 (class + scale), three give 63.9 / 47.5, five 61.7 / 50.4.
@@ -23,8 +26,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from basic_shapes.shards import ood_remesher
 from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, skill_test
+from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
 from benchmark.uncertainty import paired, verdict
 
 REFERENCES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
@@ -144,8 +148,9 @@ class References:
         return np.mean([self._target(int(o)).astype(np.float64) for o in objects], axis=0)
 
     def predictions(self, obj: int) -> dict[str, np.ndarray]:
-        """Each reference's predictions (n_meshes, *target_shape) for test object ``obj``."""
-        rows = self.data.meshes_of(obj)
+        """Each reference's predictions (n_meshes, *target_shape) for test object ``obj``: its
+        regular meshes (``meshes_of``), then its OOD meshes (``ood_meshes_of``)."""
+        rows = np.concatenate([self.data.meshes_of(obj), self.data.ood_meshes_of(obj)])
         c = int(self.data.objects["class_index"][obj])
         n = len(rows)
         scale_nn = self._mean_target(self.nearest(obj))
@@ -163,8 +168,12 @@ class References:
         for obj in self.data.test_objects():
             target = self.data.target(int(obj))
             c, oid = int(self.data.objects["class_index"][obj]), int(self.data.objects["id"][obj])
+            n = len(self.data.meshes_of(int(obj)))
+            ood = self.data.ood_meshes_of(int(obj))
+            remeshers = [ood_remesher(v) for v in self.data.meshes["variant"][ood]]
             for name, pred in self.predictions(int(obj)).items():
-                scorers[name].add(c, target, pred[0], pred[1:], oid)
+                scorers[name].add(c, target, pred[0], pred[1:n], oid, ood=pred[n:],
+                                  ood_remeshers=remeshers)
         return scorers
 
 
@@ -181,10 +190,12 @@ def reference_scores(data: BenchmarkData) -> tuple[np.ndarray, dict[str, Scorer]
 
 
 def summary(scorer: Scorer) -> dict:
-    """A reference's row: the metrics with intervals and its no-skill flag, overall only."""
+    """A reference's row: the metrics with intervals (OOD ones included, also per remesher)
+    and its no-skill flag, overall only."""
     po = scorer.per_object()
     return {**metric_block(po, po["class_index"]),
-            "no_skill": skill_test(po, po["class_index"])["no_skill"]}
+            "no_skill": skill_test(po, po["class_index"])["no_skill"],
+            "per_remesher": per_remesher(po, po["class_index"])}
 
 
 def strongest(rows: dict[str, dict]) -> str:

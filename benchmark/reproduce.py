@@ -262,16 +262,22 @@ def publish_row(out: Path, name: str, seeds: list[int]) -> None:
 
 # --- table ------------------------------------------------------------------------------------
 METRICS = ("simple_mse", "complex_mse", "variation_mse")
+OOD_METRICS = ("ood_complex_mse", "ood_variation_mse")
 
 
 def _mean_per_object(seed_results: list[dict]) -> dict:
-    """Per-object errors averaged over seeds (NaN where an object lacks a metric)."""
+    """Per-object errors averaged over seeds (NaN where an object lacks a metric); the OOD
+    errors when every seed has them (results made before OOD scoring lack them)."""
+    from benchmark.metrics import ood_keys
+
     first = seed_results[0]["per_object"]
     for r in seed_results[1:]:
         if r["per_object"]["object_id"] != first["object_id"]:
             raise ValueError("seeds of a row were scored on different test objects")
     out = {"object_id": np.array(first["object_id"]), "class_index": np.array(first["class_index"])}
-    for m in METRICS:
+    keys = METRICS + (ood_keys() if all("ood_complex_mse" in r["per_object"]
+                                        for r in seed_results) else ())
+    for m in keys:
         arr = np.array([[np.nan if x is None else x for x in r["per_object"][m]]
                         for r in seed_results], np.float64)
         out[m] = arr.mean(axis=0)
@@ -281,9 +287,10 @@ def _mean_per_object(seed_results: list[dict]) -> dict:
 def table_rows(records: dict, ref_scorers: dict | None = None,
                ref_rows: dict | None = None) -> list[dict]:
     """One row per (embedding, regime) with every finished seed: mean ± std across seeds,
-    the interval of the seed-mean, per class, no-skill votes and skill vs the references."""
+    the interval of the seed-mean, per class and (OOD metrics) per remesher, no-skill votes
+    and skill vs the references."""
     from benchmark import references
-    from benchmark.metrics import metric_block
+    from benchmark.metrics import metric_block, per_remesher
 
     rows = []
     for (embedding, regime) in ROWS:
@@ -295,12 +302,14 @@ def table_rows(records: dict, ref_scorers: dict | None = None,
         res = [r["results"] for r in recs]
         po = _mean_per_object(res)
         block = metric_block(po, po["class_index"])
+        cols = METRICS + OOD_METRICS
         row = {"name": name, "embedding": embedding, "regime": regime,
                "pretraining": PRETRAINING[regime],
                "training_meshes": "all" if regime == "ideal" else "simple", "seeds": seeds,
-               **{k: block[k] for k in METRICS}, **{k + "_ci": block[k + "_ci"] for k in METRICS},
-               **{k + "_std": _std([r["metrics"][k] for r in res]) for k in METRICS},
-               "per_seed": {str(s): {**{k: r["metrics"][k] for k in METRICS},
+               **{k: block.get(k) for k in cols}, **{k + "_ci": block.get(k + "_ci") for k in cols},
+               **{k + "_std": _std([r["metrics"].get(k) for r in res]) for k in cols},
+               "per_remesher": per_remesher(po, po["class_index"]),
+               "per_seed": {str(s): {**{k: r["metrics"].get(k) for k in cols},
                                      "no_skill": r["metrics"]["no_skill"]}
                             for s, r in zip(seeds, res)},
                "no_skill_seeds": sum(bool(r["metrics"]["no_skill"]) for r in res),
@@ -410,6 +419,43 @@ NO_FINDINGS = ("No findings: this preset is a smoke test (a few test objects, on
                "too small to learn); its differences are noise and decide nothing.")
 
 
+def _digits(metric: str) -> int:
+    return 2 if "variation" in metric else 1
+
+
+def _metric_cells(r: dict, dagger: str, seeds: bool = True) -> str:
+    """The five metric cells of a row (the no-skill dagger after Variation MSE); a record
+    made before OOD scoring shows "-" for the OOD ones."""
+    cells = [_cell(r.get(k), r.get(k + "_std") if seeds else None, r.get(k + "_ci"),
+                   _digits(k)) for k in METRICS + OOD_METRICS]
+    cells[2] += dagger
+    return " | ".join(cells)
+
+
+def remesher_table(rows: list[dict], references: dict) -> list[str]:
+    """Markdown lines: OOD Complex / OOD Variation per remesher for every reference and model
+    row (none when no row has OOD meshes)."""
+    from basic_shapes.shards import OOD_REMESHERS
+
+    rows = [{**r, "embedding": f"reference: {n}", "pretraining": "-"}
+            for n, r in references.items()] + rows
+    names = [n for n in OOD_REMESHERS if any(n in r.get("per_remesher", {}) for r in rows)]
+    if not names:
+        return []
+    lines = ["", "### Out-of-distribution meshes per remesher", "",
+             "OOD Complex / OOD Variation MSE (dB²) on each remesher's meshes, mean over seeds "
+             "[95% interval of the seed-mean].", "",
+             "| Embedding | Pretraining | " + " | ".join(f"{n} Complex | {n} Variation"
+                                                    for n in names) + " |",
+             "|---|---|" + "---:|---:|" * len(names)]
+    for r in rows:
+        pr = r.get("per_remesher", {})
+        cells = [_cell(pr.get(n, {}).get(k), None, pr.get(n, {}).get(k + "_ci"), _digits(k))
+                 for n in names for k in OOD_METRICS]
+        lines.append(f"| {r['embedding']} | {r['pretraining']} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def render_markdown(table: dict) -> str:
     t = table["timing"]
     lines = [f"# Basic Shapes reproduction: preset `{table['preset']}`", "",
@@ -430,29 +476,31 @@ def render_markdown(table: dict) -> str:
              f"stratified by class]. `†` marks no skill (not better than the training mean by a "
              f"paired 95% interval, in most seeds). Skill: 1 - Complex MSE / Complex MSE of the "
              f"strongest reference; Δ: the paired difference to it with its 95% interval.", "",
+             "OOD Complex / OOD Variation: Complex / Variation MSE on the test objects' "
+             "out-of-distribution meshes (remeshers no training mesh comes from; per remesher "
+             "below).", "",
              "| Embedding | Pretraining | Training meshes | Simple MSE | Complex MSE | "
-             "Variation MSE | Skill | Δ Complex vs ref | Params | ms / mesh | Train s |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "Variation MSE | OOD Complex | OOD Variation | Skill | Δ Complex vs ref | Params | "
+             "ms / mesh | Train s |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, r in table["references"].items():
         lines.append(f"| reference: {name} | - | - | "
-                     + " | ".join(_cell(r[k], None, r[k + "_ci"], 2 if k == "variation_mse" else 1)
-                                  for k in METRICS)
-                     + f"{' †' if r['no_skill'] else ''} | - | - | 0 | - | - |")
+                     + _metric_cells(r, " †" if r["no_skill"] else "", seeds=False)
+                     + " | - | - | 0 | - | - |")
     for r in table["rows"]:
-        dag = " †" if r["no_skill"] else ""
         sk = (r.get("skill") or {}).get("vs_reference", {})
         key = "complex_mse" if "complex_mse" in sk else "simple_mse"
         v = sk.get(key)
         skill = "-" if v is None or v["skill"] is None else f"{v['skill']:+.2f}"
         delta = "-" if v is None else f"{v['diff']:+.1f} [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]"
         lines.append(f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
-                     + " | ".join(_cell(r[k], r[k + "_std"], r[k + "_ci"],
-                                        2 if k == "variation_mse" else 1) for k in METRICS)
-                     + f"{dag} | {skill} | {delta} | {r['params']:,} | "
+                     + _metric_cells(r, " †" if r["no_skill"] else "")
+                     + f" | {skill} | {delta} | {r['params']:,} | "
                      f"{_num(r['ms_per_mesh'], 2)} | {_num(r['train_seconds'], 0)} |")
     strongest = table.get("strongest_reference")
     if strongest:
         lines += ["", f"Strongest reference: `{strongest}` (lowest Complex MSE)."]
+    lines += remesher_table(table["rows"], table["references"])
     lines += ["", "## The paper's findings on this table", ""]
     if not table["findings"]:
         lines.append(table.get("no_findings", NO_FINDINGS))

@@ -15,6 +15,8 @@ import math
 import re
 from dataclasses import dataclass
 
+from basic_shapes.shards import OOD_REMESHERS
+
 MAX_MSE = 1e6          # dB²; the -80 dB floor bounds an honest MSE near 6400 dB²
 MAX_PARAMS = 10**12    # parameters of a model
 MAX_COUNT = 10**9      # objects or meshes
@@ -88,13 +90,19 @@ def interval(lo: float = 0, hi: float = MAX_MSE) -> Field:
 
 # --- the tables ----------------------------------------------------------------------------
 METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
+OOD_METRIC_NAMES = ("ood_complex_mse", "ood_variation_mse")  # absent in older records
+OOD_FIELDS = {**{name: Field("number", 0, MAX_MSE, null=True, required=False)
+                 for name in OOD_METRIC_NAMES},
+              **{name + "_ci": interval() for name in OOD_METRIC_NAMES}}
 METRIC_BLOCK = {  # overall, per class and per reference row; intervals absent in old entries
     "simple_mse": mse(null=False),
     "complex_mse": mse(),
     "variation_mse": mse(),
     **{name + "_ci": interval() for name in METRIC_NAMES},
+    **OOD_FIELDS,
     "n_objects": Field("int", 1, MAX_COUNT),
 }
+REMESHER_BLOCK = {**OOD_FIELDS, "n_objects": Field("int", 1, MAX_COUNT)}  # per_remesher
 METRICS = {  # overall only, besides METRIC_BLOCK, per_class, no_skill_test, references, skill
     "no_skill": Field("bool", null=True, required=False),
     "mode_collapse": Field("bool", required=False),  # entries made before no_skill replaced it
@@ -164,7 +172,7 @@ def check_fields(record, table: dict[str, Field], where: str, extra: tuple[str, 
 def check_metrics(m, where: str = "metrics") -> dict:
     """The metrics block of a results record or an entry (``benchmark.protocol.score``)."""
     check_fields(m, {**METRIC_BLOCK, **METRICS}, where,
-                 extra=("per_class", "no_skill_test", "references", "skill"))
+                 extra=("per_class", "no_skill_test", "references", "skill", "per_remesher"))
     if m.get("no_skill_test") is not None:
         check_fields(m["no_skill_test"], NO_SKILL_TEST, f"{where}.no_skill_test")
     if "references" in m:
@@ -172,9 +180,13 @@ def check_metrics(m, where: str = "metrics") -> dict:
         if not isinstance(refs, dict) or set(refs) - set(REFERENCE_NAMES):
             raise SchemaError(f"{where}.references must map {', '.join(REFERENCE_NAMES)} to rows")
         for name, block in refs.items():
-            check_fields(block, REFERENCE, f"{where}.references.{name}")
+            check_fields(block, REFERENCE, f"{where}.references.{name}", extra=("per_remesher",))
+            if "per_remesher" in block:
+                check_per_remesher(block["per_remesher"], f"{where}.references.{name}.per_remesher")
     if "skill" in m:
         check_skill(m["skill"], f"{where}.skill")
+    if "per_remesher" in m:
+        check_per_remesher(m["per_remesher"], f"{where}.per_remesher")
     if "n_meshes" in m and m["n_meshes"] < m["n_objects"]:
         raise SchemaError(f"{where}.n_meshes must be at least n_objects")
     per_class = m.get("per_class")
@@ -184,6 +196,15 @@ def check_metrics(m, where: str = "metrics") -> dict:
         Field("text", hi=MAX_NAME).check(name, f"{where}.per_class key")
         check_fields(block, METRIC_BLOCK, f"{where}.per_class.{name}")
     return m
+
+
+def check_per_remesher(pr, where: str = "per_remesher") -> dict:
+    """OOD metrics per remesher (``benchmark.metrics.per_remesher``)."""
+    if not isinstance(pr, dict) or set(pr) - set(OOD_REMESHERS):
+        raise SchemaError(f"{where} must map some of {', '.join(OOD_REMESHERS)} to rows")
+    for name, block in pr.items():
+        check_fields(block, REMESHER_BLOCK, f"{where}.{name}")
+    return pr
 
 
 def check_skill(sk, where: str = "skill") -> dict:
@@ -220,10 +241,18 @@ def check_seeds(seeds, where: str = "seeds") -> dict:
     return seeds
 
 
+PER_OBJECT_OOD = OOD_METRIC_NAMES + tuple(f"{m}:{r}" for r in OOD_REMESHERS
+                                         for m in OOD_METRIC_NAMES)  # metrics.ood_keys
+
+
 def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:
     """Per-object errors (what paired comparisons resample): equal-length lists, one entry per
-    scored test object; errors may be null where an object has no complex meshes."""
+    scored test object; errors may be null where an object has no complex (OOD) meshes. The
+    OOD lists (overall and ``metric:remesher``) come all together or not at all (older
+    records)."""
     keys = ("object_id", "class_index", *METRIC_NAMES)
+    if isinstance(po, dict) and set(PER_OBJECT_OOD) & set(po):
+        keys += PER_OBJECT_OOD
     if not isinstance(po, dict) or set(po) != set(keys):
         raise SchemaError(f"{where} must hold exactly {', '.join(keys)}")
     for k in keys:
@@ -232,7 +261,7 @@ def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:
     for k in ("object_id", "class_index"):
         for i, v in enumerate(po[k]):
             Field("int", 0, 2**63 - 1).check(v, f"{where}.{k}[{i}]")
-    for k in METRIC_NAMES:
+    for k in keys[2:]:
         for i, v in enumerate(po[k]):
             Field("number", 0, MAX_MSE, null=k != "simple_mse").check(v, f"{where}.{k}[{i}]")
     return po

@@ -3,7 +3,8 @@
 Entries are grouped by dataset fingerprint, because numbers on different datasets are not
 comparable; each dataset gets its table (sorted by Complex MSE; sortable in the browser) with
 95% intervals, the harness's reference rows (marked "reference", unranked) and each model's
-skill against the strongest of them, a no-skill flag, self-reported speeds marked as such,
+skill against the strongest of them, the OOD Complex and OOD Variation MSE (meshes from
+remeshers no training mesh comes from), a no-skill flag, self-reported speeds marked as such,
 a per-class breakdown, a speed-vs-error chart and an example figure. Every text from an entry is
 escaped; the page loads nothing but its own files (a Content-Security-Policy says so), so it
 works offline and from any static host. Everything is built in memory first, then the site
@@ -29,7 +30,9 @@ from leaderboard.store import DEFAULT_ENTRIES, METRIC_NAMES, load_entries
 
 FIGURES = ("speed-vs-error-*.png", "example-*.png")
 METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
-                 "variation_mse": "Variation MSE"}
+                 "variation_mse": "Variation MSE", "ood_complex_mse": "OOD Complex MSE",
+                 "ood_variation_mse": "OOD Variation MSE"}
+COLUMNS = METRIC_NAMES + ("ood_complex_mse", "ood_variation_mse")  # "—" in older entries
 
 
 def fmt_mse(x: float | None) -> str:
@@ -158,7 +161,7 @@ def _link(e: dict) -> str:
 def html_table(g: dict) -> str:
     head = ([_th("#", "num"), _th("Model", "text")]
             + [_th(METRIC_TITLES[k] + " [95%]", "num", "ascending" if k == "complex_mse" else None)
-               for k in METRIC_NAMES]
+               for k in COLUMNS]
             + [_th("Skill", "num"), _th("No skill", "text"), _th("Params", "num"),
                _th("ms / mesh", "num"), _th("Hardware", "text"), _th("Date", "text"),
                _th("Link", "text")])
@@ -172,7 +175,7 @@ def html_table(g: dict) -> str:
         cells = ([_num(rank, str(rank)),
                   f'<td data-value="{_e(e["name"].lower())}">{_e(e["name"])}'
                   + (f'<br><small class="note">{_e(detail)}</small>' if detail else "") + "</td>"]
-                 + [_num(m[k], fmt_ci(m, k)) for k in METRIC_NAMES]
+                 + [_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS]
                  + [_num(skill, skill_text),
                     '<td class="flag">yes</td>' if flagged else "<td>no</td>",
                     _num(e.get("params"), fmt_params(e.get("params"))),
@@ -184,7 +187,7 @@ def html_table(g: dict) -> str:
     for name, r in references(g).items():
         cells = ([_num(None, "ref"), f'<td data-value="{_e(name)}">reference: {_e(name)}'
                   f'<br><small class="note">{_e(REFERENCE_NOTES.get(name, ""))}</small></td>']
-                 + [_num(r[k], fmt_ci(r, k)) for k in METRIC_NAMES]
+                 + [_num(r.get(k), fmt_ci(r, k)) for k in COLUMNS]
                  + [_num(None, "—"),
                     '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
                     _num(0, "0"), _num(None, "—")] + ["<td>—</td>"] * 3)
@@ -214,12 +217,12 @@ def skill_note(g: dict) -> str:
 
 def html_per_class(g: dict) -> str:
     head = [_th("Model", "text"), _th("Class", "text")] + [_th(METRIC_TITLES[k], "num")
-                                                           for k in METRIC_NAMES]
+                                                           for k in COLUMNS]
     rows = []
     for e in g["models"]:
         for cls, m in sorted(e["metrics"]["per_class"].items()):
             rows.append("<tr>" + f"<td>{_e(e['name'])}</td><td>{_e(cls)}</td>"
-                        + "".join(_num(m[k], fmt_ci(m, k)) for k in METRIC_NAMES) + "</tr>")
+                        + "".join(_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS) + "</tr>")
     return (f'<table class="per-class sortable" id="per-class-{g["short"]}">\n<thead><tr>'
             f'{"".join(head)}</tr></thead>\n<tbody>\n' + "\n".join(rows) + "\n</tbody>\n</table>")
 
@@ -264,29 +267,31 @@ def markdown(groups: list[dict]) -> str:
            "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
            "computed by the harness and not ranked. Models with no skill (not better than the "
            "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
-           "not an achievement. Speeds marked (self-reported) were not measured by the harness.",
-           ""]
+           "not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
+           "meshes from remeshers no training mesh comes from. Speeds marked (self-reported) "
+           "were not measured by the harness.", ""]
     if not groups:
         out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
         short = g["short"]
         out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
         if g["models"]:
-            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | Skill | No skill "
-                    "| Params | ms / mesh | Hardware | Date |",
-                    "|---:|---|---:|---:|---:|---:|---|---:|---:|---|---|"]
+            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | OOD Complex MSE "
+                    "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware "
+                    "| Date |",
+                    "|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|---|"]
             for rank, e in enumerate(g["models"], 1):
                 m = e["metrics"]
                 name = _md(e["name"])
                 if e.get("link"):
                     name = f"[{name}]({e['link'].replace('(', '%28').replace(')', '%29')})"
-                out.append(f"| {rank} | {name} | " + " | ".join(fmt_ci(m, k) for k in METRIC_NAMES)
+                out.append(f"| {rank} | {name} | " + " | ".join(fmt_ci(m, k) for k in COLUMNS)
                            + f" | {skill_of(e)[1]} | {'**yes**' if no_skill(m) else 'no'} | "
                            f"{fmt_params(e.get('params'))} | {fmt_speed(e['speed'])} | "
                            f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |")
             for ref, r in references(g).items():
                 out.append(f"| ref | reference: {_md(ref)} | "
-                           + " | ".join(fmt_ci(r, k) for k in METRIC_NAMES)
+                           + " | ".join(fmt_ci(r, k) for k in COLUMNS)
                            + f" | — | {'**yes**' if r.get('no_skill') else 'no'} "
                            f"| 0 | — | — | — |")
             out += ["", _md(skill_note(g)), ""]
@@ -294,10 +299,11 @@ def markdown(groups: list[dict]) -> str:
         out += [_md(notes), "",
                 f"![Speed against error](speed-vs-error-{short}.png)", ""]
         if g["models"]:
-            out += ["### Per class", "", "| Model | Class | Simple MSE | Complex MSE | Variation MSE |",
-                    "|---|---|---:|---:|---:|"]
+            out += ["### Per class", "", "| Model | Class | "
+                    + " | ".join(METRIC_TITLES[k] for k in COLUMNS) + " |",
+                    "|---|---|" + "---:|" * len(COLUMNS)]
             out += [f"| {_md(e['name'])} | {_md(c)} | "
-                    + " | ".join(fmt_ci(m, k) for k in METRIC_NAMES)
+                    + " | ".join(fmt_ci(m, k) for k in COLUMNS)
                     + " |" for e in g["models"] for c, m in sorted(e["metrics"]["per_class"].items())]
             out += [""]
         if g["example"]:

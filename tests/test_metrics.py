@@ -36,7 +36,11 @@ def test_two_objects_by_hand():
     assert (r["simple_mse"], r["complex_mse"], r["variation_mse"]) == (1.5, 1.0, 1.5)
     assert r["per_class"]["cube"] == {"simple_mse": 1.0, "complex_mse": 2.0, "variation_mse": 1.0,
                                       "n_objects": 1, "simple_mse_ci": [1.0, 1.0],
-                                      "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0]}
+                                      "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0],
+                                      **dict.fromkeys(("ood_complex_mse", "ood_complex_mse_ci",
+                                                       "ood_variation_mse",
+                                                       "ood_variation_mse_ci"))}
+    assert r["ood_complex_mse"] is None and r["per_remesher"] == {}  # no OOD meshes
     assert r["per_class"]["cylinder"]["complex_mse"] == 0.0
     assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: nothing to draw
     assert (r["n_objects"], r["n_meshes"]) == (2, 5)
@@ -205,3 +209,44 @@ def test_intensity_weighted_mse_against_numpy_and_has_gradients():
     assert loss.item() == pytest.approx(expected, rel=1e-12)
     loss.backward()
     assert pred.grad is not None and torch.all(torch.isfinite(pred.grad)) and pred.grad.abs().sum() > 0
+
+
+def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():
+    """table_rows averages the OOD per-object errors over seeds (overall and per remesher,
+    intervals of the seed-mean) and render_markdown shows the columns and the sub-table."""
+    from benchmark.metrics import ood_keys
+    from benchmark.reproduce import remesher_table, render_markdown, table_rows
+
+    rng = np.random.default_rng(5)
+    n, cls = 12, np.arange(12) % 3
+    runs = {}
+    for seed in (0, 1):
+        errs = {m: rng.gamma(2.0, 10.0, n) for m in ("simple_mse", "complex_mse",
+                                                      "variation_mse", *ood_keys())}
+        errs["ood_complex_mse:delaunay"][:] = np.nan  # a remesher without meshes
+        metrics = {m: float(np.nanmean(v)) for m, v in errs.items() if ":" not in m}
+        metrics.update(no_skill=False, per_class={"a": {}, "b": {}, "c": {}})
+        runs[seed] = {"train_seconds": 1.0, "results": {
+            "metrics": metrics, "model": {"params": 5}, "speed": {"ms_per_mesh": 1.0},
+            "per_object": {"object_id": list(range(n)), "class_index": cls.tolist(),
+                           **{m: [None if np.isnan(x) else x for x in v.tolist()]
+                              for m, v in errs.items()}}}}
+    (row,) = table_rows({"graph-basic": runs})
+    po = [runs[s]["results"]["per_object"] for s in (0, 1)]
+    mean = (np.array(po[0]["ood_complex_mse"]) + po[1]["ood_complex_mse"]) / 2
+    assert row["ood_complex_mse"] == pytest.approx(mean.mean(), rel=1e-12)
+    assert row["ood_complex_mse_ci"] == interval(mean, cls)
+    qem = (np.array(po[0]["ood_variation_mse:qem"]) + po[1]["ood_variation_mse:qem"]) / 2
+    assert row["per_remesher"]["qem"]["ood_variation_mse"] == pytest.approx(qem.mean())
+    assert set(row["per_remesher"]) == {"isotropic", "qem"}
+    assert row["per_class"]["b"]["ood_complex_mse"] == pytest.approx(mean[cls == 1].mean())
+    sub = remesher_table([row], {})
+    assert sub[-1].startswith("| graph | none |") and "qem Variation" in sub[-3]
+    assert sub[-1].count("|") == 2 + 4 + 1
+    table = {"preset": "t", "command": "c", "dataset": {"description": "d", "fingerprint": "f"},
+             "hardware": "h", "seeds": [0, 1], "references": {}, "rows": [row], "findings": [],
+             "timing": {"total_s": 60, "rows_trained": 2, "rows_reused": 0, "rows_s": 1,
+                        "jobs": 1, "threads_per_job": 1}}
+    md = render_markdown(table)
+    assert "| OOD Complex | OOD Variation |" in md
+    assert f"{row['ood_complex_mse']:.1f} ± " in md

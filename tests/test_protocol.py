@@ -11,6 +11,7 @@ import pytest
 
 from basic_shapes.shards import dataset_fingerprint, label_fingerprint
 from benchmark.cli import main
+from benchmark.data import BenchmarkData
 from benchmark.evaluate import evaluate
 from benchmark.protocol import (ModelError, NearestScaleModel, PredictionsError, ResultsError, load_model,
                                 load_results, score_predictions, write_predictions, write_results)
@@ -327,3 +328,99 @@ def test_writer_refuses_mismatched_blocks(tmp_path):
         write_predictions(tmp_path / "p.h5", "0" * 64, np.arange(2), np.zeros((3, 4), np.float32),
                           label_fingerprint="0" * 64)
     assert list(tmp_path.iterdir()) == []
+
+
+OOD = (900, 901, 925, 950)  # isotropic twice, qem, delaunay
+
+
+@pytest.fixture(scope="module")
+def ood_dir(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("ood"), ood=OOD)
+
+
+def _random_predictions(data_dir, path, drop_ood=False):
+    """A predictions file of independent random rows for every test mesh (OOD ones unless
+    ``drop_ood``), built from the raw shard files; returns {uid: row} and the raw layout."""
+    rng = np.random.default_rng(7)
+    objs = []
+    for shard in sorted(data_dir.glob("shard-*.h5")):
+        with h5py.File(shard) as f:
+            ids, split, cls = f["objects/id"][()], f["objects/split"][()], f["objects/class"][()]
+            resp, owner, variant = (f["radar/response"][()], f["meshes/object_index"][()],
+                                    f["meshes/variant"][()])
+        for k in np.flatnonzero(split == b"test"):
+            t = 20 * np.log10(np.maximum(np.abs(resp[k].astype(np.complex128)), 1e-4))
+            objs.append((int(ids[k]), int(cls[k]), t.astype(np.float32),
+                         sorted(variant[owner == k].tolist())))
+    uids = [i * 1000 + v for i, _, _, vs in objs for v in vs if not (drop_ood and v >= 900)]
+    rows = rng.normal(-40, 15, (len(uids), 7, 5, 16)).astype(np.float32)
+    with BenchmarkData(data_dir) as data:
+        write_predictions(path, data.fingerprint, np.array(uids, np.int64), rows,
+                          label_fingerprint=data.label_fingerprint)
+    return dict(zip(uids, rows.astype(np.float64))), objs
+
+
+def test_ood_metrics_against_a_direct_numpy_computation(ood_dir, tmp_path):
+    by_uid, objs = _random_predictions(ood_dir, tmp_path / "p.h5")
+    metrics = score_predictions(ood_dir, tmp_path / "p.h5")
+
+    def err(a, b):
+        return np.mean((a - np.maximum(b, -80.0)) ** 2)
+
+    want = {key: [] for key in ("ood_complex_mse", "ood_variation_mse", "isotropic", "qem")}
+    per_class = {}
+    for oid, c, t, variants in objs:
+        s = np.maximum(by_uid[oid * 1000], -80.0)
+        ood = {v: by_uid[oid * 1000 + v] for v in variants if v >= 900}
+        assert sorted(ood) == list(OOD)
+        oc = np.mean([err(t, p) for p in ood.values()])
+        want["ood_complex_mse"].append(oc)
+        want["ood_variation_mse"].append(np.mean([err(s, p) for p in ood.values()]))
+        want["isotropic"].append(np.mean([err(t, ood[900]), err(t, ood[901])]))
+        want["qem"].append(err(t, ood[925]))
+        per_class.setdefault(CLASSES[c], []).append(oc)
+    for key in ("ood_complex_mse", "ood_variation_mse"):
+        assert metrics[key] == pytest.approx(np.mean(want[key]), rel=1e-9)
+        lo, hi = metrics[key + "_ci"]
+        assert lo < metrics[key] < hi
+    for cname, values in per_class.items():
+        assert metrics["per_class"][cname]["ood_complex_mse"] == pytest.approx(np.mean(values))
+    pr = metrics["per_remesher"]
+    assert set(pr) == {"isotropic", "qem", "delaunay"}
+    assert pr["isotropic"]["ood_complex_mse"] == pytest.approx(np.mean(want["isotropic"]))
+    assert pr["qem"]["ood_complex_mse"] == pytest.approx(np.mean(want["qem"]))
+    assert pr["qem"]["n_objects"] == len(objs)
+    assert metrics["n_meshes"] == sum(len(v) for *_, v in objs)
+    # the regular metrics are untouched by the OOD meshes
+    simple = np.mean([err(t, by_uid[oid * 1000]) for oid, _, t, _ in objs])
+    assert metrics["simple_mse"] == pytest.approx(simple)
+    # the mesh-blind references predict the same on every mesh: OOD = Simple, no variation
+    for name in ("train-mean", "class-mean", "nearest-scale"):
+        ref = metrics["references"][name]
+        assert ref["ood_complex_mse"] == pytest.approx(ref["simple_mse"], rel=1e-12)
+        assert ref["ood_variation_mse"] == 0.0
+    assert metrics["references"]["class-scale-nn"]["ood_complex_mse"] is not None
+
+
+def test_predictions_without_ood_rows_are_refused(ood_dir, tmp_path):
+    _random_predictions(ood_dir, tmp_path / "p.h5", drop_ood=True)
+    with pytest.raises(PredictionsError) as info:
+        score_predictions(ood_dir, tmp_path / "p.h5")
+    n_ood = len(OOD) * 2 * len(CLASSES)
+    assert f"missing {n_ood} of {n_ood} out-of-distribution test meshes" in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_evaluate_predicts_ood_meshes_and_results_round_trip(ood_dir, model_file, tmp_path):
+    model = load_model(f"{model_file}:GeometryModel")
+    results = evaluate(ood_dir, model=model, write_predictions=tmp_path / "p.h5", progress=False)
+    with h5py.File(tmp_path / "p.h5") as f:
+        assert {int(u) % 1000 for u in f["mesh_uid"][()]} >= set(OOD)
+    po = results["per_object"]
+    assert len(po["ood_complex_mse:isotropic"]) == results["metrics"]["n_objects"]
+    assert results["metrics"]["ood_complex_mse"] == pytest.approx(np.mean(po["ood_complex_mse"]))
+    write_results(tmp_path / "r.json", results)
+    assert load_results(tmp_path / "r.json") == results
+    broken = {**results, "per_object": {k: v for k, v in po.items() if k != "ood_complex_mse"}}
+    with pytest.raises(ResultsError, match="per_object must hold exactly"):
+        write_results(tmp_path / "bad.json", broken)

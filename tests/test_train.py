@@ -172,7 +172,10 @@ def test_tiny_preset_end_to_end(tmp_path):
     assert set(table["references"]) == {"train-mean", "class-mean", "nearest-scale",
                                         "class-scale-nn"}
     md = (out / "table.md").read_text()
-    assert md.count("\n| ") == 14 + 4 and table["command"] in md and "reference: train-mean" in md
+    # the main table, and the per-remesher sub-table of the OOD meshes: header, 4 refs, 13 rows
+    assert md.count("\n| ") == 14 + 4 + 18 and table["command"] in md
+    assert "reference: train-mean" in md and "### Out-of-distribution meshes per remesher" in md
+    assert all(row["ood_complex_mse"] is not None for row in table["rows"])
     assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert table["findings"] == [] and "No findings" in md  # the tiny preset decides nothing
     # a rerun reuses every finished row instead of training again
