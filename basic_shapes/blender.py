@@ -62,9 +62,10 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
     """The simple mesh (variant 0) and ``n_variants`` verified complex variants of one object.
 
     ``scale`` holds the bbox extents in metres (x, y, z); ``shape`` the object's hidden shape
-    parameters (``analytic.HIDDEN``), which every mesh and the primitive check use. Every variant is a closed manifold
-    within ``verify.tolerance`` of the simple mesh (two-sided Hausdorff relative to the simple
-    mesh's bbox diagonal) and differs in topology from every other mesh of the object.
+    parameters (``analytic.HIDDEN``), which every mesh and the primitive check use. Every
+    variant is a closed manifold within ``verify.tolerance`` of the simple mesh (two-sided
+    Hausdorff relative to the simple mesh's bbox diagonal) and differs in topology from every
+    other mesh of the object.
     """
     spec = primitives.get(class_name)
     scale = np.asarray(scale, np.float64)

@@ -21,9 +21,9 @@ import numpy as np
 import trimesh
 
 sys.path.insert(0, str(Path(__file__).parent))
-from label_convergence import F_MAX, GRIDS, RESULTS, SCALES, label, mse  # noqa: E402
+from label_convergence import F_MAX, GRIDS, RESULTS, SCALES, label, mse
 
-from basic_shapes import analytic  # noqa: E402
+from basic_shapes import analytic
 
 
 def independent_frustum(scale, ratio: float):

@@ -1,4 +1,4 @@
-"""The hidden-parameter track: the frustum, whose top-to-base radius ratio class + scale cannot tell.
+"""The hidden-parameter track: the frustum, whose top/base radius ratio class + scale cannot tell.
 
 Checked against closed forms that share no code with basic_shapes.analytic: the volume and
 lateral area of a frustum, and the distance to a circular frustum as the distance to its
