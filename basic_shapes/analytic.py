@@ -19,12 +19,16 @@ import numpy as np
 
 C0 = 299_792_458.0
 
-KINDS = ("cube", "cylinder", "sphere", "cone", "torus", "frustum")
+KINDS = ("cube", "cylinder", "sphere", "cone", "torus")
+"""The Basic Shapes kinds: fixed by class and scale."""
 
 HIDDEN = {"frustum": {"top_ratio": (0.0, 0.9)}}
-"""Hidden shape parameters per kind and the interval each is drawn from, uniformly, per object
-(basic_shapes.generate): the frustum's top radius over its base radius. The bbox extents stay
-``scale`` for any value, so class and scale cannot tell it; only the mesh shows it."""
+"""The hidden-parameter track's kinds, their shape parameters and the interval each is drawn
+from, uniformly, per object (basic_shapes.generate): the frustum's top radius over its base
+radius. The bbox extents stay ``scale`` for any value, so class and scale cannot tell it; only
+the mesh shows it."""
+
+ALL_KINDS = KINDS + tuple(HIDDEN)
 
 TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
 """Blender's default torus (radii in the default mesh, before scaling)."""
@@ -72,8 +76,8 @@ class Solid:
 
 def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
     """The Solid of a generated object (ValueError naming the problem for bad input)."""
-    if class_name not in KINDS:
-        raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(KINDS)}")
+    if class_name not in ALL_KINDS:
+        raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(ALL_KINDS)}")
     s = np.asarray(scale, np.float64)
     if s.shape != (3,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
         raise ValueError(f"{class_name}: scale must be three positive finite extents, "

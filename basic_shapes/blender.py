@@ -75,7 +75,8 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
         raise ValueError(f"n_variants must be in 0..999, got {n_variants}")
     if not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be in 0..2**64-1, got {seed}")
-    solid = analytic.solid_for(class_name, scale, shape) if class_name in analytic.KINDS else None
+    known = class_name in analytic.ALL_KINDS  # a registry-only primitive has no analytic shape
+    solid = analytic.solid_for(class_name, scale, shape) if known else None
     with _LOCK:  # bpy is not thread-safe: threads of one process take turns
         return _object_meshes(spec, class_name, scale, int(seed), n_variants, solid)
 
