@@ -1,6 +1,7 @@
 """The object itself: the smooth primitive, its surface distance, samples and simulation mesh.
 
-An object is an analytic solid (box, elliptic cylinder, ellipsoid, elliptic cone, torus) that
+An object is an analytic solid (box, elliptic cylinder, ellipsoid, elliptic cone, torus, and for
+the hidden-parameter track an elliptic frustum) that
 coincides with Blender's default primitive scaled per axis, so that its bounding-box extents
 equal ``scale``. Every stored mesh is a *representation* of it (verify.py measures how far);
 its radar label is the physics of the smooth surface, computed on a *simulation mesh* that is
@@ -19,6 +20,15 @@ import numpy as np
 C0 = 299_792_458.0
 
 KINDS = ("cube", "cylinder", "sphere", "cone", "torus")
+"""The Basic Shapes kinds: fixed by class and scale."""
+
+HIDDEN = {"frustum": {"top_ratio": (0.0, 0.9)}}
+"""The hidden-parameter track's kinds, their shape parameters and the interval each is drawn
+from, uniformly, per object (basic_shapes.generate): the frustum's top radius over its base
+radius. The bbox extents stay ``scale`` for any value, so class and scale cannot tell it; only
+the mesh shows it."""
+
+ALL_KINDS = KINDS + tuple(HIDDEN)
 
 TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
 """Blender's default torus (radii in the default mesh, before scaling)."""
@@ -65,15 +75,22 @@ class Solid:
 
 def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
     """The Solid of a generated object (ValueError naming the problem for bad input)."""
-    if class_name not in KINDS:
-        raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(KINDS)}")
+    if class_name not in ALL_KINDS:
+        raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(ALL_KINDS)}")
     s = np.asarray(scale, np.float64)
     if s.shape != (3,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
         raise ValueError(f"{class_name}: scale must be three positive finite extents, "
                          f"got {scale!r}")
     params = dict(params or {})
-    if params:
-        raise ValueError(f"{class_name}: unknown shape parameter(s) {sorted(params)}")
+    ranges = HIDDEN.get(class_name, {})
+    if set(params) != set(ranges):
+        raise ValueError(f"{class_name}: shape parameters must be {sorted(ranges) or 'none'}, "
+                         f"got {sorted(params)}")
+    for key, (lo, hi) in ranges.items():
+        value = params[key]
+        if not (isinstance(value, (int, float)) and lo <= value <= hi):
+            raise ValueError(f"{class_name}: {key} must be a number in [{lo}, {hi}], got {value!r}")
+        params[key] = float(value)
     return Solid(class_name, tuple(float(x) for x in s), params)
 
 
@@ -178,33 +195,37 @@ def _curve_distance(q: np.ndarray, implicit, samples: np.ndarray) -> np.ndarray:
                     np.linalg.norm(q - start, axis=1))
 
 
-def _segment_fit(p, t, a, b, c):
-    """Closest points of the cone's generator segments at angles t (apex -> base rim) to p:
-    the point and d/dt of the squared distance (envelope theorem: w held at its optimum)."""
-    apex = np.array([0.0, 0.0, c])
-    rim = np.stack([a * np.cos(t), b * np.sin(t), np.full(np.shape(t), -c)], -1)
+def _segment_fit(p, t, a, b, c, ratio=0.0):
+    """Closest points of the cone's (frustum's: top rim at ``ratio`` times the base's)
+    generator segments at angles t (apex or top rim -> base rim) to p: the point and d/dt of
+    the squared distance (envelope theorem: w held at its optimum)."""
+    u = np.stack([a * np.cos(t), b * np.sin(t)], -1)
+    apex = np.concatenate([ratio * u, np.full(np.shape(t) + (1,), c)], -1)
+    rim = np.concatenate([u, np.full(np.shape(t) + (1,), -c)], -1)
     e = rim - apex
     w = np.clip(((p - apex) * e).sum(-1) / (e * e).sum(-1), 0.0, 1.0)
     x = apex + w[..., None] * e
-    dx_dt = w[..., None] * np.stack([-a * np.sin(t), b * np.cos(t), np.zeros(np.shape(t))], -1)
+    dx_dt = (ratio + w * (1.0 - ratio))[..., None] * np.stack(
+        [-a * np.sin(t), b * np.cos(t), np.zeros(np.shape(t))], -1)
     return x, 2.0 * ((x - p) * dx_dt).sum(-1)
 
 
-def _cone_side_distance(p, a, b, c, n_coarse=256, steps=60):
-    """Distance to the cone's side: a ruled surface, so the closest point on each generator is
-    explicit and only its angle t is searched (coarse grid, then bisection on the derivative)."""
+def _cone_side_distance(p, a, b, c, ratio=0.0, n_coarse=256, steps=60):
+    """Distance to the cone's (or frustum's) side: a ruled surface, so the closest point on each
+    generator is explicit and only its angle t is searched (coarse grid, then bisection on the
+    derivative)."""
     out = np.empty(len(p))
     t_grid = np.arange(n_coarse) * (2 * np.pi / n_coarse)
     for i in range(0, len(p), 4096):
         q = p[i:i + 4096]
-        x, _ = _segment_fit(q[:, None, :], t_grid[None, :], a, b, c)
+        x, _ = _segment_fit(q[:, None, :], t_grid[None, :], a, b, c, ratio)
         k = np.argmin(((x - q[:, None, :]) ** 2).sum(-1), axis=1)
         lo, hi = t_grid[k] - 2 * np.pi / n_coarse, t_grid[k] + 2 * np.pi / n_coarse
         for _ in range(steps):
             mid = 0.5 * (lo + hi)
-            rising = _segment_fit(q, mid, a, b, c)[1] > 0
+            rising = _segment_fit(q, mid, a, b, c, ratio)[1] > 0
             hi, lo = np.where(rising, mid, hi), np.where(rising, lo, mid)
-        x, _ = _segment_fit(q, 0.5 * (lo + hi), a, b, c)
+        x, _ = _segment_fit(q, 0.5 * (lo + hi), a, b, c, ratio)
         out[i:i + 4096] = np.linalg.norm(q - x, axis=1)
     return out
 
@@ -254,6 +275,13 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
         best = np.minimum(np.linalg.norm(p - [0.0, 0.0, c], axis=1),
                           _disk_distance(p, a, b, -c))
         return np.minimum(best, _cone_side_distance(p, a, b, c))
+    if kind == "frustum":
+        a, b, c = h
+        r = solid.params["top_ratio"]
+        top = (_disk_distance(p, r * a, r * b, c) if r > 0
+               else np.linalg.norm(p - [0.0, 0.0, c], axis=1))
+        best = np.minimum(top, _disk_distance(p, a, b, -c))
+        return np.minimum(best, _cone_side_distance(p, a, b, c, r))
     if kind == "torus":
         s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         best = np.full(len(p), np.inf)
@@ -414,6 +442,15 @@ def _cone_mesh(a, b, c, t):
     return v, f
 
 
+def _frustum_mesh(a, b, c, t, ratio):
+    """The cylinder's mesh with its top ring and cap shrunk by ``ratio`` (a cone at 0)."""
+    if ratio == 0:
+        return _cone_mesh(a, b, c, t)
+    v, f = _cylinder_mesh(a, b, c, t)
+    v[len(t):2 * len(t), :2] *= ratio
+    return v, f
+
+
 def _torus_mesh(s, u, w):
     nu, nw = len(u), len(w)
     v = _torus_point(s, u[:, None], w[None, :]).reshape(-1, 3)
@@ -467,6 +504,10 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
         v, f = _cylinder_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
     elif kind == "cone":
         v, f = _cone_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
+    elif kind == "frustum":
+        # the base rim has the largest radii: its angles bound the top rim's edges too
+        v, f = _frustum_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16),
+                             solid.params["top_ratio"])
     elif kind == "torus":
         s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         outer = TORUS_MAJOR + TORUS_MINOR
@@ -520,12 +561,18 @@ def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
         return np.concatenate(parts)
     if kind == "sphere":
         return _ellipsoid_grid(h, _ellipsoid_cells(h, lambda r: spacing))
-    if kind in ("cylinder", "cone"):
+    if kind in ("cylinder", "cone", "frustum"):
         a, b, c = h
         t = around(a, b)
-        m = count(2 * np.hypot(c, max(a, b) / 2) if kind == "cone" else 2 * c, 1)
+        m = count(2 * np.hypot(c, max(a, b) / 2) if kind != "cylinder" else 2 * c, 1)
         s = np.arange(m + 1)[:, None] / m
-        if kind == "cylinder":
+        if kind == "frustum":
+            r = solid.params["top_ratio"]
+            k = r + (1.0 - r) * s
+            side = np.stack([k * a * np.cos(t), k * b * np.sin(t),
+                             np.broadcast_to(c - 2 * c * s, (m + 1, len(t)))], -1)
+            caps = [disk(a, b, -c)] + ([disk(r * a, r * b, c)] if r > 0 else [])
+        elif kind == "cylinder":
             side = np.stack([np.broadcast_to(a * np.cos(t), (m + 1, len(t))),
                              np.broadcast_to(b * np.sin(t), (m + 1, len(t))),
                              np.broadcast_to(-c + 2 * c * s, (m + 1, len(t)))], -1)

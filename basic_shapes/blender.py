@@ -58,12 +58,14 @@ def _lap(stage: str, start: float) -> float:
 
 
 def object_meshes(class_name: str, scale: np.ndarray, seed: int,
-                  n_variants: int) -> list[MeshRecord]:
+                  n_variants: int, shape: dict | None = None) -> list[MeshRecord]:
     """The simple mesh (variant 0) and ``n_variants`` verified complex variants of one object.
 
-    ``scale`` holds the bbox extents in metres (x, y, z). Every variant is a closed manifold
-    within ``verify.tolerance`` of the simple mesh (two-sided Hausdorff relative to the simple
-    mesh's bbox diagonal) and differs in topology from every other mesh of the object.
+    ``scale`` holds the bbox extents in metres (x, y, z); ``shape`` the object's hidden shape
+    parameters (``analytic.HIDDEN``), which every mesh and the primitive check use. Every
+    variant is a closed manifold within ``verify.tolerance`` of the simple mesh (two-sided
+    Hausdorff relative to the simple mesh's bbox diagonal) and differs in topology from every
+    other mesh of the object.
     """
     spec = primitives.get(class_name)
     scale = np.asarray(scale, np.float64)
@@ -73,13 +75,17 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
         raise ValueError(f"n_variants must be in 0..999, got {n_variants}")
     if not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be in 0..2**64-1, got {seed}")
+    known = class_name in analytic.ALL_KINDS  # a registry-only primitive has no analytic shape
+    solid = analytic.solid_for(class_name, scale, shape) if known else None
     with _LOCK:  # bpy is not thread-safe: threads of one process take turns
-        return _object_meshes(spec, class_name, scale, int(seed), n_variants)
+        return _object_meshes(spec, class_name, scale, int(seed), n_variants, solid)
 
 
-def _object_meshes(spec, class_name, scale, seed, n_variants) -> list[MeshRecord]:
-    """object_meshes after validation, under the lock."""
+def _object_meshes(spec, class_name, scale, seed, n_variants, solid) -> list[MeshRecord]:
+    """object_meshes after validation, under the lock (``solid``: None for a registry-only
+    primitive, which has no analytic shape yet)."""
     blender = _state()
+    blender.shape = solid.params if solid is not None else {}
     start = time.process_time()
     simple_params = {"resolution": spec.default_resolution(), "loop_cuts": [],
                      "decimate": {"kind": "none"}, "triangulate": {"quad": "BEAUTY",
@@ -88,10 +94,9 @@ def _object_meshes(spec, class_name, scale, seed, n_variants) -> list[MeshRecord
     error = verify.defect(v0, f0, spec.euler)
     if error:
         raise RuntimeError(f"{class_name}: simple mesh is broken: {error}")
-    known = class_name in analytic.KINDS  # a registry-only primitive has no analytic shape yet
-    reference = verify.Reference(v0, f0, analytic.solid_for(class_name, scale) if known else None)
+    reference = verify.Reference(v0, f0, solid)
     gap = reference.primitive_distance(v0, f0)
-    if known and not gap <= verify.primitive_tolerance(class_name, simple_params):
+    if solid is not None and not gap <= verify.primitive_tolerance(class_name, simple_params):
         raise RuntimeError(f"{class_name}: simple mesh is {gap:.3g} diagonals from the primitive")
     _lap("simple", start)
     records = [MeshRecord(0, v0, f0, 0.0, simple_params, gap)]
@@ -104,11 +109,12 @@ def _object_meshes(spec, class_name, scale, seed, n_variants) -> list[MeshRecord
 def warm_up(class_names) -> float:
     """Build every allowed tessellation of these classes now; returns the CPU seconds spent.
 
-    Otherwise each one is built on first use (a few ms each, once per process).
+    Otherwise each one is built on first use (a few ms each, once per process). Classes with
+    hidden shape parameters are built per object instead.
     """
     start = time.process_time()
     with _LOCK:
-        for name in class_names:
+        for name in (n for n in class_names if primitives.get(n).shape is None):
             for resolution in primitives.get(name).resolutions():
                 _state().primitive(name, resolution)
     return time.process_time() - start
@@ -210,6 +216,7 @@ class _Blender:
         self.triangulate = self.obj.modifiers.new("triangulate", "TRIANGULATE")
         self.triangulate.min_vertices = 4
         self._primitives: dict[tuple, tuple[object, list[int]]] = {}
+        self.shape: dict = {}  # hidden shape parameters of the object being built
         self._frames: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     # --- primitives ---------------------------------------------------------------------
@@ -219,9 +226,14 @@ class _Blender:
 
     def _cached(self, class_name: str, resolution: dict[str, int]) -> tuple[object, list[int]]:
         """(BMesh, indices of its n-gons), built on first use."""
-        key = (class_name, tuple(sorted(resolution.items())))
+        spec = primitives.PRIMITIVES[class_name]
+        options = spec.shape(self.shape) if spec.shape and self.shape else {}
+        key = (class_name, tuple(sorted(resolution.items())), tuple(sorted(options.items())))
         if key not in self._primitives:
-            bm = self._build_primitive(primitives.PRIMITIVES[class_name], resolution)
+            if options:  # one object's shape at a time: drop the previous object's
+                for old in [k for k in self._primitives if k[2] and k[2] != key[2]]:
+                    self._primitives.pop(old)[0].free()
+            bm = self._build_primitive(spec, {**resolution, **options})
             self._primitives[key] = bm, [i for i, f in enumerate(bm.faces) if len(f.verts) > 4]
         return self._primitives[key]
 

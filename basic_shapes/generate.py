@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import __version__
-from basic_shapes.analytic import solid_for
+from basic_shapes.analytic import HIDDEN, solid_for
 from basic_shapes.infra import atomic_path, load_json
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, ScaleError, capacity, sample_scales
 from basic_shapes.shards import (OOD_FIRST, OOD_REMESHERS, OOD_SLOT, ObjectRecord, Shard,
@@ -104,10 +104,23 @@ class ObjectPlan:
     scale: tuple[float, float, float]
     seed: int
     split: str
+    params: dict = field(default_factory=dict)  # hidden shape parameters (analytic.HIDDEN)
 
 
 def _rng(seed: int, *key: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
+HIDDEN_STREAM = 0x48494444
+"""Second key of the stream drawn from an object's seed for its hidden shape parameters (the
+variants use [seed, variant, attempt] with variant < 1000, so the streams never meet)."""
+
+
+def hidden_params(class_name: str, seed: int) -> dict:
+    """The object's hidden shape parameters, uniform over ``analytic.HIDDEN``'s intervals and
+    drawn from its seed alone: naming a class with hidden parameters is what draws them."""
+    rng = np.random.default_rng([seed, HIDDEN_STREAM])
+    return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in HIDDEN.get(class_name, {}).items()}
 
 
 def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:
@@ -130,7 +143,8 @@ def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:
             oid = ci * cfg.objects_per_class + k
             seed = int(_rng(cfg.seed, 1, key, k).integers(0, 2**63 - 1))
             plans.append(ObjectPlan(oid, name, ci, tuple(float(x) for x in scales[k]), seed,
-                                    "test" if k in test else "val" if k in val else "train"))
+                                    "test" if k in test else "val" if k in val else "train",
+                                    hidden_params(name, seed)))
     return plans
 
 
@@ -147,8 +161,8 @@ def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
     t0 = time.perf_counter()
     objects = [ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
                             _with_ood(p, object_meshes(p.class_name, np.array(p.scale), p.seed,
-                                                       cfg_json["variants"]), cfg_json),
-                            params=solid_for(p.class_name, p.scale).params)
+                                                       cfg_json["variants"], p.params), cfg_json),
+                            params=solid_for(p.class_name, p.scale, p.params).params)
                for p in plans]
     write_shard(path, objects, cfg_json["classes"], cfg_json, cfg_json["toolkit_version"])
     return {"path": path, "meshes": sum(len(o.meshes) for o in objects),
@@ -158,10 +172,11 @@ def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
 def _with_ood(p: ObjectPlan, meshes: list, cfg_json: dict) -> list:
     """A test object's meshes followed by its out-of-distribution ones (basic_shapes/remesh.py,
     variants OOD_FIRST..999): other remeshers than the training variants', test split only."""
+    from basic_shapes.remesh import ood_meshes, supports
+
     per = cfg_json.get("ood_variants_per_remesher", 0)
-    if p.split != "test" or not per:
+    if p.split != "test" or not per or not any(supports(r, p.class_name) for r in OOD_REMESHERS):
         return meshes
-    from basic_shapes.remesh import ood_meshes
     from basic_shapes.verify import topology_key
 
     seen = {topology_key(m.faces, len(m.vertices)) for m in meshes}

@@ -63,6 +63,8 @@ class Primitive:
     euler:      V - E + F of the closed surface (2 for a sphere-like shape, 0 for a torus).
     decimation: relative frequency of each Decimate mode applied after the loop cuts
                 ("collapse", "unsubdiv", or "none"), only those that keep this shape.
+    shape:      operator keywords set by an object's hidden shape parameters
+                (``analytic.HIDDEN``); None for a primitive without any.
     """
 
     operator: str
@@ -74,6 +76,7 @@ class Primitive:
     euler: int = 2
     decimation: dict[str, float] = field(default_factory=lambda: dict(COLLAPSE_OR_NONE))
     options: dict = field(default_factory=dict)
+    shape: Callable[[dict], dict] | None = None
 
     def default_resolution(self) -> dict[str, int]:
         return {k: r.default for k, r in self.resolution.items()}
@@ -126,6 +129,14 @@ PRIMITIVES: dict[str, Primitive] = {
         resolution={"major_segments": Resolution(default=48, lo=48, hi=72, step=4),
                     "minor_segments": Resolution(default=12, lo=12, hi=20, step=4)},
         gap=_torus_gap, decimation={"collapse": 0.6, "unsubdiv": 0.2, "none": 0.2}),
+    # The hidden-parameter track: a cone whose top radius is top_ratio times its base radius.
+    # Every side quad is a planar trapezoid whose sagitta shrinks from the base rim's to
+    # top_ratio times it, so the cone's gap bounds it for any ratio.
+    "frustum": Primitive(
+        operator="primitive_cone_add", planar=False, extents=(2.0, 2.0, 2.0),
+        resolution={"vertices": Resolution(default=32, lo=24, hi=48, step=4)},
+        gap=lambda r: _polygon_gap(r["vertices"]),
+        shape=lambda params: {"radius2": params["top_ratio"]}),
 }
 
 DEFAULT_CLASSES = ("cube", "cylinder", "sphere")

@@ -24,6 +24,8 @@ Simple MSE) and against ``class-mean``, as paired differences over the same test
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from basic_shapes.shards import ood_remesher
@@ -229,3 +231,44 @@ def skill(model_po: dict, scorers: dict[str, Scorer], rows: dict[str, dict]) -> 
     key = "complex_mse" if "complex_mse" in vs_class else "simple_mse"
     return {"reference": best, "vs_reference": vs_best, "vs_class_mean": vs_class,
             "explained_by_class": vs_class[key]["verdict"] != "holds"}
+
+
+class OracleReference:
+    """The hidden-parameter track's upper bar: the mean target of the ``K_NEAREST`` training
+    objects of the same class nearest in (log scale, hidden shape parameters), each feature
+    divided by its spread over the training objects. It knows what the mesh must reveal, so
+    the gap between it and ``class-scale-nn`` is what reading the mesh can win; on Basic Shapes
+    (no hidden parameters) it is ``class-scale-nn`` with the true class."""
+
+    def __init__(self, refs: References):
+        self.refs, data = refs, refs.data
+        objects = data.objects
+        params = [data._shard(int(s)).file["objects/params"][int(r)]
+                  if "objects/params" in data._shard(int(s)).file else b"{}"
+                  for s, r in zip(objects["shard"], objects["row"])]
+        params = [json.loads(p) for p in params]
+        keys = sorted({k for p in params for k in p})
+        hidden = np.array([[p.get(k, 0.0) for k in keys] for p in params], np.float64)
+        features = np.concatenate([np.log(objects["scale"].astype(np.float64)),
+                                   hidden.reshape(len(params), len(keys))], axis=1)
+        spread = features[refs.train].std(axis=0)
+        self.features = features / np.where(spread > 0, spread, 1.0)
+        self.keys = keys
+
+    def nearest(self, obj: int) -> np.ndarray:
+        train = self.refs.train
+        pool = train[self.refs.train_class == self.refs.data.objects["class_index"][obj]]
+        d = np.linalg.norm(self.features[pool] - self.features[obj], axis=1)
+        return pool[np.argsort(d, kind="stable")[:K_NEAREST]]
+
+    def score(self) -> Scorer:
+        """A filled ``Scorer`` over the test split (one prediction for every mesh)."""
+        data, refs = self.refs.data, self.refs
+        scorer = Scorer(data.class_names, refs.mean)
+        for obj in data.test_objects():
+            pred = refs._mean_target(self.nearest(int(obj)))
+            n = len(data.meshes_of(int(obj)))
+            c, oid = int(data.objects["class_index"][obj]), int(data.objects["id"][obj])
+            scorer.add(c, data.target(int(obj)), pred, np.broadcast_to(pred, (n - 1, *pred.shape)),
+                       oid)
+        return scorer

@@ -78,6 +78,12 @@ VERSIONS: dict[str, DatasetVersion] = {v.name: v for v in (
         objects_per_class=500, variants=9, radar={"n_aspect": 31, "n_roll": 7},
         mesh_labels="sample:1"),
     DatasetVersion(
+        "hidden-cpu-v1", "the hidden-parameter track: 500 frustums (50 test objects) whose "
+        "top-to-base radius ratio is hidden (class + scale cannot tell it), 10 meshes each, "
+        "31 x 7 grid",
+        objects_per_class=500, variants=9, classes=("frustum",),
+        radar={"n_aspect": 31, "n_roll": 7}, mesh_labels="sample:1"),
+    DatasetVersion(
         "paper-v1", "the paper's scale: 1000 objects per class, 100 meshes each, full grid",
         objects_per_class=1000, variants=99),
 )}
