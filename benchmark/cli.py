@@ -11,7 +11,7 @@ import importlib
 import sys
 from pathlib import Path
 
-from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
+from basic_shapes.infra import ArgumentParser, add_debug_flag, add_quiet_flag, cli_boundary, number
 
 EPILOG = """examples:
   benchmark evaluate --data data/bs --predictions preds.h5 --out results.json
@@ -21,7 +21,7 @@ EPILOG = """examples:
   benchmark train --help
   benchmark reproduce --preset tiny --out out/tiny
   benchmark dataset --list
-  benchmark dataset cpu-v1 --out data/cpu-v1"""
+  benchmark dataset cpu-v1 --data data/cpu-v1"""
 
 DELEGATED = {
     "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
@@ -79,7 +79,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     e.add_argument("--speed-ms", type=number(float, minimum=0, maximum=1e9), metavar="X",
                    help="with --predictions: your own ms per mesh, recorded as self-reported "
                    "(the harness times only --model)")
-    e.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_flag(e)
     for name, (_, help_text) in DELEGATED.items():
         d = sub.add_parser(name, help=help_text, description=help_text)
         if name == command:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.infra import atomic_path
+from basic_shapes.infra import add_quiet_flag, atomic_path, number
 from basic_shapes.shards import ShardError
 
 EMBEDDINGS = ("direct", "graph", "token")
@@ -530,14 +530,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rows", help="comma-separated subset of rows, e.g. graph-basic,graph-ideal "
                         f"(default: all {len(ROWS)})")
     parser.add_argument("--shapenet", help="pretrain on a local ShapeNetCore v2 directory")
-    parser.add_argument("--nproc", type=int, default=None,
+    parser.add_argument("--nproc", type=number(int, minimum=1, maximum=1024), default=None,
                         help="GPUs for torchrun (paper preset; default: all visible)")
-    parser.add_argument("--jobs", type=int, default=None,
-                        help="runs trained in parallel processes (default: the preset's; 1 on GPU)")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads per job (default: CPU cores / jobs)")
-    parser.add_argument("--force", action="store_true", help="retrain runs that are already done")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
+                        help="runs trained at once in worker processes (default: the preset's; "
+                        "0 or 1 = one at a time in this process; 1 on GPU)")
+    parser.add_argument("--threads", type=number(int, minimum=1, maximum=1024), default=None,
+                        help="torch threads per worker (default: CPU cores / workers)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="retrain runs that are already done")
+    add_quiet_flag(parser)
 
 
 def _rows(spec: str | None) -> list[tuple[str, str]]:
@@ -606,10 +608,8 @@ def run(args: argparse.Namespace) -> None:
     preset = PRESETS[args.preset]
     rows = _rows(args.rows)
     seeds = _seeds(args.seeds, preset)
-    jobs = args.jobs or preset.jobs
+    jobs = preset.jobs if args.workers is None else max(1, args.workers)
     threads = args.threads or max(1, (os.cpu_count() or 1) // jobs)
-    if jobs < 1 or threads < 1:
-        raise SystemExit("benchmark reproduce: --jobs and --threads must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     timing: dict = {}
@@ -640,7 +640,7 @@ def run(args: argparse.Namespace) -> None:
     records: dict[str, dict[int, dict]] = {}
     todo = []
     for cfg in cfgs:
-        done = None if args.force else _finished(out, cfg, fingerprint)
+        done = None if args.overwrite else _finished(out, cfg, fingerprint)
         if done is None:
             todo.append(cfg)
         else:

@@ -36,6 +36,7 @@ from torch import nn
 from torch.utils.data import DistributedSampler
 from tqdm import tqdm
 
+from basic_shapes.infra import add_quiet_flag
 from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
 from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, ClassificationHead, MeshSimulator,
                               ReconstructionHead, build_model, collate, featurize)
@@ -376,7 +377,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="checkpoint directory to write (model.pt + config.json)")
     parser.add_argument("--results", help="also evaluate on the test split and write this results JSON")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_quiet_flag(parser)
     defaults = TrainConfig()
     choices = {"embedding": EMBEDDINGS, "regime": REGIMES, "loss": LOSSES}
     helps = {"embedding": "face embedding, or the topology-invariant model",

@@ -161,7 +161,8 @@ def _check_duplicate(entries_dir, predictions_path, container_sha: str, content_
 
 
 def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
-         entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None):
+         entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None,
+         progress: bool = True):
     """Submit every ``<row>/results.json`` + ``<row>/predictions.h5`` of a reproduce output dir.
 
     Each entry is named after its row directory (unique per table row, unlike model names).
@@ -172,7 +173,7 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
         raise SubmissionError(f"{from_dir}: no <row>/results.json files "
                               f"(expected `benchmark reproduce` output)")
     accepted, skipped, refused = [], [], []
-    for results in tqdm(rows, desc="submitting", unit="row"):
+    for results in tqdm(rows, desc="submitting", unit="row", disable=not progress):
         predictions = results.with_name("predictions.h5")
         if not predictions.is_file():
             refused.append(f"{results}: no predictions.h5 beside it")

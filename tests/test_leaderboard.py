@@ -457,7 +457,7 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
         rewrite_atomically(shard, drop_labels)
     config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
     (tmp_path / "coarse.json").write_text(json.dumps(config))
-    radar_sim_main(["label", str(real), "--config", str(tmp_path / "coarse.json"),
+    radar_sim_main(["label", "--data", str(real), "--config", str(tmp_path / "coarse.json"),
                     "--mesh-labels", "all", "--workers", "1"])
     entries = tmp_path / "entries"
     run("simulator", "--data", real, "--entries", entries)
