@@ -53,6 +53,13 @@ def fsync_dir(directory: str | os.PathLike) -> None:
         os.close(dir_fd)
 
 
+def utc_timestamp() -> str:
+    """Now, in the one timestamp format of results, entries and tables: 2026-11-23T15:56:13Z."""
+    import datetime
+
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
 # --- one-line errors and the CLI boundary ----------------------------------------------------
 
 def one_line(exc: BaseException) -> str:

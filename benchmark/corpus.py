@@ -1,8 +1,7 @@
 """Pretraining corpus: procedural CAD-like shapes (manifold3d) and a ShapeNetCore v2 loader.
 
 The paper pretrains its face encoders on a large, varied mesh corpus (classification or
-MeshGPT-style autoencoding) before fine-tuning on Basic Shapes. No physics is needed here, so
-the usual geometric augmentations are allowed. Every mesh comes out centred and scaled to the
+MeshGPT-style autoencoding) before fine-tuning on Basic Shapes. Every mesh comes out centred and scaled to the
 unit bounding box (longest side 1), float32 vertices, int32 faces, at most ``max_faces`` faces.
 Same seed, same bytes (on one machine and library version). Nothing here downloads.
 """
@@ -18,10 +17,10 @@ import fast_simplification
 import h5py
 import manifold3d as m3d
 import numpy as np
-from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from basic_shapes.infra import atomic_path, open_hdf5
+from benchmark.data import normalize_mesh  # one normalization for corpus and benchmark
 
 Mesh = tuple[np.ndarray, np.ndarray, int]
 
@@ -36,16 +35,6 @@ class CorpusError(ValueError):
 
 
 # --------------------------------------------------------------------------- mesh helpers
-
-
-def normalize_unit_bbox(vertices: np.ndarray) -> np.ndarray:
-    """Centre the bounding box on the origin and scale its longest side to 1 (float32)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    extent = float((hi - lo).max())
-    if not np.isfinite(extent) or extent <= 0:
-        raise ValueError("mesh has a degenerate (zero or non-finite) bounding box")
-    return ((v - (lo + hi) / 2) / extent).astype(np.float32)
 
 
 def is_watertight(faces: np.ndarray) -> bool:
@@ -335,7 +324,7 @@ def build_family_mesh(family: int, rng: np.random.Generator, max_faces: int = 80
             v, f = simplify_to(*_mesh_of(solid), budget, keep_watertight=WATERTIGHT[family])
         except SimplifyError:
             continue
-        return normalize_unit_bbox(v), f
+        return normalize_mesh(v), f
     raise RuntimeError(f"family {name}: no valid mesh of at most {max_faces} faces in {MAX_ATTEMPTS} draws; "
                        "raise max_faces")
 
@@ -356,25 +345,6 @@ def procedural_corpus(n_meshes: int, seed: int, max_faces: int = 800, progress: 
         v, f = build_family_mesh(family, np.random.default_rng([seed, i]), max_faces)
         out.append((v, f, family))
     return out
-
-
-# --------------------------------------------------------------------------- augmentation
-
-
-def augment(vertices: np.ndarray, rng: np.random.Generator, scale: tuple[float, float] = (0.75, 1.25),
-            jitter: float = 0.005, rotate: bool = True) -> np.ndarray:
-    """MeshGPT/PolyGen-style augmentation, then back to the unit bounding box.
-
-    Random per-axis scaling in ``scale``, a uniformly random rotation (``rotate``), Gaussian
-    jitter of ``jitter`` (in unit-bbox units) per vertex. Faces are unchanged.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    v = v * rng.uniform(scale[0], scale[1], 3)
-    if rotate:
-        v = v @ Rotation.random(rng=rng).as_matrix().T
-    if jitter:
-        v = v + rng.normal(0.0, jitter, v.shape)
-    return normalize_unit_bbox(v)
 
 
 # --------------------------------------------------------------------------- corpus files
@@ -569,7 +539,7 @@ def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = No
             continue
         try:
             v, f = simplify_to(v, f, max_faces)
-            loaded[int(k)] = (normalize_unit_bbox(v), f, cls)
+            loaded[int(k)] = (normalize_mesh(v), f, cls)
         except ValueError:  # decimation stalled above budget, or the mesh is flat to a point
             degenerate += 1
     if unreadable or degenerate:

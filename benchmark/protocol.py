@@ -12,7 +12,6 @@ only (never unpickled) and validated, with one-line errors naming the file.
 
 from __future__ import annotations
 
-import datetime
 import hashlib
 import importlib
 import importlib.util
@@ -26,7 +25,7 @@ from typing import Protocol
 import h5py
 import numpy as np
 
-from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
+from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset, utc_timestamp
 from benchmark import __version__
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES, Scorer
@@ -347,7 +346,7 @@ def make_results(dataset_fingerprint: str, metrics: dict, model: dict, speed: di
     results = {"benchmark_version": __version__, "dataset_fingerprint": dataset_fingerprint,
                "label_fingerprint": label_fingerprint,
                "model": model, "metrics": metrics, "speed": speed, "seeds": seeds,
-               "created": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+               "created": utc_timestamp()}
     validate_results(results, "results")
     return results
 

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import hashlib
 import os
-from datetime import datetime, timezone
 from pathlib import Path
 
 from tqdm import tqdm
 
+from basic_shapes.infra import utc_timestamp
 from benchmark.data import BenchmarkData
 from benchmark.protocol import Predictions, load_results, score_predictions
 from leaderboard import example
@@ -73,10 +73,6 @@ def sha256_file(path: str | os.PathLike) -> str:
         for block in iter(lambda: fh.read(1 << 22), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
@@ -136,7 +132,7 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
                   "source": "self-reported by the submitter (benchmark evaluate), not re-measured"},
         "seeds": results["seeds"],
         "created": results["created"],
-        "submitted": _now(),
+        "submitted": utc_timestamp(),
         "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha,
                   "predictions_content_sha256": content_sha},
         "sample": sample,

@@ -1,4 +1,4 @@
-"""Pretraining corpus: procedural families, augmentation, corpus files, ShapeNetCore v2 loader.
+"""Pretraining corpus: procedural families, corpus files, ShapeNetCore v2 loader.
 
 Closedness, orientation and bounding boxes are checked with trimesh and plain numpy, not with
 the module's own helpers.
@@ -156,48 +156,8 @@ def test_simplify_leaves_small_meshes_alone():
 
 
 def test_normalize_refuses_a_flat_point():
-    with pytest.raises(ValueError, match="degenerate"):
-        C.normalize_unit_bbox(np.zeros((4, 3)))
-
-
-# --------------------------------------------------------------------------- augmentation
-
-
-def test_augment_is_seeded_and_keeps_the_unit_bbox(corpus):
-    v = corpus[0][0]
-    a = C.augment(v, np.random.default_rng(4))
-    b = C.augment(v, np.random.default_rng(4))
-    c = C.augment(v, np.random.default_rng(5))
-    assert a.dtype == np.float32 and a.shape == v.shape
-    assert a.tobytes() == b.tobytes()
-    assert not np.array_equal(a, c)
-    for out in (a, c):
-        assert_unit_bbox(out)
-
-
-def test_augment_rotation_is_rigid_and_scaling_is_per_axis(corpus):
-    v = corpus[1][0].astype(np.float64)
-
-    def distances(x):
-        x = np.asarray(x, dtype=np.float64)
-        return np.linalg.norm(x[:, None] - x[None], axis=-1)
-
-    d0 = distances(v)
-    rotated = C.augment(v, np.random.default_rng(0), scale=(1.0, 1.0), jitter=0.0)
-    ratio = distances(rotated)[d0 > 1e-3] / d0[d0 > 1e-3]
-    assert ratio.std() / ratio.mean() < 1e-5  # one global factor: a rotation, then the bbox rescale
-    assert not np.allclose(rotated, C.normalize_unit_bbox(v), atol=1e-3)
-
-    stretched = C.augment(v, np.random.default_rng(0), scale=(0.5, 2.0), jitter=0.0, rotate=False)
-    ratio = distances(stretched)[d0 > 1e-3] / d0[d0 > 1e-3]
-    assert ratio.std() / ratio.mean() > 1e-2  # not a similarity any more
-
-
-def test_augment_jitter_moves_vertices_by_about_sigma(corpus):
-    v = corpus[2][0]
-    moved = C.augment(v, np.random.default_rng(1), scale=(1.0, 1.0), jitter=0.01, rotate=False)
-    shift = np.linalg.norm(moved.astype(np.float64) - v, axis=1)
-    assert 0.003 < np.median(shift) < 0.05
+    with pytest.raises(ValueError, match="zero extent"):
+        C.normalize_mesh(np.zeros((4, 3)))
 
 
 # --------------------------------------------------------------------------- corpus files

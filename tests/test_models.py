@@ -11,7 +11,8 @@ import trimesh
 
 from benchmark.models import EMBEDDINGS, FACE_EMBEDDINGS, build_model, collate, featurize
 from benchmark.models.features import N_BINS, face_adjacency, face_geometry
-from benchmark.models.invariant import fibonacci_directions, ray_probes
+from benchmark.models.invariant import N_RAYS, ray_probes
+from radar_sim.geometry import fibonacci_directions
 
 N_OUT = 2 * 3 * 4
 
@@ -153,7 +154,7 @@ def test_unknown_model_name():
 
 # --- the invariant model ------------------------------------------------------------------
 def test_ray_probes_of_a_box_and_a_sphere_against_geometry():
-    d = fibonacci_directions()
+    d = fibonacci_directions(N_RAYS)
     half = np.array([0.5, 0.25, 0.15])
     probes = ray_probes(*normalized(trimesh.creation.box(extents=2 * half)))
     expected = np.min(half / np.maximum(np.abs(d), 1e-12), axis=1)  # exit distance of a box

@@ -62,5 +62,5 @@ def test_variant_errors(small, tmp_path):
     trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(mesh)
     with pytest.raises(SystemExit) as exc:
         main(["plot", str(mesh), "--variant", "1", "--out", str(tmp_path / "y.png")])
-    assert "--variant needs a dataset directory" in str(exc.value.code)
+    assert "--object and --variant need --data DIR" in str(exc.value.code)
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "y.png").exists()

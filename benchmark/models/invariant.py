@@ -22,15 +22,6 @@ N_RAYS = 256
 PROBE_DIM = 12  # direction (3), hit flag, near distance + normal (4), far distance + normal (4)
 
 
-def fibonacci_directions(n: int = N_RAYS) -> np.ndarray:
-    """(n, 3) nearly uniform unit vectors; deterministic."""
-    k = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * k / n
-    r = np.sqrt(1.0 - z * z)
-    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
-
-
 def ray_probes(vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS,
                chunk: int = 4096) -> np.ndarray:
     """(n_rays, PROBE_DIM) float32 probe features of one mesh (float64 Moller-Trumbore).
@@ -41,6 +32,8 @@ def ray_probes(vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS,
     v = np.asarray(vertices, np.float64)
     origin = (v.min(0) + v.max(0)) / 2
     tri = v[np.asarray(faces, np.int64)] - origin
+    from radar_sim.geometry import fibonacci_directions  # the toolkit's one direction set
+
     d = fibonacci_directions(n_rays)
     near = np.full(n_rays, np.inf)
     far = np.full(n_rays, -np.inf)
