@@ -30,12 +30,13 @@ import numpy as np
 
 from basic_shapes.infra import add_quiet_flag, atomic_path, number
 from basic_shapes.shards import ShardError
+from benchmark.models import FACE_EMBEDDINGS, REGISTRY
 
-EMBEDDINGS = ("direct", "graph", "token")
+EMBEDDINGS = FACE_EMBEDDINGS  # the paper's encoders: pretrained, with an Ideal row
 ROWS: tuple[tuple[str, str], ...] = (
     *[(e, r) for e in EMBEDDINGS for r in ("basic", "classification", "autoencoder")],
     *[(e, "ideal") for e in EMBEDDINGS],
-    ("invariant", "basic"),
+    *[(e, "basic") for e in REGISTRY if e not in EMBEDDINGS],
 )
 PRETRAINING = {"basic": "none", "classification": "classification", "autoencoder": "autoencoder",
                "ideal": "none"}
@@ -477,7 +478,6 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = {"direct": "tab:blue", "graph": "tab:orange", "token": "tab:green", "invariant": "tab:red"}
     markers = {"basic": "o", "classification": "s", "autoencoder": "^", "ideal": "*"}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for r in rows:
@@ -487,7 +487,7 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
         if ci:
             ax.errorbar(r["ms_per_mesh"], r["complex_mse"], fmt="none", ecolor="0.6",
                         yerr=[[r["complex_mse"] - ci[0]], [ci[1] - r["complex_mse"]]])
-        ax.scatter(r["ms_per_mesh"], r["complex_mse"], c=colors[r["embedding"]],
+        ax.scatter(r["ms_per_mesh"], r["complex_mse"], c=REGISTRY[r["embedding"]].colour,
                    marker=markers[r["regime"]], s=80 if r["regime"] == "ideal" else 45,
                    edgecolors="black" if r["no_skill"] else "none", zorder=3)
         ax.annotate(r["name"], (r["ms_per_mesh"], r["complex_mse"]), fontsize=7,
@@ -663,7 +663,7 @@ def run(args: argparse.Namespace) -> None:
     if jobs > 1 and len(todo) > 1:
         # Runs are independent: a pool of single-threaded workers keeps both cores busy
         # without OpenMP threads of one process waiting on each other; costly rows first.
-        todo.sort(key=lambda c: (-COST[c.regime] * (0.5 if c.embedding == "invariant" else 1),
+        todo.sort(key=lambda c: (-COST[c.regime] * REGISTRY[c.embedding].cost,
                                  c.seed))
         with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
                                  initializer=_start_worker,

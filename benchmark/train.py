@@ -38,8 +38,8 @@ from tqdm import tqdm
 
 from basic_shapes.infra import add_quiet_flag
 from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
-from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, ClassificationHead, MeshSimulator,
-                              ReconstructionHead, build_model, collate, featurize)
+from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, REGISTRY, ClassificationHead,
+                              MeshSimulator, ReconstructionHead, build_model, collate, featurize)
 from benchmark.models.features import MeshFeatures
 
 REGIMES = ("basic", "ideal", "classification", "autoencoder")
@@ -351,9 +351,9 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
                                   lr=cfg.pretrain_lr, weight_decay=cfg.weight_decay,
                                   seed=cfg.seed + 1, desc=f"{cfg.name} pretrain", device=device,
                                   progress=progress)
-    examples, groups = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant",
+    examples, groups = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes,
                                           scale_bins, cache, progress)
-    val, _ = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant", scale_bins,
+    val, _ = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins,
                                 cache, progress, split="val")
     model.decoder.set_output_statistics(torch.from_numpy(np.stack([examples[g[0]].target for g in groups])))
     task = RegressionTask(model, cfg.loss, data.target_shape)

@@ -16,7 +16,8 @@ import numpy as np
 import torch
 
 from basic_shapes.infra import atomic_path
-from benchmark.models import MeshSimulator, build_model, collate, count_parameters, featurize
+from benchmark.models import (REGISTRY, MeshSimulator, build_model, collate, count_parameters,
+                              featurize)
 
 CHECKPOINT_FORMAT = "basic-shapes-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -89,7 +90,7 @@ class CheckpointModel:
         self.model.to(self.device)
         self.scale_bins = ScaleBins(**self.config["scale_bins"])
         self.target_shape = tuple(self.config["target_shape"])
-        self.probes = self.config["model"]["name"] == "invariant"
+        self.probes = REGISTRY[self.config["model"]["name"]].probes
         self.name = self.config.get("name", self.config["model"]["name"])
         self.embedding = self.config.get("embedding", self.config["model"]["name"])
         self.regime = self.config.get("regime")
