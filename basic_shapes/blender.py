@@ -170,7 +170,7 @@ _STATE = None
 _LOCK = threading.RLock()
 
 
-def _state() -> "_Blender":
+def _state() -> _Blender:
     global _STATE
     if _STATE is None:
         _STATE = _Blender()

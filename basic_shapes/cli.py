@@ -6,8 +6,14 @@ import argparse
 import sys
 
 from basic_shapes.generate import GenerateConfig
-from basic_shapes.infra import (ArgumentParser, add_cluster_flags, add_debug_flag, add_quiet_flag,
-                                cli_boundary, number)
+from basic_shapes.infra import (
+    ArgumentParser,
+    add_cluster_flags,
+    add_debug_flag,
+    add_quiet_flag,
+    cli_boundary,
+    number,
+)
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE
 
 EPILOG = """examples:

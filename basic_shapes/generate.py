@@ -22,8 +22,16 @@ from basic_shapes import __version__
 from basic_shapes.analytic import solid_for
 from basic_shapes.infra import atomic_path, load_json
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, ScaleError, capacity, sample_scales
-from basic_shapes.shards import (OOD_FIRST, OOD_REMESHERS, OOD_SLOT, ObjectRecord, Shard,
-                                 ShardError, shard_name, write_shard)
+from basic_shapes.shards import (
+    OOD_FIRST,
+    OOD_REMESHERS,
+    OOD_SLOT,
+    ObjectRecord,
+    Shard,
+    ShardError,
+    shard_name,
+    write_shard,
+)
 
 CONFIG_FILE = "dataset.json"
 TEST_FRACTION = 0.1
@@ -264,8 +272,9 @@ def _run(todo, cfg_json, workers, scheduler, progress):
             yield r
         bar.close()
         return
-    from basic_shapes.cluster import dask_client
     from distributed import as_completed
+
+    from basic_shapes.cluster import dask_client
 
     with dask_client(workers, scheduler) as client:
         futures = [client.submit(build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}",

@@ -7,8 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, is_ood_variant,
-                                 label_fingerprint, list_shards)
+from basic_shapes.shards import (
+    Shard,
+    ShardError,
+    dataset_fingerprint,
+    is_ood_variant,
+    label_fingerprint,
+    list_shards,
+)
 
 BAR = 40
 

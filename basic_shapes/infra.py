@@ -57,7 +57,7 @@ def utc_timestamp() -> str:
     """Now, in the one timestamp format of results, entries and tables: 2026-11-23T15:56:13Z."""
     import datetime
 
-    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 # --- one-line errors and the CLI boundary ----------------------------------------------------
@@ -69,7 +69,7 @@ def one_line(exc: BaseException) -> str:
         return f"{where}: {exc.strerror}" if where != "" else exc.strerror
     try:
         lines = str(exc).strip().splitlines()
-    except Exception:  # noqa: BLE001 - a broken __str__ must not hide the error
+    except Exception:
         lines = []
     return lines[0] if lines else exc.__class__.__name__
 

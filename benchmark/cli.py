@@ -91,7 +91,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
     from basic_shapes.infra import one_line
     from basic_shapes.shards import ShardError
     from benchmark.evaluate import evaluate, format_metrics
-    from benchmark.protocol import ModelError, PredictionsError, ResultsError, load_model, write_results
+    from benchmark.protocol import (
+        ModelError,
+        PredictionsError,
+        ResultsError,
+        load_model,
+        write_results,
+    )
 
     if args.write_predictions and not args.model:
         raise SystemExit("benchmark evaluate: error: --write-predictions needs --model")

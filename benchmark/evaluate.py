@@ -19,8 +19,16 @@ from tqdm import tqdm
 
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES
-from benchmark.protocol import (Model, ModelError, Predictions, PredictionsWriter, check_prediction,
-                                make_results, score, why)
+from benchmark.protocol import (
+    Model,
+    ModelError,
+    Predictions,
+    PredictionsWriter,
+    check_prediction,
+    make_results,
+    score,
+    why,
+)
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 

@@ -164,7 +164,7 @@ class PredictionsWriter:
         self.label_fingerprint = label_fingerprint
         self.n, self.shape, self.filled = n_meshes, tuple(target_shape), 0
 
-    def __enter__(self) -> "PredictionsWriter":
+    def __enter__(self) -> PredictionsWriter:
         self._atomic = atomic_path(self.path)
         tmp = self._atomic.__enter__()
         self.file = h5py.File(tmp, "w", libver="earliest")
@@ -289,7 +289,7 @@ class Predictions:
     def close(self) -> None:
         self.file.close()
 
-    def __enter__(self) -> "Predictions":
+    def __enter__(self) -> Predictions:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -38,8 +38,17 @@ from tqdm import tqdm
 
 from basic_shapes.infra import add_quiet_flag
 from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
-from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, REGISTRY, ClassificationHead,
-                              MeshSimulator, ReconstructionHead, build_model, collate, featurize)
+from benchmark.models import (
+    EMBEDDINGS,
+    FACE_EMBEDDINGS,
+    REGISTRY,
+    ClassificationHead,
+    MeshSimulator,
+    ReconstructionHead,
+    build_model,
+    collate,
+    featurize,
+)
 from benchmark.models.features import MeshFeatures
 
 REGIMES = ("basic", "ideal", "classification", "autoencoder")

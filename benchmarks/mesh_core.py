@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from basic_shapes import blender, primitives  # noqa: E402
+from basic_shapes import blender, primitives
 
 STAGES = ("simple", "primitive", "loop_cuts", "decimate", "extract", "checks", "hausdorff",
           "analytic")

@@ -28,9 +28,9 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from basic_shapes import blender, primitives, remesh, verify  # noqa: E402
-from basic_shapes.scales import SCALE_RANGE  # noqa: E402
-from basic_shapes.shards import OOD_REMESHERS  # noqa: E402
+from basic_shapes import blender, primitives, remesh, verify
+from basic_shapes.scales import SCALE_RANGE
+from basic_shapes.shards import OOD_REMESHERS
 
 
 def _stats(x) -> dict:

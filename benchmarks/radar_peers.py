@@ -37,10 +37,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-
-import radar_sim  # noqa: E402
 from radar_accuracy import C, line_of_sight, quadrature_points  # noqa: E402
 from radar_throughput import blender_uv_sphere  # noqa: E402
+
+import radar_sim  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 TARGET = 1e-2

@@ -34,10 +34,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from radar_accuracy import best_time  # noqa: E402
 
 import radar_sim  # noqa: E402
-from basic_shapes.shards import MeshRecord, ObjectRecord, rewrite_atomically, shard_name, write_shard  # noqa: E402
-from radar_accuracy import best_time  # noqa: E402
+from basic_shapes.shards import (  # noqa: E402
+    MeshRecord,
+    ObjectRecord,
+    rewrite_atomically,
+    shard_name,
+    write_shard,
+)
 from radar_sim.label import LabelRequest, label_directory  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"

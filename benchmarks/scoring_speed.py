@@ -23,9 +23,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from benchmark.evaluate import evaluate, hardware  # noqa: E402
-from benchmark.protocol import load_model, score_predictions  # noqa: E402
-from benchmark_fixture import make_dataset  # noqa: E402
+from benchmark.evaluate import evaluate, hardware
+from benchmark.protocol import load_model, score_predictions
+from benchmark_fixture import make_dataset
 
 PAPER_TEST_MESHES = 300 * 100
 

@@ -21,9 +21,18 @@ from basic_shapes.infra import utc_timestamp
 from benchmark.data import BenchmarkData
 from benchmark.protocol import Predictions, load_results, score_predictions
 from leaderboard import example
-from leaderboard.store import (DEFAULT_ENTRIES, ENTRY_VERSION, METRIC_NAMES, EntryError,
-                               check_link, check_metrics, check_text, load_entries, slug,
-                               write_entry)
+from leaderboard.store import (
+    DEFAULT_ENTRIES,
+    ENTRY_VERSION,
+    METRIC_NAMES,
+    EntryError,
+    check_link,
+    check_metrics,
+    check_text,
+    load_entries,
+    slug,
+    write_entry,
+)
 
 # A claimed metric x is accepted iff |x - rescored| <= ABS_TOL + REL_TOL * |rescored|:
 # re-scoring the same predictions differs at most by summation order (~1e-12 relative), while

@@ -14,11 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.infra import (ArgumentParser, add_cluster_flags, add_debug_flag, add_quiet_flag,
-                                cli_boundary, number)
+from basic_shapes.infra import (
+    ArgumentParser,
+    add_cluster_flags,
+    add_debug_flag,
+    add_quiet_flag,
+    cli_boundary,
+    number,
+)
 from basic_shapes.shards import Shard, ShardError, find_object
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_mesh_labels
-from radar_sim.meshio import UNITS, MeshFileError, load_mesh
+from radar_sim.meshio import UNITS, load_mesh
 
 CONVENTION = "dB = 20 log10|A| = 10 log10 sigma (sigma in m^2, dBsm)"
 

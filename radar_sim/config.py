@@ -66,13 +66,13 @@ class RadarConfig:
             raise ValueError(f"invalid radar config {self.name!r}: need " + "; ".join(problems))
 
     @classmethod
-    def named(cls, name: str) -> "RadarConfig":
+    def named(cls, name: str) -> RadarConfig:
         if name not in NAMED:
             raise ValueError(f"unknown radar config {name!r}; known: {sorted(NAMED)}")
         return NAMED[name]
 
     @classmethod
-    def from_file(cls, path) -> "RadarConfig":
+    def from_file(cls, path) -> RadarConfig:
         """A JSON object with the fields of RadarConfig (missing fields take the defaults)."""
         path = Path(path)
         data = load_json(path, max_bytes=CONFIG_MAX_BYTES, max_depth=2,

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from basic_shapes import cli
-from basic_shapes.generate import GenerateConfig, generate, plan_objects
+from basic_shapes.generate import GenerateConfig, plan_objects
 from basic_shapes.shards import Shard, dataset_fingerprint, iter_objects
 
 SMALL = ["--classes", "cube,cylinder,sphere", "--objects-per-class", "2", "--variants", "3",

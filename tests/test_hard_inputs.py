@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from radar_sim import (MeshError, RadarConfig, UnitsWarning, detect_mode, facet, monostatic_field,
-                       simulate)
+from radar_sim import (
+    MeshError,
+    RadarConfig,
+    UnitsWarning,
+    detect_mode,
+    facet,
+    monostatic_field,
+    simulate,
+)
 from radar_sim.field import C0
 
 TRI_V = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]])

@@ -26,13 +26,21 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from benchmark_fixture import make_dataset
 
 from basic_shapes import infra
-from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, ShardError, iter_objects,
-                                 mesh_uid, shard_name, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    Shard,
+    ShardError,
+    iter_objects,
+    mesh_uid,
+    shard_name,
+    write_shard,
+)
 from benchmark.data import BenchmarkData
 from benchmark.protocol import write_predictions, write_results
+from benchmark_fixture import make_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 MEMORY_LIMIT = 3 << 30  # address space of one CLI process (imports alone take ~1 GiB virtual)

@@ -21,8 +21,15 @@ import trimesh
 
 import radar_sim
 from basic_shapes.analytic import simulation_mesh, solid_for
-from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, dataset_fingerprint,
-                                 label_fingerprint, shard_name, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    Shard,
+    dataset_fingerprint,
+    label_fingerprint,
+    shard_name,
+    write_shard,
+)
 from radar_sim.cli import main
 from radar_sim.label import SIDECAR, LabelRequest, label_directory, select_mesh_rows
 

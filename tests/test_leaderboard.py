@@ -24,8 +24,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from basic_shapes.shards import (MeshRecord, ObjectRecord, dataset_fingerprint, label_fingerprint,
-                                 mesh_uid, rewrite_atomically, write_radar, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    dataset_fingerprint,
+    label_fingerprint,
+    mesh_uid,
+    rewrite_atomically,
+    write_radar,
+    write_shard,
+)
 from leaderboard import cli, store
 from leaderboard.submit import REL_TOL
 

@@ -12,8 +12,17 @@ import pytest
 from basic_shapes.shards import dataset_fingerprint, label_fingerprint
 from benchmark.cli import main
 from benchmark.evaluate import evaluate
-from benchmark.protocol import (ModelError, NearestScaleModel, PredictionsError, ResultsError, load_model,
-                                load_results, score_predictions, write_predictions, write_results)
+from benchmark.protocol import (
+    ModelError,
+    NearestScaleModel,
+    PredictionsError,
+    ResultsError,
+    load_model,
+    load_results,
+    score_predictions,
+    write_predictions,
+    write_results,
+)
 from benchmark_fixture import CLASSES, make_dataset
 
 GEOMETRY_MODEL = '''

@@ -3,7 +3,14 @@ import math
 import numpy as np
 import pytest
 
-from basic_shapes.scales import MAX_RADIUS, SCALE_RANGE, ScaleError, capacity, min_pairwise_distance, sample_scales
+from basic_shapes.scales import (
+    MAX_RADIUS,
+    SCALE_RANGE,
+    ScaleError,
+    capacity,
+    min_pairwise_distance,
+    sample_scales,
+)
 
 
 def test_scales_are_dissimilar_in_range_and_fit_the_radar_window():

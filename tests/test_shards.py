@@ -5,9 +5,19 @@ import numpy as np
 import pytest
 import trimesh
 
-from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, ShardError, find_object,
-                                 iter_objects, label_fingerprint, mesh_uid, rewrite_atomically,
-                                 write_radar, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    Shard,
+    ShardError,
+    find_object,
+    iter_objects,
+    label_fingerprint,
+    mesh_uid,
+    rewrite_atomically,
+    write_radar,
+    write_shard,
+)
 
 
 def _objects():

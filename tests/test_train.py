@@ -14,11 +14,23 @@ from benchmark import corpus
 from benchmark.cli import main as benchmark_main
 from benchmark.data import BenchmarkData, ScaleBins
 from benchmark.models import ReconstructionHead, build_model
-from benchmark.models.checkpoint import CheckpointError, CheckpointModel, load_checkpoint, save_checkpoint
+from benchmark.models.checkpoint import (
+    CheckpointError,
+    CheckpointModel,
+    load_checkpoint,
+    save_checkpoint,
+)
 from benchmark.protocol import load_results, score_predictions
 from benchmark.reproduce import ROWS, findings
-from benchmark.train import (PretrainTask, TrainConfig, benchmark_examples, corpus_examples,
-                             epoch_batches, fit, train)
+from benchmark.train import (
+    PretrainTask,
+    TrainConfig,
+    benchmark_examples,
+    corpus_examples,
+    epoch_batches,
+    fit,
+    train,
+)
 from tests.benchmark_fixture import make_dataset
 
 TINY = dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32, codebook_size=16,

@@ -16,8 +16,14 @@ import numpy as np
 import torch
 
 from basic_shapes.infra import atomic_path
-from benchmark.models import (REGISTRY, MeshSimulator, build_model, collate, count_parameters,
-                              featurize)
+from benchmark.models import (
+    REGISTRY,
+    MeshSimulator,
+    build_model,
+    collate,
+    count_parameters,
+    featurize,
+)
 
 CHECKPOINT_FORMAT = "basic-shapes-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -61,7 +67,7 @@ def load_checkpoint(directory: str | os.PathLike,
     try:
         state = torch.load(directory / WEIGHTS, map_location=map_location, weights_only=True)
         model.load_state_dict(state)
-    except Exception as exc:  # noqa: BLE001 - any failure means the weights are unusable
+    except Exception as exc:
         raise CheckpointError(f"{directory / WEIGHTS}: cannot load weights "
                               f"({exc.__class__.__name__}: {str(exc).splitlines()[0]})") from None
     return model.eval(), config

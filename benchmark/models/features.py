@@ -129,7 +129,7 @@ class MeshBatch:
     label: torch.Tensor | None = None  # (B,) long, pretraining class
     probes: torch.Tensor | None = None  # (B, N_RAYS, PROBE_DIM) float, invariant model
 
-    def to(self, device) -> "MeshBatch":
+    def to(self, device) -> MeshBatch:
         return MeshBatch(**{f.name: None if getattr(self, f.name) is None
                             else getattr(self, f.name).to(device) for f in fields(self)})
 
