@@ -14,4 +14,12 @@ from basic_shapes.shards import (
     mesh_uid,
 )
 
-__all__ = ["Shard", "ShardError", "dataset_fingerprint", "iter_objects", "list_shards", "mesh_uid", "__version__"]
+__all__ = [
+    "Shard",
+    "ShardError",
+    "dataset_fingerprint",
+    "iter_objects",
+    "list_shards",
+    "mesh_uid",
+    "__version__",
+]

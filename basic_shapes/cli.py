@@ -35,17 +35,24 @@ def build_parser() -> ArgumentParser:
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
 
-    g = sub.add_parser("generate", help="generate a dataset of verified mesh variants (HDF5 shards)",
-                       description="Generate objects (random per-axis scales), their simple mesh "
-                       "and complex variants of exactly the same shape, verify each one "
-                       "(two-sided Hausdorff) and write HDF5 shards. Rerunning the same command "
-                       "resumes a killed run; the result is byte-identical. The sizes are "
-                       "required: --objects-per-class 4 --variants 9 takes about a minute, the "
-                       "paper's 1000 x 99 (300,000 meshes) takes hours.")
+    g = sub.add_parser(
+        "generate",
+        help="generate a dataset of verified mesh variants (HDF5 shards)",
+        description="Generate objects (random per-axis scales), their simple mesh "
+        "and complex variants of exactly the same shape, verify each one "
+        "(two-sided Hausdorff) and write HDF5 shards. Rerunning the same command "
+        "resumes a killed run; the result is byte-identical. The sizes are "
+        "required: --objects-per-class 4 --variants 9 takes about a minute, the "
+        "paper's 1000 x 99 (300,000 meshes) takes hours.",
+    )
     g.add_argument("--data", required=True, metavar="DIR",
                    help="dataset directory (created; resumed if it exists)")
-    g.add_argument("--classes", type=_positive_list, default=GenerateConfig.classes,
-                   help="comma-separated primitives (default: cube,cylinder,sphere; also cone,torus)")
+    g.add_argument(
+        "--classes",
+        type=_positive_list,
+        default=GenerateConfig.classes,
+        help="comma-separated primitives (default: cube,cylinder,sphere; also cone,torus)",
+    )
     g.add_argument("--objects-per-class", type=number(int, minimum=1), required=True,
                    help="objects per class (required; the paper: 1000, i.e. hours of work)")
     g.add_argument("--variants", type=number(int, minimum=0, maximum=999), required=True,
@@ -65,8 +72,12 @@ def build_parser() -> ArgumentParser:
     g.add_argument("--scale-range", type=number(above=0), nargs=2, default=SCALE_RANGE,
                    metavar=("LOW", "HIGH"),
                    help="per-axis bbox extent range in metres (default: %(default)s)")
-    g.add_argument("--min-scale-distance", type=number(above=0), default=MIN_DISTANCE,
-                   help="minimum log-scale distance between objects of one class (default: %(default)s)")
+    g.add_argument(
+        "--min-scale-distance",
+        type=number(above=0),
+        default=MIN_DISTANCE,
+        help="minimum log-scale distance between objects of one class (default: %(default)s)",
+    )
 
     i = sub.add_parser("info", help="counts, face-count histograms and Hausdorff statistics")
     i.add_argument("--data", required=True, metavar="DIR", help="dataset directory")

@@ -64,7 +64,9 @@ class GenerateConfig:
         if unknown:
             raise ValueError(f"unknown class {', '.join(unknown)}; known: {', '.join(PRIMITIVES)}")
         if not self.classes or len(set(self.classes)) != len(self.classes):
-            raise ValueError(f"classes must be non-empty and distinct, got {','.join(self.classes)}")
+            raise ValueError(
+                f"classes must be non-empty and distinct, got {','.join(self.classes)}"
+            )
         for name, lo in (("objects_per_class", 1), ("variants", 0), ("objects_per_shard", 1)):
             if getattr(self, name) < lo:
                 raise ValueError(f"{name} must be >= {lo}, got {getattr(self, name)}")
@@ -185,7 +187,9 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
         if not isinstance(old, dict):
             raise ShardError(f"{cfg_path}: dataset config is not a JSON object")
         if old != cfg.to_json():
-            diff = sorted(k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k))
+            diff = sorted(
+                k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k)
+            )
             raise ShardError(f"{out}: holds a dataset with a different config "
                              f"({', '.join(diff)} differ); use another --out")
         return

@@ -25,9 +25,14 @@ EPILOG = """examples:
 
 DELEGATED = {
     "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
-    "reproduce": ("benchmark.reproduce", "run a preset (tiny|small|paper) and write the paper's table"),
-    "dataset": ("benchmark.versions", "build a named dataset version (generate + label) and "
-                "check its fingerprints"),
+    "reproduce": (
+        "benchmark.reproduce",
+        "run a preset (tiny|small|paper) and write the paper's table",
+    ),
+    "dataset": (
+        "benchmark.versions",
+        "build a named dataset version (generate + label) and check its fingerprints",
+    ),
 }
 
 
@@ -63,7 +68,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      "(runs its code; prefer --predictions for untrusted submissions)")
     src.add_argument("--predictions", metavar="FILE", help="predictions HDF5 file to score")
     e.add_argument("--out", required=True, help="results JSON to write")
-    e.add_argument("--write-predictions", metavar="FILE", help="with --model: keep its predictions file")
+    e.add_argument(
+        "--write-predictions", metavar="FILE", help="with --model: keep its predictions file"
+    )
     e.add_argument("--model-arg", metavar="KEY=VALUE", type=_key_value, action="append", default=[],
                    help="constructor argument for --model, as a string (repeatable)")
     e.add_argument("--batch-size", type=number(int, minimum=1, maximum=1 << 16), default=16,
@@ -72,7 +79,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                    "attribute, its class name, or the predictions file's stem)")
     e.add_argument("--params", type=number(int, minimum=0, maximum=10**12),
                    help="parameter count (default: the model's `params`)")
-    e.add_argument("--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)")
+    e.add_argument(
+        "--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)"
+    )
     e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
     e.add_argument("--train-seed", type=number(int, minimum=0, maximum=2**64 - 1),
                    help="seed the model was trained with")

@@ -105,7 +105,9 @@ def check_prediction(out, n: int, target_shape: tuple[int, ...], who: str) -> np
     try:
         arr = np.asarray(out)
     except Exception as exc:
-        raise ModelError(f"{who}: predict returned {type(out).__name__}, not an array ({why(exc)})") from None
+        raise ModelError(
+            f"{who}: predict returned {type(out).__name__}, not an array ({why(exc)})"
+        ) from None
     if arr.shape != (n, *target_shape) or arr.dtype.kind not in "fiu":
         raise ModelError(f"{who}: predict returned {arr.dtype}{arr.shape}, expected a real "
                          f"array of shape {(n, *target_shape)}")
@@ -129,7 +131,9 @@ class MeanResponseModel:
             self.mean = sum(data.target(o).astype(np.float64) for o in rows) / len(rows)
 
     def predict(self, batch: dict) -> np.ndarray:
-        return np.broadcast_to(self.mean, (len(batch["scale_m"]), *self.mean.shape)).astype(np.float32)
+        return np.broadcast_to(self.mean, (len(batch["scale_m"]), *self.mean.shape)).astype(
+            np.float32
+        )
 
 
 class NearestScaleModel:
@@ -231,7 +235,9 @@ class Predictions:
         if _attr(f, "format") != PREDICTIONS_FORMAT:
             self._fail(f"not a predictions file (format attribute is not {PREDICTIONS_FORMAT!r})")
         if _attr(f, "version") != str(PREDICTIONS_VERSION):
-            self._fail(f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}")
+            self._fail(
+                f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}"
+            )
         if _attr(f, "dataset_fingerprint") != data.fingerprint:
             self._fail(f"made for dataset {str(_attr(f, 'dataset_fingerprint'))[:64]}, not for "
                        f"{data.directory} ({data.fingerprint})")
@@ -258,7 +264,9 @@ class Predictions:
             self._fail(f"{len(dup)} duplicated mesh_uid rows (first {dup[0]})")
         missing = np.setdiff1d(test, self.sorted_uids)
         if len(missing):
-            self._fail(f"missing {len(missing)} of {len(test)} test meshes (first mesh_uid {missing[0]})")
+            self._fail(
+                f"missing {len(missing)} of {len(test)} test meshes (first mesh_uid {missing[0]})"
+            )
         extra = np.setdiff1d(self.sorted_uids, test)
         if len(extra):
             self._fail(f"{len(extra)} rows are not test-split meshes of the dataset "

@@ -527,8 +527,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "speed_vs_error.png, checkpoints/, results/, data/)")
     parser.add_argument("--data", help="reuse this labelled dataset instead of generating one")
     parser.add_argument("--seeds", help="comma-separated training seeds (default: the preset's)")
-    parser.add_argument("--rows", help="comma-separated subset of rows, e.g. graph-basic,graph-ideal "
-                        f"(default: all {len(ROWS)})")
+    parser.add_argument(
+        "--rows",
+        help="comma-separated subset of rows, e.g. graph-basic,graph-ideal "
+        f"(default: all {len(ROWS)})",
+    )
     parser.add_argument("--shapenet", help="pretrain on a local ShapeNetCore v2 directory")
     parser.add_argument("--nproc", type=number(int, minimum=1, maximum=1024), default=None,
                         help="GPUs for torchrun (paper preset; default: all visible)")
@@ -665,9 +668,12 @@ def run(args: argparse.Namespace) -> None:
         # without OpenMP threads of one process waiting on each other; costly rows first.
         todo.sort(key=lambda c: (-COST[c.regime] * REGISTRY[c.embedding].cost,
                                  c.seed))
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_start_worker,
-                                 initargs=(threads, fingerprint, corpus_path, shapenet_cfg)) as pool:
+        with ProcessPoolExecutor(
+            jobs,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_start_worker,
+            initargs=(threads, fingerprint, corpus_path, shapenet_cfg),
+        ) as pool:
             futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
             for k, fut in enumerate(as_completed(futures)):
                 cfg, result = fut.result()

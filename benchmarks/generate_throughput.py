@@ -22,11 +22,15 @@ GOAL = 300_000 / (15 * 60)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--objects-per-class", type=int, default=4)
     ap.add_argument("--variants", type=int, default=99)
     ap.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "generate_throughput.json"))
+    ap.add_argument(
+        "--out", default=str(Path(__file__).parent / "results" / "generate_throughput.json")
+    )
     args = ap.parse_args()
     cfg = GenerateConfig(objects_per_class=args.objects_per_class, variants=args.variants,
                          objects_per_shard=1)
@@ -37,7 +41,9 @@ def main() -> None:
         rows.append({"workers": w, "meshes": s["meshes"], "seconds": round(s["seconds"], 3),
                      "meshes_per_second": round(s["meshes_per_second"], 1)})
     base = rows[0]["meshes_per_second"]
-    print(f"{'workers':>8} {'meshes':>7} {'seconds':>8} {'mesh/s':>8} {'vs first':>8} {'vs goal':>8}")
+    print(
+        f"{'workers':>8} {'meshes':>7} {'seconds':>8} {'mesh/s':>8} {'vs first':>8} {'vs goal':>8}"
+    )
     for r in rows:
         label = "0 (no Dask)" if r["workers"] == 0 else str(r["workers"])
         print(f"{label:>8} {r['meshes']:>7} {r['seconds']:>8.1f} {r['meshes_per_second']:>8.1f} "

@@ -158,8 +158,11 @@ def print_table(name, rows, brute):
         cells = []
         for n in names:
             r = row["methods"].get(n)
-            cells.append(f"{'skipped':>22}" if r is None else
-                         f"{r['peak_relative_error']:>10.2e} | {r['seconds'] / ex['seconds']:>8.2f}x")
+            cells.append(
+                f"{'skipped':>22}"
+                if r is None
+                else f"{r['peak_relative_error']:>10.2e} | {r['seconds'] / ex['seconds']:>8.2f}x"
+            )
         print(f"{row['faces']:>7} " + " ".join(cells))
 
 
@@ -222,13 +225,17 @@ def main() -> None:
 
     lam = C / frequencies
     results = {
-        "sphere": {"description": f"PO sphere a = {radius} m, ka {2 * np.pi * radius / lam.max():.1f}"
-                                  f"-{2 * np.pi * radius / lam.min():.1f}, {len(sphere_dirs)} "
-                                  f"directions x {len(frequencies)} frequencies",
-                   "rows": run_case("sphere", spheres, frequencies, sphere_dirs, sphere_ref, brute)},
-        "plate": {"description": f"{side} m plate, aspect 0-60 deg x roll 0/30/45 deg x "
-                                 f"{len(frequencies)} frequencies",
-                  "rows": run_case("plate", plates, frequencies, plate_dirs, plate_ref, brute)},
+        "sphere": {
+            "description": f"PO sphere a = {radius} m, ka {2 * np.pi * radius / lam.max():.1f}"
+            f"-{2 * np.pi * radius / lam.min():.1f}, {len(sphere_dirs)} "
+            f"directions x {len(frequencies)} frequencies",
+            "rows": run_case("sphere", spheres, frequencies, sphere_dirs, sphere_ref, brute),
+        },
+        "plate": {
+            "description": f"{side} m plate, aspect 0-60 deg x roll 0/30/45 deg x "
+            f"{len(frequencies)} frequencies",
+            "rows": run_case("plate", plates, frequencies, plate_dirs, plate_ref, brute),
+        },
     }
     for name, case in results.items():
         print_table(f"{name} ({case['description']})", case["rows"], brute)

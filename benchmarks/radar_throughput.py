@@ -175,9 +175,11 @@ def main() -> None:
     out["convex"] = {name: time_simulate(mesh, config, "auto")
                      for name, mesh in convex_objects().items()}
     for name, r in out["convex"].items():
-        print(f"  {name:>10} {r['faces']:>6} faces  mode {r['mode']:<8} {r['seconds'] * 1e3:8.1f} ms"
-              f"  (field {r['field_seconds'] * 1e3:.1f} ms)  {r['orientation_frequencies_per_second']:.3g}"
-              f" orientation-frequencies/s  goal ratio {r['seconds'] / GOAL_OBJECT_S:.2f}")
+        print(
+            f"  {name:>10} {r['faces']:>6} faces  mode {r['mode']:<8} {r['seconds'] * 1e3:8.1f} ms"
+            f"  (field {r['field_seconds'] * 1e3:.1f} ms)  {r['orientation_frequencies_per_second']:.3g}"
+            f" orientation-frequencies/s  goal ratio {r['seconds'] / GOAL_OBJECT_S:.2f}"
+        )
 
     print("2. 20k-face non-convex torus, full default grid, one core")
     torus = trimesh.creation.torus(0.5, 0.15, major_sections=200, minor_sections=50)
@@ -219,12 +221,16 @@ def main() -> None:
     print(f"  {'workers':>7} {'objects':>7} {'seconds':>8} {'obj/s':>7} {'paper s':>8} "
           f"{'vs 1st':>7} {'vs goal':>7}")
     for r in rows:
-        print(f"  {r['workers']:>7} {r['objects']:>7} {r['seconds']:>8.1f} "
-              f"{r['objects_per_second']:>7.1f} {r['paper_seconds']:>8.1f} "
-              f"{rows[0]['seconds'] / r['seconds']:>7.2f} {r['paper_seconds'] / GOAL_PAPER_S:>7.2f}")
-    print(f"  atomic rewrite of a paper-sized shard ({copy['shard_mb']:.1f} MB, 8 objects x 99 complex"
-          f" meshes of {PAPER_COMPLEX_FACES} faces): {copy['seconds'] * 1e3:.0f} ms; "
-          f"paper dataset (~{paper_mb / 1e3:.1f} GB) adds ~{out['label']['paper_rewrite_seconds_estimate']:.0f} s")
+        print(
+            f"  {r['workers']:>7} {r['objects']:>7} {r['seconds']:>8.1f} "
+            f"{r['objects_per_second']:>7.1f} {r['paper_seconds']:>8.1f} "
+            f"{rows[0]['seconds'] / r['seconds']:>7.2f} {r['paper_seconds'] / GOAL_PAPER_S:>7.2f}"
+        )
+    print(
+        f"  atomic rewrite of a paper-sized shard ({copy['shard_mb']:.1f} MB, 8 objects x 99 complex"
+        f" meshes of {PAPER_COMPLEX_FACES} faces): {copy['seconds'] * 1e3:.0f} ms; "
+        f"paper dataset (~{paper_mb / 1e3:.1f} GB) adds ~{out['label']['paper_rewrite_seconds_estimate']:.0f} s"
+    )
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=2))
     print(f"wrote {args.out}")

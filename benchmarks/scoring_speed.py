@@ -31,9 +31,13 @@ PAPER_TEST_MESHES = 300 * 100
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--objects-per-class", type=int, default=20)
-    ap.add_argument("--grid", type=int, nargs=3, default=[61, 21, 107], metavar=("ASPECT", "ROLL", "RANGE"))
+    ap.add_argument(
+        "--grid", type=int, nargs=3, default=[61, 21, 107], metavar=("ASPECT", "ROLL", "RANGE")
+    )
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "scoring_speed.json"))
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -53,8 +57,10 @@ def main() -> None:
             for step, t in (("score", t_score), ("evaluate", t_eval))]
     print(f"{'step':>10} {'ms/mesh':>9} {'vs score':>9} {'paper test split (s)':>21}")
     for r in rows:
-        print(f"{r['step']:>10} {r['ms_per_mesh']:>9.3f} {r['ms_per_mesh'] / rows[0]['ms_per_mesh']:>8.2f}x "
-              f"{r['paper_test_split_s']:>21.1f}")
+        print(
+            f"{r['step']:>10} {r['ms_per_mesh']:>9.3f} {r['ms_per_mesh'] / rows[0]['ms_per_mesh']:>8.2f}x "
+            f"{r['paper_test_split_s']:>21.1f}"
+        )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"grid": args.grid, "test_meshes": n, "rows": rows,

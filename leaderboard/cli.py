@@ -41,11 +41,14 @@ def build_parser() -> ArgumentParser:
     s.add_argument("--name", help="name on the board (default: the results' model.name)")
     s.add_argument("--link", help="http(s) URL of a paper or code for this entry")
 
-    d = sub.add_parser("seed", help="submit every <row>/results.json + predictions.h5 of a directory",
-                       description="Submit each row that `benchmark reproduce` wrote "
-                       "(OUT/results/<row>/results.json beside OUT/results/<row>/predictions.h5, "
-                       "where OUT is reproduce's --out). Rows already on "
-                       "the board are skipped; every refusal is listed, then the exit is non-zero.")
+    d = sub.add_parser(
+        "seed",
+        help="submit every <row>/results.json + predictions.h5 of a directory",
+        description="Submit each row that `benchmark reproduce` wrote "
+        "(OUT/results/<row>/results.json beside OUT/results/<row>/predictions.h5, "
+        "where OUT is reproduce's --out). Rows already on "
+        "the board are skipped; every refusal is listed, then the exit is non-zero.",
+    )
     d.add_argument("--from", dest="from_dir", type=Path, required=True, metavar="OUT/results",
                    help="the results/ folder inside `benchmark reproduce --out OUT`")
     d.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")

@@ -69,10 +69,16 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
                      f"{rescored['no_skill']}")
     cl, rs = claimed["per_class"], rescored["per_class"]
     if set(cl) != set(rs):
-        diffs.append(f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}")
+        diffs.append(
+            f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}"
+        )
     else:
-        diffs += [f"claimed per_class.{c}.{k} {cl[c].get(k)!r} differs from the re-score {rs[c][k]!r}"
-                  for c in sorted(cl) for k in METRIC_NAMES if not close(cl[c].get(k), rs[c][k])]
+        diffs += [
+            f"claimed per_class.{c}.{k} {cl[c].get(k)!r} differs from the re-score {rs[c][k]!r}"
+            for c in sorted(cl)
+            for k in METRIC_NAMES
+            if not close(cl[c].get(k), rs[c][k])
+        ]
     return diffs
 
 
@@ -103,8 +109,10 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
     except (OSError, ValueError) as exc:
         raise _refuse(data_dir, exc) from None
     if results["dataset_fingerprint"] != fingerprint:
-        raise SubmissionError(f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
-                              f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)")
+        raise SubmissionError(
+            f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
+            f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)"
+        )
     if results["label_fingerprint"] != labels:
         raise SubmissionError(f"{results_path}: label fingerprint "
                               f"{results['label_fingerprint'][:16]}... belongs to other labels "

@@ -257,7 +257,9 @@ def build_parser() -> ArgumentParser:
                        "shard already labelled with the same config is skipped. Runs on Dask.")
     q.add_argument("--data", required=True, metavar="DIR",
                    help="dataset directory holding shard-*.h5")
-    q.add_argument("--config", default="xband-v1", help="config name or JSON file (default %(default)s)")
+    q.add_argument(
+        "--config", default="xband-v1", help="config name or JSON file (default %(default)s)"
+    )
     add_cluster_flags(q, "worker processes, one thread each")
     add_quiet_flag(q)
     q.add_argument("--mesh-labels", type=_mesh_labels, default="none", help="also store the "

@@ -60,7 +60,9 @@ class RadarConfig:
             problems.append(f"window in {WINDOWS}")
         if not (1 <= self.n_range <= self.n_freq and self.n_range % 2 == 1):
             problems.append("n_range odd and between 1 and n_freq")
-        if self.name == "xband-v1" and any(getattr(self, f.name) != f.default for f in fields(self)):
+        if self.name == "xband-v1" and any(
+            getattr(self, f.name) != f.default for f in fields(self)
+        ):
             problems.append("a name other than 'xband-v1' (reserved for the default grid)")
         if problems:
             raise ValueError(f"invalid radar config {self.name!r}: need " + "; ".join(problems))

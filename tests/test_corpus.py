@@ -117,7 +117,9 @@ def test_same_bytes_in_a_fresh_process():
     code = ("import sys; sys.path.insert(0, 'tests'); from test_corpus import digest\n"
             "from benchmark.corpus import procedural_corpus\n"
             "print(digest(procedural_corpus(12, 9, 200)))")
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    )
     assert out.stdout.strip() == digest(C.procedural_corpus(12, seed=9, max_faces=200))
 
 
@@ -170,7 +172,9 @@ def sha(path) -> str:
 def test_corpus_file_round_trip_and_cache(tmp_path):
     path = tmp_path / "corpus.h5"
     assert C.build_corpus_file(path, 12, seed=4, max_faces=200) == path
-    assert digest(C.load_corpus_file(path)) == digest(C.procedural_corpus(12, seed=4, max_faces=200))
+    assert digest(C.load_corpus_file(path)) == digest(
+        C.procedural_corpus(12, seed=4, max_faces=200)
+    )
     meshes, names, meta = C.read_corpus_file(path)
     assert tuple(names) == C.FAMILIES and meta["seed"] == 4 and meta["n_meshes"] == 12
 
@@ -265,10 +269,19 @@ def shapenet(tmp_path):
     write_cube_obj(model_path(root, "03001627", "bbb2"))
     model_path(root, "03001627", "bbb3").write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")  # broken
     model_path(root, "03001627", "bbb4").write_bytes(b"\x00\x01\xffnot an obj\n")  # garbage
-    (root / "taxonomy.json").write_text(json.dumps([
-        {"synsetId": "02691156", "name": "airplane,aeroplane,plane", "children": [], "numInstances": 2},
-        {"synsetId": "03001627", "name": "chair", "children": [], "numInstances": 4},
-    ]))
+    (root / "taxonomy.json").write_text(
+        json.dumps(
+            [
+                {
+                    "synsetId": "02691156",
+                    "name": "airplane,aeroplane,plane",
+                    "children": [],
+                    "numInstances": 2,
+                },
+                {"synsetId": "03001627", "name": "chair", "children": [], "numInstances": 4},
+            ]
+        )
+    )
     return root
 
 
@@ -322,7 +335,10 @@ def test_wrong_layout_is_one_clear_line(tmp_path):
 def test_shapenet_with_only_broken_models_is_an_error(tmp_path):
     root = tmp_path / "sn"
     model_path(root, "02691156", "x").write_text("v 0 0 0\nf 1 2 3\n")
-    with pytest.warns(UserWarning, match="1 unreadable"), pytest.raises(C.CorpusError, match="no usable"):
+    with (
+        pytest.warns(UserWarning, match="1 unreadable"),
+        pytest.raises(C.CorpusError, match="no usable"),
+    ):
         C.load_shapenet(root)
 
 

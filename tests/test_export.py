@@ -126,9 +126,13 @@ def test_meshes_are_padded_and_match_the_shards(exported, labelled):
 
 def test_same_dataset_same_bytes(labelled, exported, tmp_path):
     again = tmp_path / "again"
-    assert cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    assert (
+        cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    )
     assert digests(again) == digests(exported)
-    assert cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    assert (
+        cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    )
     assert digests(again) == digests(exported)  # re-export in place: same files, no *.tmp
 
 

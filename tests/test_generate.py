@@ -20,11 +20,15 @@ SMALL = ["--classes", "cube,cylinder,sphere", "--objects-per-class", "2", "--var
 
 
 def _digests(d):
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.glob("shard-*.h5"))}
+    return {
+        p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.glob("shard-*.h5"))
+    }
 
 
 def _run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "basic_shapes.cli", *args], capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "basic_shapes.cli", *args], capture_output=True, text=True
+    )
 
 
 @pytest.fixture(scope="module")
@@ -41,10 +45,20 @@ def test_bytes_do_not_depend_on_workers(dataset, tmp_path):
 
     with dask_client(workers=2) as client:  # an existing cluster, reached through --scheduler
         address = client.scheduler.address
-        assert cli.main(["generate", "--data", str(tmp_path / "sched"), "--scheduler", address, *SMALL]) == 0
+        assert (
+            cli.main(
+                ["generate", "--data", str(tmp_path / "sched"), "--scheduler", address, *SMALL]
+            )
+            == 0
+        )
     one = _digests(dataset)
     assert len(one) == 3
-    assert one == _digests(tmp_path / "two") == _digests(tmp_path / "zero") == _digests(tmp_path / "sched")
+    assert (
+        one
+        == _digests(tmp_path / "two")
+        == _digests(tmp_path / "zero")
+        == _digests(tmp_path / "sched")
+    )
 
 
 def test_dataset_content(dataset):
@@ -60,7 +74,9 @@ def test_dataset_content(dataset):
             np.testing.assert_allclose(v.max(0) - v.min(0), obj["scale"], rtol=2e-2)
         if obj["class"] == "cube":  # planar shape: exact box volume for every variant
             for _, v, f in meshes:
-                assert trimesh.Trimesh(v, f).volume == pytest.approx(np.prod(obj["scale"]), rel=1e-5)
+                assert trimesh.Trimesh(v, f).volume == pytest.approx(
+                    np.prod(obj["scale"]), rel=1e-5
+                )
         seen.add((obj["class"], obj["split"]))
     assert {c for c, _ in seen} == {"cube", "cylinder", "sphere"}
     assert {s for _, s in seen} == {"train", "test"}
@@ -85,8 +101,11 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
             "--objects-per-shard", "1", "--seed", "9", "--workers", "0"]
     assert cli.main(["generate", "--data", str(tmp_path / "ref"), *args]) == 0
     out = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-m", "basic_shapes.cli", "generate", "--data", str(out), *args],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "basic_shapes.cli", "generate", "--data", str(out), *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 120
     while not list(out.glob("shard-*.h5")) and time.time() < deadline:
         time.sleep(0.01)
@@ -140,7 +159,22 @@ def test_info_show_export(dataset, tmp_path):
     png = tmp_path / "o.png"
     assert cli.main(["show", "--data", str(dataset), "--object", "2", "--out", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert cli.main(["export", "--data", str(dataset), "--format", "stl", "--out", str(tmp_path / "e"), "--object", "0"]) == 0
+    assert (
+        cli.main(
+            [
+                "export",
+                "--data",
+                str(dataset),
+                "--format",
+                "stl",
+                "--out",
+                str(tmp_path / "e"),
+                "--object",
+                "0",
+            ]
+        )
+        == 0
+    )
     files = sorted((tmp_path / "e").rglob("*.stl"))
     assert len(files) == 4 + 9  # object 0 is a test object: its 9 OOD meshes too
     with Shard(dataset / "shard-00000.h5") as s:

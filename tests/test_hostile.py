@@ -384,8 +384,17 @@ def test_5_non_dask_schedulers_are_refused_within_seconds(ws, tmp_path, servers)
             "--objects-per-class", "1", "--variants", "0", "--scheduler", address, phrase=phrase,
             watch=[tmp_path])
         data = shard_copy(ws, f"label-{len(RECORD)}")
-        cli("radar_sim", "label", "--data", data, "--overwrite", "--scheduler", address, phrase=phrase,
-            watch=[data])
+        cli(
+            "radar_sim",
+            "label",
+            "--data",
+            data,
+            "--overwrite",
+            "--scheduler",
+            address,
+            phrase=phrase,
+            watch=[data],
+        )
         assert time.perf_counter() - t0 < 40
     cli("basic_shapes", "generate", "--data", tmp_path / "g", "--objects-per-class", "1",
         "--variants", "0", "--scheduler", "tcp://127.0.0.1:1", phrase="cannot connect",
@@ -445,7 +454,17 @@ def test_6_inconsistent_shards_are_refused_by_evaluate(ws, tmp_path, case):
 
 def test_6_bad_offsets_are_refused_by_label_and_export(ws, tmp_path):
     d = shard_copy(ws, "offsets-label", _set("meshes/vertex_offset", 2, 2**62))
-    cli("radar_sim", "label", "--data", d, "--overwrite", "--workers", "1", phrase="vertex_offset", watch=[d])
+    cli(
+        "radar_sim",
+        "label",
+        "--data",
+        d,
+        "--overwrite",
+        "--workers",
+        "1",
+        phrase="vertex_offset",
+        watch=[d],
+    )
     cli("basic_shapes", "export", "--data", d, "--out", tmp_path / "e", phrase="vertex_offset",
         watch=[d, tmp_path])
 
@@ -476,8 +495,18 @@ def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
     obj = ObjectRecord(0, 0, np.array([0.3, 0.3, 0.3]), 1, "test",
                        [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})])
     write_shard(d / shard_name(0), [obj], ["cube"], {"fixture": True}, "0.1.0")
-    cli("radar_sim", "label", "--data", d, "--workers", "1", "--mesh-labels", "all", phrase="object 0: mesh row 0: mesh has no face",
-        watch=[d])
+    cli(
+        "radar_sim",
+        "label",
+        "--data",
+        d,
+        "--workers",
+        "1",
+        "--mesh-labels",
+        "all",
+        phrase="object 0: mesh row 0: mesh has no face",
+        watch=[d],
+    )
 
 
 # --- 7/10. one-line errors instead of tracebacks -------------------------------------------------
@@ -496,8 +525,19 @@ def test_7_rcs_flags(tmp_path, args, phrase):
 
 
 def test_7_plot_into_a_missing_directory(tmp_path, ws):
-    cli("radar_sim", "plot", "--data", ws["data"], "--object", "0", "--out", tmp_path / "missing/dir/x.png",
-        rc=2, phrase="does not exist", watch=[tmp_path])
+    cli(
+        "radar_sim",
+        "plot",
+        "--data",
+        ws["data"],
+        "--object",
+        "0",
+        "--out",
+        tmp_path / "missing/dir/x.png",
+        rc=2,
+        phrase="does not exist",
+        watch=[tmp_path],
+    )
 
 
 @pytest.mark.parametrize("args, phrase", [
@@ -534,12 +574,20 @@ def test_8_model_calling_sys_exit_0_is_an_error(ws, tmp_path):
 
 
 def test_debug_flag_shows_the_traceback(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "info", "--data", tmp_path / "none",
-                           "--debug"], capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-m", "basic_shapes.cli", "info", "--data", tmp_path / "none", "--debug"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert proc.returncode == 1 and "Traceback" in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "info", "--data", tmp_path / "none"],
-                          capture_output=True, text=True, cwd=ROOT,
-                          env={**os.environ, infra.DEBUG_ENV: "1"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "basic_shapes.cli", "info", "--data", tmp_path / "none"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, infra.DEBUG_ENV: "1"},
+    )
     assert "Traceback" in proc.stderr
 
 

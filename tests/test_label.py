@@ -212,7 +212,16 @@ def test_existing_scheduler(dataset, labelled, lband, tmp_path):
     work = tmp_path / "data"
     shutil.copytree(dataset, work)
     with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
-        main(["label", "--data", str(work), "--scheduler", cluster.scheduler_address, *options(lband)])
+        main(
+            [
+                "label",
+                "--data",
+                str(work),
+                "--scheduler",
+                cluster.scheduler_address,
+                *options(lband),
+            ]
+        )
     assert digests(work) == digests(labelled)
 
 
@@ -298,7 +307,9 @@ def test_other_config_is_an_error_unless_overwrite(labelled, lband, tmp_path):
     assert str(work / shard_name(0)) in message
     other = tmp_path / "other.json"
     other.write_text('{"name": "coarse", "n_freq": 64, "n_range": 63}')
-    message = _one_line_error(["label", "--data", str(work), "--config", str(other), *options(lband)[2:]])
+    message = _one_line_error(
+        ["label", "--data", str(work), "--config", str(other), *options(lband)[2:]]
+    )
     assert "already labelled, with different radar config (" in message
     assert digests(work) == before
     # relabel with the physics forced: on convex primitives shadow rays hide nothing
@@ -348,9 +359,13 @@ def test_bad_datasets_fail_fast_and_change_nothing(dataset, tmp_path):
     assert str(truncated / shard_name(3)) in message and "not a readable HDF5 shard" in message
     assert digests(truncated) == before  # validated before any work: nothing labelled
 
-    assert "no such dataset directory" in _one_line_error(["label", "--data", str(tmp_path / "missing")])
+    assert "no such dataset directory" in _one_line_error(
+        ["label", "--data", str(tmp_path / "missing")]
+    )
     assert "holds no shards" in _one_line_error(["label", "--data", str(tmp_path)])
-    assert "xband-v9" in _one_line_error(["label", "--data", str(truncated), "--config", "xband-v9"])
+    assert "xband-v9" in _one_line_error(
+        ["label", "--data", str(truncated), "--config", "xband-v9"]
+    )
 
 
 def test_unreachable_scheduler(dataset, tmp_path):
@@ -374,11 +389,15 @@ def test_bad_mesh_names_shard_and_object(lband, tmp_path):
 
 
 def test_cli_exit_status_and_stderr(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "label", "--data", str(tmp_path / "nope")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "radar_sim.cli", "label", "--data", str(tmp_path / "nope")],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode != 0
-    assert proc.stderr.strip().splitlines() == [f"radar-sim label: error: {tmp_path / 'nope'}: no such "
-                                                f"dataset directory"]
+    assert proc.stderr.strip().splitlines() == [
+        f"radar-sim label: error: {tmp_path / 'nope'}: no such dataset directory"
+    ]
 
 
 def test_info_prints_both_fingerprints(dataset, labelled, capsys):
@@ -401,7 +420,9 @@ def test_sidecars_of_another_request_are_dropped_only_once_all_shards_are_valid(
         f.attrs["request"] = "labels of another config"
     good = (work / shard_name(3)).read_bytes()
     (work / shard_name(3)).write_bytes(good[:len(good) // 2])
-    assert "not a readable HDF5 shard" in _one_line_error(["label", "--data", str(work), *options(lband)])
+    assert "not a readable HDF5 shard" in _one_line_error(
+        ["label", "--data", str(work), *options(lband)]
+    )
     assert stale.is_file()  # validation failed: nothing touched
     (work / shard_name(3)).write_bytes(good)
     main(["label", "--data", str(work), "--workers", "1", *options(lband)])

@@ -87,8 +87,12 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
         objects = []
         for oid in chunk:
             scale = _scale(oid, salt)
-            meshes = [MeshRecord(v, m.vertices.astype(np.float32), m.faces.astype(np.int32), 0.0,
-                                 {"variant": v}) for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))]
+            meshes = [
+                MeshRecord(
+                    v, m.vertices.astype(np.float32), m.faces.astype(np.int32), 0.0, {"variant": v}
+                )
+                for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))
+            ]
             objects.append(ObjectRecord(oid, oid // 3, scale, 1000 + oid,
                                         "test" if oid in TEST_OBJECTS else "train", meshes))
         path = directory / f"shard-{shard:05d}.h5"
@@ -237,10 +241,16 @@ def _tamper(results: Path, out: Path, edit) -> Path:
 
 
 TAMPERS = {
-    "simple": (lambda r: r["metrics"].__setitem__("simple_mse", r["metrics"]["simple_mse"] * (1 - 10 * REL_TOL)),
-               "claimed simple_mse"),
-    "per-class": (lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
-                  "claimed per_class.sphere.complex_mse"),
+    "simple": (
+        lambda r: r["metrics"].__setitem__(
+            "simple_mse", r["metrics"]["simple_mse"] * (1 - 10 * REL_TOL)
+        ),
+        "claimed simple_mse",
+    ),
+    "per-class": (
+        lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
+        "claimed per_class.sphere.complex_mse",
+    ),
     "no-skill": (lambda r: r["metrics"].__setitem__("no_skill", True), "claimed no_skill"),
     "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
     "labels": (lambda r: r.__setitem__("label_fingerprint", "ab" * 32), "belongs to other labels"),
@@ -421,7 +431,10 @@ def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_pat
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     run("render", "--out", site, "--entries", entries)
     html = (site / "index.html").read_text()
-    assert "no-speed" in html and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
+    assert (
+        "no-speed" in html
+        and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
+    )
     assert png_size(site / f"speed-vs-error-{dataset_fingerprint(data)[:12]}.png")[0] > 100
 
 
@@ -504,9 +517,21 @@ def test_what_benchmark_evaluate_writes_is_accepted(data, tmp_path):
     """The harness's own output (a reference model run by `benchmark evaluate`) is on the board."""
     from benchmark.cli import main as benchmark_main
     results, pred = tmp_path / "results.json", tmp_path / "predictions.h5"
-    benchmark_main(["evaluate", "--data", str(data), "--model", "benchmark.protocol:NearestScaleModel",
-                    "--model-arg", f"data_dir={data}", "--out", str(results),
-                    "--write-predictions", str(pred)])
+    benchmark_main(
+        [
+            "evaluate",
+            "--data",
+            str(data),
+            "--model",
+            "benchmark.protocol:NearestScaleModel",
+            "--model-arg",
+            f"data_dir={data}",
+            "--out",
+            str(results),
+            "--write-predictions",
+            str(pred),
+        ]
+    )
     entries = tmp_path / "entries"
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     (entry,) = store.load_entries(entries)

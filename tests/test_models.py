@@ -73,7 +73,9 @@ def test_direct_features_reconstruct_the_triangles():
     v, f = ragged_meshes()[2]
     feats = featurize(v, f)
     tri = feats.direct[:, :3, None] + feats.direct[:, 3:12].reshape(-1, 3, 3).transpose(0, 2, 1)
-    np.testing.assert_allclose(np.sort(tri.transpose(0, 2, 1), axis=1), np.sort(v[f], axis=1), atol=1e-6)
+    np.testing.assert_allclose(
+        np.sort(tri.transpose(0, 2, 1), axis=1), np.sort(v[f], axis=1), atol=1e-6
+    )
     normal = feats.direct[:, 12:]
     np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-6)
     np.testing.assert_allclose(np.einsum("ij,ij->i", normal, v[f[:, 1]] - v[f[:, 0]]), 0, atol=1e-6)

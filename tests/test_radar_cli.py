@@ -92,11 +92,25 @@ def test_plot_mesh_file_and_dataset(tmp_path):
     _check_png(tmp_path / "sphere.png")
 
     data = write_dataset(tmp_path / "data", n_objects=2, objects_per_shard=2)
-    main(["plot", "--data", str(data), "--object", "1", "--roll", "30", "--out", str(tmp_path / "o1.png")])
+    main(
+        [
+            "plot",
+            "--data",
+            str(data),
+            "--object",
+            "1",
+            "--roll",
+            "30",
+            "--out",
+            str(tmp_path / "o1.png"),
+        ]
+    )
     _check_png(tmp_path / "o1.png")
     assert "no object with id 7" in one_line_error(["plot", "--data", str(data), "--object", "7",
                                                     "--out", str(tmp_path / "o7.png")])
-    assert "--object" in one_line_error(["plot", "--data", str(data), "--out", str(tmp_path / "o.png")])
+    assert "--object" in one_line_error(
+        ["plot", "--data", str(data), "--out", str(tmp_path / "o.png")]
+    )
     assert "no such file or directory" in one_line_error(["plot", str(tmp_path / "nope"),
                                                           "--out", str(tmp_path / "n.png")])
 

@@ -41,7 +41,11 @@ def test_round_trip(tmp_path):
         np.testing.assert_array_equal(f, _objects()[0].meshes[1].faces)
         assert list(s.simple_mesh_index()) == [0, 2]
         assert s.mesh_params(1) == {"kind": "subdivided"}
-        assert [(o, var, len(f)) for o, var, _, f in s.iter_meshes()] == [(0, 0, 12), (0, 1, 192), (1, 0, 12)]
+        assert [(o, var, len(f)) for o, var, _, f in s.iter_meshes()] == [
+            (0, 0, 12),
+            (0, 1, 192),
+            (1, 0, 12),
+        ]
     _, obj, meshes = find_object(tmp_path, 8)
     assert obj["split"] == "test" and [m[0] for m in meshes] == [0]
     assert [o["id"] for _, o, _ in iter_objects(tmp_path, split="train")] == [7]

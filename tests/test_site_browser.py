@@ -92,7 +92,9 @@ def test_page_sorts_renders_images_and_stays_local(site):
             per_class = page.locator("table.per-class thead th", has_text="Variation MSE")
             per_class.locator("button").click()
             values = page.eval_on_selector_all(
-                "table.per-class tbody tr", "rows => rows.map(r => parseFloat(r.cells[4].dataset.value))")
+                "table.per-class tbody tr",
+                "rows => rows.map(r => parseFloat(r.cells[4].dataset.value))",
+            )
             assert len(values) == 4 * len(CLASSES) and values == sorted(values)
 
             images = page.evaluate("Array.from(document.images).map(i => [i.getAttribute('src'), "

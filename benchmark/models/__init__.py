@@ -126,5 +126,17 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
 
 
-__all__ = ["EMBEDDINGS", "FACE_EMBEDDINGS", "REGISTRY", "Embedding", "MeshSimulator", "MeshBatch", "ClassificationHead",
-           "ReconstructionHead", "build_model", "collate", "count_parameters", "featurize"]
+__all__ = [
+    "EMBEDDINGS",
+    "FACE_EMBEDDINGS",
+    "REGISTRY",
+    "Embedding",
+    "MeshSimulator",
+    "MeshBatch",
+    "ClassificationHead",
+    "ReconstructionHead",
+    "build_model",
+    "collate",
+    "count_parameters",
+    "featurize",
+]

@@ -59,7 +59,9 @@ def load_checkpoint(directory: str | os.PathLike,
     try:
         config = json.loads((directory / CONFIG).read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise CheckpointError(f"{directory / CONFIG}: unreadable checkpoint config ({exc})") from None
+        raise CheckpointError(
+            f"{directory / CONFIG}: unreadable checkpoint config ({exc})"
+        ) from None
     if config.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{directory / CONFIG}: not a {CHECKPOINT_FORMAT} config")
     kwargs = dict(config["model"])
@@ -117,9 +119,13 @@ class CheckpointModel:
     def predict(self, batch: dict) -> np.ndarray:
         """(B, n_aspect, n_roll, n_range) float32 predicted dB target."""
         bins = self.scale_bins.index(np.asarray(batch["scale_m"], np.float64)).reshape(-1, 3)
-        items = [featurize(v, f, probes=self.probes) for v, f in zip(batch["vertices"], batch["faces"])]
+        items = [
+            featurize(v, f, probes=self.probes) for v, f in zip(batch["vertices"], batch["faces"])
+        ]
         out = np.empty((len(items), int(np.prod(self.target_shape))), np.float32)
         for chunk in self._chunks([it.n_faces for it in items]):
-            pred, _ = self.model(collate([items[i] for i in chunk], scale_bin=bins[chunk]).to(self.device))
+            pred, _ = self.model(
+                collate([items[i] for i in chunk], scale_bin=bins[chunk]).to(self.device)
+            )
             out[chunk] = pred.float().cpu().numpy()
         return out.reshape(-1, *self.target_shape)
