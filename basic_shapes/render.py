@@ -1,4 +1,4 @@
-"""`basic-shapes show`: the simple mesh beside complex ones, faces randomly coloured (paper Fig. 2)."""
+"""`basic-shapes show`: the simple mesh beside complex ones, faces randomly coloured (Fig. 2)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,10 @@
 """Pretraining corpus: procedural CAD-like shapes (manifold3d) and a ShapeNetCore v2 loader.
 
 The paper pretrains its face encoders on a large, varied mesh corpus (classification or
-MeshGPT-style autoencoding) before fine-tuning on Basic Shapes. Every mesh comes out centred and scaled to the
-unit bounding box (longest side 1), float32 vertices, int32 faces, at most ``max_faces`` faces.
-Same seed, same bytes (on one machine and library version). Nothing here downloads.
+MeshGPT-style autoencoding) before fine-tuning on Basic Shapes. Every mesh comes out centred
+and scaled to the unit bounding box (longest side 1), float32 vertices, int32 faces, at most
+``max_faces`` faces. Same seed, same bytes (on one machine and library version). Nothing here
+downloads.
 """
 
 from __future__ import annotations
@@ -333,8 +334,8 @@ def build_family_mesh(
     """One random member of ``FAMILIES[family]``: unit-bbox float32 vertices, int32 faces.
 
     A random face budget in [max(MIN_BUDGET, max_faces/4), max_faces] varies triangle density
-    within a family. Draws that the decimator cannot bring under budget as a closed surface are rejected and
-    redrawn from the same generator (so the result stays a function of the seed).
+    within a family. Draws that the decimator cannot bring under budget as a closed surface are
+    rejected and redrawn from the same generator (so the result stays a function of the seed).
     """
     _check_max_faces(max_faces, MIN_BUDGET)
     name = FAMILIES[family]
@@ -391,7 +392,7 @@ def write_corpus_file(
     class_names: list[str] | tuple[str, ...],
     meta: dict | None = None,
 ) -> None:
-    """Write meshes flat with offsets (the shards' ragged layout), atomically and byte-deterministically.
+    """Write meshes flat with offsets (the shards' ragged layout), atomically, byte-deterministic.
 
     The format marker is written last, so a file cut short never reads as a corpus.
     """
@@ -607,7 +608,8 @@ def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = No
             degenerate += 1
     if unreadable or degenerate:
         warnings.warn(
-            f"{root}: skipped {unreadable + degenerate} ShapeNet model(s): {unreadable} unreadable, "
+            f"{root}: skipped {unreadable + degenerate} ShapeNet model(s): {unreadable} "
+            f"unreadable, "
             f"{degenerate} degenerate or not reducible to {max_faces} faces",
             stacklevel=2,
         )

@@ -410,7 +410,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "regime": "basic (simple meshes), ideal (all meshes), or pretraining by "
         "classification / autoencoder then fine-tuning on simple meshes",
         "loss": "mse, or intensity (intensity-weighted MSE + MSE)",
-        "shapenet": "pretrain on a local ShapeNetCore v2 directory instead of the procedural corpus",
+        "shapenet": "pretrain on a local ShapeNetCore v2 directory, not the procedural corpus",
         "pretrain_meshes": "corpus size (procedural), or a cap on ShapeNet models (0: all)",
     }
     for f in fields(TrainConfig):

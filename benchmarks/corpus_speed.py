@@ -62,13 +62,15 @@ def main() -> None:
     print(f"{'family':<22} {'meshes':>6} {'ms/mesh':>8} {'vs mean':>8} {'faces':>7} {'max':>5}")
     for r in rows:
         print(
-            f"{r['family']:<22} {r['meshes']:>6} {r['ms_per_mesh']:>8.2f} {r['ms_per_mesh'] / mean_ms:>8.2f} "
+            f"{r['family']:<22} {r['meshes']:>6} {r['ms_per_mesh']:>8.2f} "
+            f"{r['ms_per_mesh'] / mean_ms:>8.2f} "
             f"{r['mean_faces']:>7.1f} {r['max_faces_seen']:>5}"
         )
     rate = args.meshes / total
     print(
         f"{'all':<22} {args.meshes:>6} {mean_ms:>8.2f} {1.0:>8.2f}   -> {rate:.0f} meshes/s, "
-        f"{args.meshes} meshes in {total:.1f} s (goal {GOAL_SECONDS:.0f} s: {GOAL_SECONDS / total:.1f}x margin)"
+        f"{args.meshes} meshes in {total:.1f} s "
+        f"(goal {GOAL_SECONDS:.0f} s: {GOAL_SECONDS / total:.1f}x margin)"
     )
 
     with tempfile.TemporaryDirectory() as tmp:

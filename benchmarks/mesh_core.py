@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             primitives.get(c)
         except ValueError as exc:
-            raise SystemExit(str(exc))
+            raise SystemExit(str(exc)) from None
     start = time.process_time()
     blender.object_meshes(classes[0], np.ones(3), 0, 0)  # Blender start-up
     startup = time.process_time() - start

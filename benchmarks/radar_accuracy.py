@@ -132,7 +132,7 @@ def run_case(name, meshes, frequencies, directions, reference, brute):
             m = int(method.split("-")[1]) if method.startswith("brute") else 1
             if method != "exact" and len(f) * m * m > MAX_POINTS:
                 continue
-            field, seconds = best_time(lambda: fn(v, f, frequencies, directions))
+            field, seconds = best_time(lambda fn=fn, v=v, f=f: fn(v, f, frequencies, directions))
             amp = np.abs(field)
             with np.errstate(divide="ignore"):
                 db = np.abs(20 * np.log10(amp) - 20 * np.log10(reference))

@@ -27,21 +27,21 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse
-import importlib
-import json
-import platform
-import re
-import subprocess
-import sys
-import tempfile
-import time
-from pathlib import Path
+import argparse  # noqa: E402 - thread limits are set before numpy loads
+import importlib  # noqa: E402 - thread limits are set before numpy loads
+import json  # noqa: E402 - thread limits are set before numpy loads
+import platform  # noqa: E402 - thread limits are set before numpy loads
+import re  # noqa: E402 - thread limits are set before numpy loads
+import subprocess  # noqa: E402 - thread limits are set before numpy loads
+import sys  # noqa: E402 - thread limits are set before numpy loads
+import tempfile  # noqa: E402 - thread limits are set before numpy loads
+import time  # noqa: E402 - thread limits are set before numpy loads
+from pathlib import Path  # noqa: E402 - thread limits are set before numpy loads
 
-import numpy as np
+import numpy as np  # noqa: E402 - thread limits are set before numpy loads
 
-import radar_sim
-from radar_sim import facet, field, geometry
+import radar_sim  # noqa: E402 - thread limits are set before numpy loads
+from radar_sim import facet, field, geometry  # noqa: E402 - thread limits are set before numpy loads
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results"

@@ -121,7 +121,7 @@ def run_case(name, vertices, faces, mode, frequencies, directions, reference):
     peer_rows = []
     m = 1
     while m <= MAX_M:
-        field, seconds = timed(lambda: peer_style(vertices, faces, frequencies, directions, m,
+        field, seconds = timed(lambda m=m: peer_style(vertices, faces, frequencies, directions, m,
                                                   mode != "convex"))
         peer_rows.append({"m": m, "seconds": seconds, "error": error(field, reference)})
         print(f"  {name}: peer-style M={m}: error {peer_rows[-1]['error']:.2e} in {seconds:.2f} s",

@@ -177,7 +177,8 @@ def main() -> None:
     for name, r in out["convex"].items():
         print(
             f"  {name:>10} {r['faces']:>6} faces  mode {r['mode']:<8} {r['seconds'] * 1e3:8.1f} ms"
-            f"  (field {r['field_seconds'] * 1e3:.1f} ms)  {r['orientation_frequencies_per_second']:.3g}"
+            f"  (field {r['field_seconds'] * 1e3:.1f} ms)  "
+            f"{r['orientation_frequencies_per_second']:.3g}"
             f" orientation-frequencies/s  goal ratio {r['seconds'] / GOAL_OBJECT_S:.2f}"
         )
 
@@ -227,9 +228,11 @@ def main() -> None:
             f"{rows[0]['seconds'] / r['seconds']:>7.2f} {r['paper_seconds'] / GOAL_PAPER_S:>7.2f}"
         )
     print(
-        f"  atomic rewrite of a paper-sized shard ({copy['shard_mb']:.1f} MB, 8 objects x 99 complex"
+        f"  atomic rewrite of a paper-sized shard ({copy['shard_mb']:.1f} MB, 8 objects x 99 "
+        f"complex"
         f" meshes of {PAPER_COMPLEX_FACES} faces): {copy['seconds'] * 1e3:.0f} ms; "
-        f"paper dataset (~{paper_mb / 1e3:.1f} GB) adds ~{out['label']['paper_rewrite_seconds_estimate']:.0f} s"
+        f"paper dataset (~{paper_mb / 1e3:.1f} GB) adds "
+        f"~{out['label']['paper_rewrite_seconds_estimate']:.0f} s"
     )
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=2))

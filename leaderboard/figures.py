@@ -86,7 +86,7 @@ def speed_vs_error(models: list[dict], simulator: dict | None,
 
 
 def example(models: list[dict]) -> bytes:
-    """Rows: up to EXAMPLE_ROWS models; columns: physics, simple-mesh and complex-mesh prediction."""
+    """Rows: up to EXAMPLE_ROWS models; columns: physics, simple- and complex-mesh prediction."""
     rows = models[:EXAMPLE_ROWS]
     s = rows[0]["sample"]
     physics = np.array(s["physics_db"])

@@ -93,7 +93,7 @@ def sha256_file(path: str | os.PathLike) -> str:
 def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
            data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
            name: str | None = None, link: str | None = None) -> Path:
-    """Verify one submission and write its entry; raise SubmissionError (nothing written) if refused."""
+    """Verify one submission and write its entry; refused: SubmissionError, nothing written."""
     try:
         results = load_results(results_path)
     except ValueError as exc:

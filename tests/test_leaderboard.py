@@ -1,4 +1,4 @@
-"""leaderboard: submissions are re-scored by the real benchmark scorer and refused unless they agree.
+"""leaderboard: submissions are re-scored by the real benchmark scorer, refused unless they agree.
 
 The test dataset is written with ``basic_shapes.shards.write_shard`` from trimesh meshes (three
 classes; each object has a simple mesh and two complex meshes of the same shape) and carries an
@@ -117,7 +117,7 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
 
 def write_predictions(path: Path, data: Path, offsets=OFFSETS, drop: int = 0,
                       fingerprint: str | None = None, collapse: bool = False) -> Path:
-    """Predictions = exact dB target + per-class offset; ``drop`` leaves out the last test meshes."""
+    """Predictions = exact dB target + per-class offset; ``drop`` omits the last test meshes."""
     uids, rows = [], []
     for oid in TEST_OBJECTS:
         t = target_db(response(_scale(oid, 0), oid))

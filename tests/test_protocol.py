@@ -37,9 +37,11 @@ class GeometryModel:
 
     def predict(self, batch):
         out = []
-        for v, f, bins, s in zip(batch["vertices"], batch["faces"], batch["scale_bins"], batch["scale_m"]):
+        for v, f, bins, s in zip(batch["vertices"], batch["faces"], batch["scale_bins"],
+                                 batch["scale_m"]):
             base = -30.0 + 0.37 * bins.sum() + 0.011 * len(f) + 3.3 * np.abs(v).mean() + s.prod()
-            out.append(base + np.sin(np.arange(7 * 5 * 16)).reshape(7, 5, 16) * s[0] * 10 + self.offset)
+            wave = np.sin(np.arange(7 * 5 * 16)).reshape(7, 5, 16)
+            out.append(base + wave * s[0] * 10 + self.offset)
         return np.stack(out)
 '''
 
@@ -398,7 +400,8 @@ def test_scoring_and_evaluate_do_not_import_torch(data_dir, model_run):
     code = textwrap.dedent(f"""
         import sys
         from benchmark.cli import main
-        main(["evaluate", "--quiet", "--data", {str(data_dir)!r}, "--predictions", {str(model_run[1])!r},
+        main(["evaluate", "--quiet", "--data", {str(data_dir)!r},
+              "--predictions", {str(model_run[1])!r},
               "--out", {str(model_run[1].with_suffix(".json"))!r}])
         assert "torch" not in sys.modules, "torch was imported"
     """)

@@ -1,4 +1,4 @@
-"""The rendered leaderboard in a real headless Chromium (Debian's /usr/bin/chromium, `make browser`).
+"""The rendered leaderboard in a real headless Chromium (Debian's chromium, `make browser`).
 
 Four submissions go through the real ``leaderboard submit`` (re-scored by the benchmark), the
 site is rendered and served by ``leaderboard.serve`` on a free localhost port, and playwright
