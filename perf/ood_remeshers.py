@@ -9,7 +9,7 @@ milliseconds per accepted mesh (rejected tries and verification included) and tr
 mesh. Writes JSON and prints a table; ``--figure`` draws one object's simple mesh, a training
 variant and its OOD meshes (docs/img/ood.png).
 
-    .venv/bin/python benchmarks/ood_remeshers.py --objects 10 --per-remesher 3 \\
+    .venv/bin/python perf/ood_remeshers.py --objects 10 --per-remesher 3 \\
         --figure docs/img/ood.png
 """
 

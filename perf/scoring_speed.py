@@ -1,6 +1,6 @@
 """Milliseconds per test mesh to score a predictions file, and to run a model end to end.
 
-    python benchmarks/scoring_speed.py [--objects-per-class 20] [--grid 61 21 107]
+    python perf/scoring_speed.py [--objects-per-class 20] [--grid 61 21 107]
 
 On the tests' analytic fixture dataset (tests/benchmark_fixture.py: 3 meshes per object,
 the full xband-v1 grid by default), side by side:
@@ -8,7 +8,7 @@ the full xband-v1 grid by default), side by side:
   evaluate  benchmark.evaluate.evaluate with NearestScaleModel: read meshes, predict, write the
             predictions file, score it
 and the time these would take on the paper's test split (300 objects x 100 meshes).
-Writes benchmarks/results/scoring_speed.json and prints a table.
+Writes perf/results/scoring_speed.json and prints a table.
 """
 
 from __future__ import annotations

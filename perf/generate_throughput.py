@@ -1,9 +1,9 @@
 """Verified meshes per second of `basic-shapes generate` (generation + verification + writing)
 at 1 and 2 worker processes, side by side, plus the in-process run without Dask.
 
-    python benchmarks/generate_throughput.py [--objects-per-class 4] [--variants 99]
+    python perf/generate_throughput.py [--objects-per-class 4] [--variants 99]
 
-Writes benchmarks/results/generate_throughput.json and prints a table. The paper-scale goal
+Writes perf/results/generate_throughput.json and prints a table. The paper-scale goal
 is 300,000 meshes in 15 minutes on this 2-core machine: 333 meshes/s.
 """
 

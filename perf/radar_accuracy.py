@@ -1,6 +1,6 @@
 """Speed against error of three ways to evaluate the physical-optics facet integral.
 
-    python benchmarks/radar_accuracy.py [--quick]
+    python perf/radar_accuracy.py [--quick]
 
 Side by side, on the same meshes, directions and frequencies, single-threaded:
   exact     radar_sim.monostatic_field (closed-form facet integral, one geometric pass)
@@ -13,7 +13,7 @@ over mesh resolution, against two exact references:
             meshed as n x n squares, 2 triangles each (flat: the exact rule has no mesh error).
 Error = max over directions and frequencies of ||A| - |A_ref|| / max |A_ref| (peak-relative, so
 pattern nulls do not blow it up); for the sphere also the max dB error (dB = 20 log10|A|).
-Writes benchmarks/results/radar_accuracy.json and radar_accuracy.png and prints tables.
+Writes perf/results/radar_accuracy.json and radar_accuracy.png and prints tables.
 """
 
 from __future__ import annotations

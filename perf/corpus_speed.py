@@ -1,10 +1,10 @@
 """Build speed of the procedural pretraining corpus on one core, per family and overall, and
 the cost of the HDF5 cache (cold build, cached rerun, load).
 
-    python benchmarks/corpus_speed.py [--meshes 5000] [--max-faces 800] [--seed 0]
+    python perf/corpus_speed.py [--meshes 5000] [--max-faces 800] [--seed 0]
 
 Pins itself to one CPU core. The goal: a few thousand meshes in under about 90 s.
-Writes benchmarks/results/corpus_speed.json and prints two tables.
+Writes perf/results/corpus_speed.json and prints two tables.
 """
 
 from __future__ import annotations

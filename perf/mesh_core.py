@@ -6,7 +6,7 @@ parameters and the Python loop), meshes per second, attempts per mesh, rejection
 face-count quantiles and Hausdorff statistics. Writes JSON (every face count included) and
 prints a table; ``--figure`` also draws the face-count histogram of docs/GENERATOR.md.
 
-    .venv/bin/python benchmarks/mesh_core.py --objects 20 --variants 99 \\
+    .venv/bin/python perf/mesh_core.py --objects 20 --variants 99 \\
         --classes cube,cylinder,sphere,cone,torus --figure docs/img/face_counts.png
 """
 

@@ -1,6 +1,6 @@
 """Speed-up over the way peer tools evaluate PO, at equal accuracy.
 
-    python benchmarks/radar_peers.py [--aspects 61]
+    python perf/radar_peers.py [--aspects 61]
 
 PO-SBR-Python and radarsimpy re-evaluate the geometry for every frequency: illumination (and
 shadow rays), then a per-facet sum at that wavenumber. radar_sim makes one geometric pass per
@@ -19,7 +19,7 @@ Accuracy: peak-relative amplitude error max||A| - |A_ref|| / max|A_ref| against
           only through the mesh; the tests validate it against the closed forms),
   torus   likewise, 20k faces, non-convex, with shadowing.
 The target is max(1 %, radar_sim's own error). Times for the full 61 x 21 grid are these times
-x (1281 / orientations). Writes benchmarks/results/radar_peers.json and prints a table.
+x (1281 / orientations). Writes perf/results/radar_peers.json and prints a table.
 """
 
 from __future__ import annotations

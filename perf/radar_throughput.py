@@ -1,6 +1,6 @@
 """Throughput of the radar simulator, and of labelling a paper-sized dataset.
 
-    python benchmarks/radar_throughput.py [--paper-objects 3000] [--workers 1 2]
+    python perf/radar_throughput.py [--paper-objects 3000] [--workers 1 2]
 
 Side by side, one core (single-threaded numpy and Embree calls) unless said otherwise:
   1. `simulate` on the full default grid (xband-v1: 61 x 21 orientations x 128 frequencies) for
@@ -15,7 +15,7 @@ Side by side, one core (single-threaded numpy and Embree calls) unless said othe
      960-face UV spheres, 0.3-1.5 m) in shards of 8 objects; goal: 3000 objects <= 3 min.
      Paper shards also hold 99 complex meshes per object, which labelling does not simulate but
      copies when it rewrites a shard atomically: that copy is measured per MB and extrapolated.
-Writes benchmarks/results/radar_throughput.json and prints a table.
+Writes perf/results/radar_throughput.json and prints a table.
 """
 
 from __future__ import annotations
