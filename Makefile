@@ -24,16 +24,16 @@ browser:
 
 # The main job on a small default: 12 objects x 10 meshes, every step of the data flow.
 demo: install
-	$(BIN)/benchmark dataset demo-v1 --out $(OUT)/data
-	$(BIN)/basic-shapes info $(OUT)/data
-	$(BIN)/basic-shapes show $(OUT)/data --object 5 --out $(OUT)/shapes.png
-	$(BIN)/radar-sim plot $(OUT)/data --object 1 --roll 30 --out $(OUT)/radar.png
+	$(BIN)/benchmark dataset demo-v1 --data $(OUT)/data
+	$(BIN)/basic-shapes info --data $(OUT)/data
+	$(BIN)/basic-shapes show --data $(OUT)/data --object 5 --out $(OUT)/shapes.png
+	$(BIN)/radar-sim plot --data $(OUT)/data --object 1 --roll 30 --out $(OUT)/radar.png
 	$(BIN)/benchmark reproduce --preset tiny --data $(OUT)/data --out $(OUT)/benchmark --quiet
 	$(BIN)/leaderboard seed --from $(OUT)/benchmark/results --data $(OUT)/data --entries $(OUT)/entries
 	$(BIN)/leaderboard simulator --data $(OUT)/data --entries $(OUT)/entries
 	$(BIN)/leaderboard render --out $(OUT)/site --entries $(OUT)/entries
 	@echo "demo outputs in $(OUT)/: shapes.png, radar.png, benchmark/table.md, site/index.html"
-	@echo "preview the leaderboard: $(BIN)/leaderboard serve --dir $(OUT)/site"
+	@echo "preview the leaderboard: $(BIN)/leaderboard serve $(OUT)/site"
 
 test: install browser
 	$(BIN)/python -m pytest

@@ -130,7 +130,7 @@ def _torus_implicit(s):
 
 def _nearest(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
     """Index of the nearest sample to each point (a KD-tree: brute force cost 0.4 s per mesh
-    of a few thousand points against an ellipsoid's grid, benchmarks/generate_throughput.py)."""
+    of a few thousand points against an ellipsoid's grid, perf/generate_throughput.py)."""
     from scipy.spatial import cKDTree
 
     return cKDTree(samples).query(points)[1]

@@ -44,7 +44,7 @@ NGON_METHODS = ("BEAUTY", "CLIP")
 
 STAGE_SECONDS: dict[str, float] = defaultdict(float)
 """CPU seconds (all threads) spent per stage in this process, rejected attempts included,
-read by benchmarks/mesh_core.py: simple, primitive, loop_cuts, decimate, extract, checks,
+read by perf/mesh_core.py: simple, primitive, loop_cuts, decimate, extract, checks,
 hausdorff, analytic (the distance to the analytic primitive)."""
 ATTEMPTS: dict[str, int] = defaultdict(int)
 """Built meshes per outcome in this process: accepted or the rejection reason."""
@@ -173,7 +173,7 @@ _STATE = None
 _LOCK = threading.RLock()
 
 
-def _state() -> "_Blender":
+def _state() -> _Blender:
     global _STATE
     if _STATE is None:
         _STATE = _Blender()

@@ -75,7 +75,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     Local clusters run one single-threaded worker *process* per core (default ``os.cpu_count()``)
     because Blender and the Embree/numpy kernels each want a whole core and Blender keeps one
     state per process. ``scheduler`` ("tcp://host:8786") connects to a running cluster instead,
-    after ``check_scheduler`` made sure it is one.
+    after ``check_scheduler`` made sure it is one. ``workers=0`` runs one worker thread in this
+    process (debugging, profiling).
 
     Dask starts local workers with MALLOC_TRIM_THRESHOLD_=65536, which freezes glibc's mmap
     threshold at 128 KiB: every large numpy temporary is then mmapped and page-faulted afresh
@@ -86,8 +87,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     import dask
     from distributed import Client, LocalCluster
 
-    if not scheduler and workers is not None and (isinstance(workers, bool) or workers < 1):
-        raise ValueError(f"--workers must be >= 1 for a Dask cluster, got {workers}")
+    if not scheduler and workers is not None and (isinstance(workers, bool) or workers < 0):
+        raise ValueError(f"--workers must be >= 0 (0 = in this process), got {workers}")
     with dask.config.set({"distributed.worker.daemon": False,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
         if scheduler:
@@ -95,8 +96,9 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
             with Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S * 2:g}s") as client:
                 yield client
             return
-        n = workers or os.cpu_count() or 1
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+        in_process = workers == 0  # one thread in this process: debuggers and profilers see it
+        n = 1 if in_process else workers or os.cpu_count() or 1
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=not in_process,
                           dashboard_address=":0", silence_logs=logging.CRITICAL) as cluster, \
                 Client(cluster) as client:
             yield client

@@ -156,7 +156,7 @@ def export_g2s(directory: str | Path, out: str | Path) -> int:
         with Shard(p) as s:
             if not s.has_labels:
                 raise ShardError(f"{p}: has no radar labels; run `radar-sim label` first")
-            s.radar  # a malformed /radar group is refused here, before anything is written
+            s.radar  # noqa: B018 - reading it refuses a malformed /radar before any write
     out = Path(out)
     targets = [out / (p.stem + ".nc") for p in paths]
     if out.is_dir():

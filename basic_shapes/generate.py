@@ -22,8 +22,16 @@ from basic_shapes import __version__
 from basic_shapes.analytic import HIDDEN, solid_for
 from basic_shapes.infra import atomic_path, load_json
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, ScaleError, capacity, sample_scales
-from basic_shapes.shards import (OOD_FIRST, OOD_REMESHERS, OOD_SLOT, ObjectRecord, Shard,
-                                 ShardError, shard_name, write_shard)
+from basic_shapes.shards import (
+    OOD_FIRST,
+    OOD_REMESHERS,
+    OOD_SLOT,
+    ObjectRecord,
+    Shard,
+    ShardError,
+    shard_name,
+    write_shard,
+)
 
 CONFIG_FILE = "dataset.json"
 TEST_FRACTION = 0.1
@@ -32,7 +40,7 @@ VAL_FRACTION = 0.1  # model selection only (benchmark.train); never scored
 # of 17361 at the default range and distance); beyond this fraction refuse at once instead of
 # spinning for minutes.
 PACKING = 0.3
-MESHES_PER_SECOND_PER_WORKER = 150.0  # benchmarks/results/generate_throughput.json
+MESHES_PER_SECOND_PER_WORKER = 150.0  # perf/results/generate_throughput.json
 
 
 @dataclass(frozen=True)
@@ -56,7 +64,9 @@ class GenerateConfig:
         if unknown:
             raise ValueError(f"unknown class {', '.join(unknown)}; known: {', '.join(PRIMITIVES)}")
         if not self.classes or len(set(self.classes)) != len(self.classes):
-            raise ValueError(f"classes must be non-empty and distinct, got {','.join(self.classes)}")
+            raise ValueError(
+                f"classes must be non-empty and distinct, got {','.join(self.classes)}"
+            )
         for name, lo in (("objects_per_class", 1), ("variants", 0), ("objects_per_shard", 1)):
             if getattr(self, name) < lo:
                 raise ValueError(f"{name} must be >= {lo}, got {getattr(self, name)}")
@@ -192,7 +202,9 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
         if not isinstance(old, dict):
             raise ShardError(f"{cfg_path}: dataset config is not a JSON object")
         if old != cfg.to_json():
-            diff = sorted(k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k))
+            diff = sorted(
+                k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k)
+            )
             raise ShardError(f"{out}: holds a dataset with a different config "
                              f"({', '.join(diff)} differ); use another --out")
         return
@@ -279,8 +291,9 @@ def _run(todo, cfg_json, workers, scheduler, progress):
             yield r
         bar.close()
         return
-    from basic_shapes.cluster import dask_client
     from distributed import as_completed
+
+    from basic_shapes.cluster import dask_client
 
     with dask_client(workers, scheduler) as client:
         futures = [client.submit(build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}",

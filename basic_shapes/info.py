@@ -7,8 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, is_ood_variant,
-                                 label_fingerprint, list_shards)
+from basic_shapes.shards import (
+    Shard,
+    ShardError,
+    dataset_fingerprint,
+    is_ood_variant,
+    label_fingerprint,
+    list_shards,
+)
 
 BAR = 40
 
@@ -67,9 +73,13 @@ def summary(directory: str | Path) -> str:
                      f"{d['test']} test), {len(faces)} meshes"
                      + (f" + {d['ood']} out-of-distribution" if d["ood"] else "")
                      + f", {d['labelled']} objects radar-labelled")
-        lines.append(f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}")
+        lines.append(
+            f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}"
+        )
         lines.extend(_histogram(faces))
         if len(h):
-            lines.append(f"  Hausdorff / bbox diagonal (complex vs simple): median {np.median(h):.2e}, "
-                         f"99th pct {np.percentile(h, 99):.2e}, max {h.max():.2e}")
+            lines.append(
+                f"  Hausdorff / bbox diagonal (complex vs simple): median {np.median(h):.2e}, "
+                f"99th pct {np.percentile(h, 99):.2e}, max {h.max():.2e}"
+            )
     return "\n".join(lines)

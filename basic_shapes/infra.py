@@ -53,6 +53,13 @@ def fsync_dir(directory: str | os.PathLike) -> None:
         os.close(dir_fd)
 
 
+def utc_timestamp() -> str:
+    """Now, in the one timestamp format of results, entries and tables: 2026-11-23T15:56:13Z."""
+    import datetime
+
+    return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
 # --- one-line errors and the CLI boundary ----------------------------------------------------
 
 def one_line(exc: BaseException) -> str:
@@ -62,7 +69,7 @@ def one_line(exc: BaseException) -> str:
         return f"{where}: {exc.strerror}" if where != "" else exc.strerror
     try:
         lines = str(exc).strip().splitlines()
-    except Exception:  # noqa: BLE001 - a broken __str__ must not hide the error
+    except Exception:
         lines = []
     return lines[0] if lines else exc.__class__.__name__
 
@@ -93,20 +100,22 @@ def debug_requested(argv: list[str]) -> bool:
 def cli_boundary(tool: str, body, argv: list[str] | None = None):
     """Run ``body(argv)`` behind the single top-level error boundary of the four CLIs.
 
-    Any exception becomes ``<tool>: error: <one line>`` on stderr and exit status 1;
+    Any exception becomes ``<tool> <command>: error: <one line>`` on stderr and exit status 1;
     argparse refusals (flags) exit with 2 (``ArgumentParser``). ``--debug`` anywhere on the
     command line (removed before parsing) or ``BASIC_SHAPES_DEBUG=1`` shows tracebacks.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = debug_requested(argv)
     argv = [a for a in argv if a != "--debug"]
+    command = next((a for a in argv if not a.startswith("-")), None)
+    prefix = f"{tool} {command}" if command else tool
     try:
         return body(argv)
     except SystemExit as exc:
         if debug or exc.code is None or isinstance(exc.code, int):
             raise
-        msg = one_line(Exception(str(exc.code)))
-        raise SystemExit(msg if msg.startswith(f"{tool}") else f"{tool}: error: {msg}") from None
+        msg = _unprefixed(one_line(Exception(str(exc.code))), tool)
+        raise SystemExit(f"{prefix}: error: {msg}") from None
     except KeyboardInterrupt:
         if debug:
             raise
@@ -115,7 +124,16 @@ def cli_boundary(tool: str, body, argv: list[str] | None = None):
     except BaseException as exc:
         if debug:
             raise
-        raise SystemExit(f"{tool}: error: {describe(exc)}") from None
+        raise SystemExit(f"{prefix}: error: {describe(exc)}") from None
+
+
+def _unprefixed(message: str, tool: str) -> str:
+    """``message`` without a leading ``<tool>[ <command>]:`` and ``error:`` (added once, above)."""
+    head, sep, rest = message.partition(": ")
+    command = head.removeprefix(f"{tool} ")
+    if sep and (head == tool or (command != head and " " not in command)):
+        message = rest
+    return message.removeprefix("error: ")
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -126,9 +144,30 @@ class ArgumentParser(argparse.ArgumentParser):
 
 
 def add_debug_flag(parser: argparse.ArgumentParser) -> None:
-    """Document ``--debug`` (``cli_boundary`` removes it before parsing, wherever it is)."""
+    """``--version`` (the toolkit's) and ``--debug`` (documented here; ``cli_boundary`` removes
+    it before parsing, wherever it is), on every tool."""
+    from basic_shapes import __version__
+
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the toolkit version and exit")
     parser.add_argument("--debug", action="store_true",
                         help=f"show Python tracebacks (also {DEBUG_ENV}=1)")
+
+
+def add_cluster_flags(parser: argparse.ArgumentParser, what: str = "worker processes") -> None:
+    """``--workers N`` (0 = in this process) or ``--scheduler ADDR``, never both (docs/CLI.md)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
+                       help=f"local {what} (default: one per core; 0 = in this process, "
+                       f"for debugging: the same bytes)")
+    group.add_argument("--scheduler", default=None, metavar="ADDR",
+                       help="address of a running Dask scheduler (tcp://host:8786) instead")
+
+
+def add_quiet_flag(parser: argparse.ArgumentParser) -> None:
+    """``--quiet``: no progress bars or informational lines; results and errors still print."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bars or progress lines (results and errors still print)")
 
 
 def number(kind=float, *, minimum=None, maximum=None, above=None, integer_ok=True):

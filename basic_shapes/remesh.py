@@ -67,7 +67,7 @@ convex solid (no torus)."""
 
 TRIES: dict[tuple[str, str], int] = defaultdict(int)
 """Tries per (remesher, outcome) in this process: "accepted" or the rejection reason
-(read by benchmarks/ood_remeshers.py)."""
+(read by perf/ood_remeshers.py)."""
 SECONDS: dict[str, float] = defaultdict(float)
 """CPU seconds per remesher in this process, rejected tries and verification included."""
 

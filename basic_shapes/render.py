@@ -1,4 +1,4 @@
-"""`basic-shapes show`: the simple mesh beside complex ones, faces randomly coloured (paper Fig. 2)."""
+"""`basic-shapes show`: the simple mesh beside complex ones, faces randomly coloured (Fig. 2)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,9 @@ def show_object(directory: str | Path, object_id: int, out: str | Path, count: i
     others = [m for m in meshes if m[0] > 0]
     if others:  # spread the picks over the face-count range
         others.sort(key=lambda m: len(m[2]))
-        others = [others[i] for i in np.unique(np.linspace(0, len(others) - 1, count).round().astype(int))]
+        others = [
+            others[i] for i in np.unique(np.linspace(0, len(others) - 1, count).round().astype(int))
+        ]
     shown = simple + others
     rng = np.random.default_rng(object_id)
     ncols = min(3, len(shown))
@@ -40,7 +42,9 @@ def show_object(directory: str | Path, object_id: int, out: str | Path, count: i
         label = "simple" if variant == 0 else f"variant {variant}"
         ax.set_title(f"{label}\n{len(f)} faces", fontsize=10)
     sx, sy, sz = obj["scale"]
-    fig.suptitle(f"object {obj['id']} ({obj['class']}, {sx:.2f} x {sy:.2f} x {sz:.2f} m)", fontsize=11)
+    fig.suptitle(
+        f"object {obj['id']} ({obj['class']}, {sx:.2f} x {sy:.2f} x {sz:.2f} m)", fontsize=11
+    )
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.9, wspace=0, hspace=0.08)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)

@@ -7,15 +7,14 @@ leaves a file that reads as a valid shard. This module must not import bpy or to
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import json
 import os
 import shutil
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import h5py
 import numpy as np
@@ -217,7 +216,7 @@ class Shard:
     def close(self) -> None:
         self.file.close()
 
-    def __enter__(self) -> "Shard":
+    def __enter__(self) -> Shard:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -292,7 +291,7 @@ class Shard:
         return "radar/response" in self.file
 
     @functools.cached_property
-    def radar(self) -> "RadarGroup":
+    def radar(self) -> RadarGroup:
         """The ``/radar`` group (labels), validated once; ``ShardError`` if absent or malformed."""
         return RadarGroup(self)
 

@@ -11,7 +11,7 @@ import importlib
 import sys
 from pathlib import Path
 
-from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
+from basic_shapes.infra import ArgumentParser, add_debug_flag, add_quiet_flag, cli_boundary, number
 
 EPILOG = """examples:
   benchmark evaluate --data data/bs --predictions preds.h5 --out results.json
@@ -21,13 +21,18 @@ EPILOG = """examples:
   benchmark train --help
   benchmark reproduce --preset tiny --out out/tiny
   benchmark dataset --list
-  benchmark dataset cpu-v1 --out data/cpu-v1"""
+  benchmark dataset cpu-v1 --data data/cpu-v1"""
 
 DELEGATED = {
     "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
-    "reproduce": ("benchmark.reproduce", "run a preset (tiny|small|paper) and write the paper's table"),
-    "dataset": ("benchmark.versions", "build a named dataset version (generate + label) and "
-                "check its fingerprints"),
+    "reproduce": (
+        "benchmark.reproduce",
+        "run a preset (tiny|small|paper) and write the paper's table",
+    ),
+    "dataset": (
+        "benchmark.versions",
+        "build a named dataset version (generate + label) and check its fingerprints",
+    ),
 }
 
 
@@ -63,7 +68,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                      "(runs its code; prefer --predictions for untrusted submissions)")
     src.add_argument("--predictions", metavar="FILE", help="predictions HDF5 file to score")
     e.add_argument("--out", required=True, help="results JSON to write")
-    e.add_argument("--write-predictions", metavar="FILE", help="with --model: keep its predictions file")
+    e.add_argument(
+        "--write-predictions", metavar="FILE", help="with --model: keep its predictions file"
+    )
     e.add_argument("--model-arg", metavar="KEY=VALUE", type=_key_value, action="append", default=[],
                    help="constructor argument for --model, as a string (repeatable)")
     e.add_argument("--batch-size", type=number(int, minimum=1, maximum=1 << 16), default=16,
@@ -72,14 +79,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                    "attribute, its class name, or the predictions file's stem)")
     e.add_argument("--params", type=number(int, minimum=0, maximum=10**12),
                    help="parameter count (default: the model's `params`)")
-    e.add_argument("--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)")
+    e.add_argument(
+        "--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)"
+    )
     e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
     e.add_argument("--train-seed", type=number(int, minimum=0, maximum=2**64 - 1),
                    help="seed the model was trained with")
     e.add_argument("--speed-ms", type=number(float, minimum=0, maximum=1e9), metavar="X",
                    help="with --predictions: your own ms per mesh, recorded as self-reported "
                    "(the harness times only --model)")
-    e.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_flag(e)
     for name, (_, help_text) in DELEGATED.items():
         d = sub.add_parser(name, help=help_text, description=help_text)
         if name == command:
@@ -91,7 +100,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
     from basic_shapes.infra import one_line
     from basic_shapes.shards import ShardError
     from benchmark.evaluate import evaluate, format_metrics
-    from benchmark.protocol import ModelError, PredictionsError, ResultsError, load_model, write_results
+    from benchmark.protocol import (
+        ModelError,
+        PredictionsError,
+        ResultsError,
+        load_model,
+        write_results,
+    )
 
     if args.write_predictions and not args.model:
         raise SystemExit("benchmark evaluate: error: --write-predictions needs --model")

@@ -1,10 +1,10 @@
 """Pretraining corpus: procedural CAD-like shapes (manifold3d) and a ShapeNetCore v2 loader.
 
 The paper pretrains its face encoders on a large, varied mesh corpus (classification or
-MeshGPT-style autoencoding) before fine-tuning on Basic Shapes. No physics is needed here, so
-the usual geometric augmentations are allowed. Every mesh comes out centred and scaled to the
-unit bounding box (longest side 1), float32 vertices, int32 faces, at most ``max_faces`` faces.
-Same seed, same bytes (on one machine and library version). Nothing here downloads.
+MeshGPT-style autoencoding) before fine-tuning on Basic Shapes. Every mesh comes out centred
+and scaled to the unit bounding box (longest side 1), float32 vertices, int32 faces, at most
+``max_faces`` faces. Same seed, same bytes (on one machine and library version). Nothing here
+downloads.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import fast_simplification
 import h5py
 import manifold3d as m3d
 import numpy as np
-from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from basic_shapes.infra import atomic_path, open_hdf5
+from benchmark.data import normalize_mesh  # one normalization for corpus and benchmark
 
 Mesh = tuple[np.ndarray, np.ndarray, int]
 
@@ -38,20 +38,15 @@ class CorpusError(ValueError):
 # --------------------------------------------------------------------------- mesh helpers
 
 
-def normalize_unit_bbox(vertices: np.ndarray) -> np.ndarray:
-    """Centre the bounding box on the origin and scale its longest side to 1 (float32)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    extent = float((hi - lo).max())
-    if not np.isfinite(extent) or extent <= 0:
-        raise ValueError("mesh has a degenerate (zero or non-finite) bounding box")
-    return ((v - (lo + hi) / 2) / extent).astype(np.float32)
-
-
 def is_watertight(faces: np.ndarray) -> bool:
     """True when every edge is shared by exactly two faces with opposite orientation."""
     f = np.asarray(faces, dtype=np.int64)
-    if len(f) < MIN_FACES or (f[:, 0] == f[:, 1]).any() or (f[:, 1] == f[:, 2]).any() or (f[:, 0] == f[:, 2]).any():
+    if (
+        len(f) < MIN_FACES
+        or (f[:, 0] == f[:, 1]).any()
+        or (f[:, 1] == f[:, 2]).any()
+        or (f[:, 0] == f[:, 2]).any()
+    ):
         return False
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     n = int(f.max()) + 1
@@ -61,14 +56,18 @@ def is_watertight(faces: np.ndarray) -> bool:
     return bool(np.isin(directed[:, 1] * n + directed[:, 0], key).all())
 
 
-def _compact(vertices: np.ndarray, faces: np.ndarray, drop_fins: bool) -> tuple[np.ndarray, np.ndarray]:
+def _compact(
+    vertices: np.ndarray, faces: np.ndarray, drop_fins: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """Drop degenerate faces, repeated faces and unreferenced vertices.
 
     Faces on the same three vertices are either double-sided geometry (ShapeNet has plenty:
     keep one) or the back-to-back fin an edge collapse leaves on a closed surface
     (``drop_fins``: remove both, which closes the surface again).
     """
-    f = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    f = faces[
+        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    ]
     _, first, inverse, counts = np.unique(np.sort(f, axis=1), axis=0, return_index=True,
                                           return_inverse=True, return_counts=True)
     f = f[counts[inverse.reshape(-1)] == 1] if drop_fins else f[np.sort(first)]
@@ -88,7 +87,9 @@ def simplify_to(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
     triangles), so the target is tightened a few times. It has no link-condition check and can
     pinch a closed surface; with ``keep_watertight`` such a result is an error, not an output.
     """
-    v, f = _compact(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int32), keep_watertight)
+    v, f = _compact(
+        np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int32), keep_watertight
+    )
     target = max_faces
     for _ in range(3):
         if len(f) <= max_faces or target < MIN_FACES:
@@ -99,16 +100,22 @@ def simplify_to(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
         if len(sf) <= max_faces:
             v, f = sv, sf
     if not MIN_FACES <= len(f) <= max_faces:
-        raise SimplifyError(f"cannot simplify a {len(faces)}-face mesh to {MIN_FACES}..{max_faces} faces")
+        raise SimplifyError(
+            f"cannot simplify a {len(faces)}-face mesh to {MIN_FACES}..{max_faces} faces"
+        )
     if keep_watertight and not is_watertight(f):
-        raise SimplifyError(f"simplifying a {len(faces)}-face mesh to {len(f)} faces left it not watertight")
+        raise SimplifyError(
+            f"simplifying a {len(faces)}-face mesh to {len(f)} faces left it not watertight"
+        )
     return v, f
 
 
 def _mesh_of(solid: m3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
     mesh = solid.to_mesh()
     # copies: the buffers manifold3d hands out are read-only, which fast-simplification rejects
-    return np.array(mesh.vert_properties[:, :3], dtype=np.float64), np.array(mesh.tri_verts, dtype=np.int32)
+    return np.array(mesh.vert_properties[:, :3], dtype=np.float64), np.array(
+        mesh.tri_verts, dtype=np.int32
+    )
 
 
 # --------------------------------------------------------------------------- shape families
@@ -117,7 +124,9 @@ def _mesh_of(solid: m3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
 # the long slivers of flat CAD faces, so starting far above budget gets many draws rejected).
 
 
-def _segments(rng: np.random.Generator, lo: int, hi: int, budget: int, faces_per_segment: float) -> int:
+def _segments(
+    rng: np.random.Generator, lo: int, hi: int, budget: int, faces_per_segment: float
+) -> int:
     """A random tessellation count in [lo, hi], capped so that about ``budget`` faces suffice."""
     hi = max(lo, min(hi, int(budget / faces_per_segment)))
     return int(rng.integers(lo, hi + 1))
@@ -133,7 +142,9 @@ def _box_with_holes(rng, budget):
         r = rng.uniform(0.05, 0.22) * size[others].min()
         centre = np.zeros(3)
         centre[others] = [rng.uniform(-0.5, 0.5) * (size[a] - 2.4 * r) for a in others]
-        hole = m3d.Manifold.cylinder(2.0, r, -1.0, _segments(rng, 6, 48, budget, 6 * n_holes), center=True)
+        hole = m3d.Manifold.cylinder(
+            2.0, r, -1.0, _segments(rng, 6, 48, budget, 6 * n_holes), center=True
+        )
         if axis == 0:
             hole = hole.rotate((0.0, 90.0, 0.0))
         elif axis == 1:
@@ -152,7 +163,9 @@ def _l_bracket(rng, budget):
     for _ in range(n_holes):  # bolt holes through the horizontal leg
         r = rng.uniform(0.2, 0.4) * min(depth, a - t2) / 2
         x = rng.uniform(t2 + r * 1.5, a - r * 1.5)
-        hole = m3d.Manifold.cylinder(1.0, r, -1.0, _segments(rng, 6, 48, budget, 6 * n_holes), center=True)
+        hole = m3d.Manifold.cylinder(
+            1.0, r, -1.0, _segments(rng, 6, 48, budget, 6 * n_holes), center=True
+        )
         solid = solid - hole.rotate((90.0, 0.0, 0.0)).translate((x, 0.0, depth / 2))
     return solid
 
@@ -270,7 +283,9 @@ def _wedge_pyramid(rng, budget):
         return m3d.Manifold.extrude(section, rng.uniform(0.2, 1.0))
     n = int(rng.integers(3, 9))
     angle = np.arange(n) * 2 * np.pi / n + rng.uniform(0, np.pi)
-    base = m3d.CrossSection([rng.uniform(0.3, 0.6) * np.column_stack([np.cos(angle), np.sin(angle)])])
+    base = m3d.CrossSection(
+        [rng.uniform(0.3, 0.6) * np.column_stack([np.cos(angle), np.sin(angle)])]
+    )
     top = 0.0 if kind == 1 else rng.uniform(0.2, 0.8)  # pyramid or frustum
     return m3d.Manifold.extrude(base, rng.uniform(0.3, 1.2), 0, 0.0, (top, top))
 
@@ -313,19 +328,25 @@ def _check_max_faces(max_faces: int, least: int) -> None:
         raise ValueError(f"max_faces must be at least {least}, got {max_faces}")
 
 
-def build_family_mesh(family: int, rng: np.random.Generator, max_faces: int = 800) -> tuple[np.ndarray, np.ndarray]:
+def build_family_mesh(
+    family: int, rng: np.random.Generator, max_faces: int = 800
+) -> tuple[np.ndarray, np.ndarray]:
     """One random member of ``FAMILIES[family]``: unit-bbox float32 vertices, int32 faces.
 
     A random face budget in [max(MIN_BUDGET, max_faces/4), max_faces] varies triangle density
-    within a family. Draws that the decimator cannot bring under budget as a closed surface are rejected and
-    redrawn from the same generator (so the result stays a function of the seed).
+    within a family. Draws that the decimator cannot bring under budget as a closed surface are
+    rejected and redrawn from the same generator (so the result stays a function of the seed).
     """
     _check_max_faces(max_faces, MIN_BUDGET)
     name = FAMILIES[family]
     for _ in range(MAX_ATTEMPTS):
         budget = int(rng.integers(max(MIN_BUDGET, max_faces // 4), max_faces + 1))
         solid = _BUILDERS[name](rng, budget)
-        if solid.status() != m3d.Error.NoError or solid.num_tri() < MIN_FACES or len(solid.decompose()) != 1:
+        if (
+            solid.status() != m3d.Error.NoError
+            or solid.num_tri() < MIN_FACES
+            or len(solid.decompose()) != 1
+        ):
             continue
         # half the draws are remeshed: edges split k ways, then decimated back under budget
         k = int(np.sqrt(2.0 * budget / solid.num_tri()))
@@ -335,12 +356,16 @@ def build_family_mesh(family: int, rng: np.random.Generator, max_faces: int = 80
             v, f = simplify_to(*_mesh_of(solid), budget, keep_watertight=WATERTIGHT[family])
         except SimplifyError:
             continue
-        return normalize_unit_bbox(v), f
-    raise RuntimeError(f"family {name}: no valid mesh of at most {max_faces} faces in {MAX_ATTEMPTS} draws; "
-                       "raise max_faces")
+        return normalize_mesh(v), f
+    raise RuntimeError(
+        f"family {name}: no valid mesh of at most {max_faces} faces in {MAX_ATTEMPTS} draws; "
+        "raise max_faces"
+    )
 
 
-def procedural_corpus(n_meshes: int, seed: int, max_faces: int = 800, progress: bool = False) -> list[Mesh]:
+def procedural_corpus(
+    n_meshes: int, seed: int, max_faces: int = 800, progress: bool = False
+) -> list[Mesh]:
     """``n_meshes`` labelled meshes ``(vertices, faces, family_index)``, balanced over families.
 
     Mesh ``i`` belongs to family ``i % len(FAMILIES)`` and draws its parameters from its own
@@ -358,31 +383,16 @@ def procedural_corpus(n_meshes: int, seed: int, max_faces: int = 800, progress: 
     return out
 
 
-# --------------------------------------------------------------------------- augmentation
-
-
-def augment(vertices: np.ndarray, rng: np.random.Generator, scale: tuple[float, float] = (0.75, 1.25),
-            jitter: float = 0.005, rotate: bool = True) -> np.ndarray:
-    """MeshGPT/PolyGen-style augmentation, then back to the unit bounding box.
-
-    Random per-axis scaling in ``scale``, a uniformly random rotation (``rotate``), Gaussian
-    jitter of ``jitter`` (in unit-bbox units) per vertex. Faces are unchanged.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    v = v * rng.uniform(scale[0], scale[1], 3)
-    if rotate:
-        v = v @ Rotation.random(rng=rng).as_matrix().T
-    if jitter:
-        v = v + rng.normal(0.0, jitter, v.shape)
-    return normalize_unit_bbox(v)
-
-
 # --------------------------------------------------------------------------- corpus files
 
 
-def write_corpus_file(path: str | Path, meshes: list[Mesh], class_names: list[str] | tuple[str, ...],
-                      meta: dict | None = None) -> None:
-    """Write meshes flat with offsets (the shards' ragged layout), atomically and byte-deterministically.
+def write_corpus_file(
+    path: str | Path,
+    meshes: list[Mesh],
+    class_names: list[str] | tuple[str, ...],
+    meta: dict | None = None,
+) -> None:
+    """Write meshes flat with offsets (the shards' ragged layout), atomically, byte-deterministic.
 
     The format marker is written last, so a file cut short never reads as a corpus.
     """
@@ -391,11 +401,17 @@ def write_corpus_file(path: str | Path, meshes: list[Mesh], class_names: list[st
         v, f = np.asarray(v), np.asarray(f)
         if (v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0
                 or f.min() < 0 or f.max() >= len(v) or not 0 <= c < len(class_names)):
-            raise ValueError(f"{path}: mesh {i} is not (V,3) vertices, (F,3) in-range faces and a valid class")
+            raise ValueError(
+                f"{path}: mesh {i} is not (V,3) vertices, (F,3) in-range faces and a valid class"
+            )
     n_v = np.cumsum([0] + [len(v) for v, _, _ in meshes], dtype=np.int64)
     n_f = np.cumsum([0] + [len(f) for _, f, _ in meshes], dtype=np.int64)
-    vertices = np.concatenate([np.zeros((0, 3), np.float32)] + [np.asarray(v, np.float32) for v, _, _ in meshes])
-    faces = np.concatenate([np.zeros((0, 3), np.int32)] + [np.asarray(f, np.int32) for _, f, _ in meshes])
+    vertices = np.concatenate(
+        [np.zeros((0, 3), np.float32)] + [np.asarray(v, np.float32) for v, _, _ in meshes]
+    )
+    faces = np.concatenate(
+        [np.zeros((0, 3), np.int32)] + [np.asarray(f, np.int32) for _, f, _ in meshes]
+    )
     labels = np.array([c for _, _, c in meshes], dtype=np.int32)
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as h5:
@@ -412,7 +428,9 @@ def _corpus_header(h5: h5py.File, path: Path) -> tuple[list[str], dict]:
     if h5.attrs.get("format") != CORPUS_FORMAT:
         raise CorpusError(f"{path}: not a {CORPUS_FORMAT} file")
     if h5.attrs.get("version") != CORPUS_VERSION:
-        raise CorpusError(f"{path}: corpus version {h5.attrs.get('version')} unsupported (need {CORPUS_VERSION})")
+        raise CorpusError(
+            f"{path}: corpus version {h5.attrs.get('version')} unsupported (need {CORPUS_VERSION})"
+        )
     try:
         return json.loads(h5.attrs["class_names"]), json.loads(h5.attrs["meta"])
     except (KeyError, ValueError) as exc:
@@ -498,7 +516,10 @@ def shapenet_class_names(path: str | Path) -> list[str]:
     taxonomy = root / "taxonomy.json"
     if taxonomy.is_file():
         try:
-            names = {e["synsetId"]: e["name"].split(",")[0].strip() for e in json.loads(taxonomy.read_text())}
+            names = {
+                e["synsetId"]: e["name"].split(",")[0].strip()
+                for e in json.loads(taxonomy.read_text())
+            }
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise CorpusError(f"{taxonomy}: unreadable taxonomy ({exc})") from None
     return [names.get(s.name, s.name) for s in synsets]
@@ -522,7 +543,10 @@ def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                     verts.append(parts[1:4])
                 elif parts[0] == "f":
                     n = len(verts)
-                    idx = [i - 1 if i > 0 else n + i for i in (int(p.split("/", 1)[0]) for p in parts[1:])]
+                    idx = [
+                        i - 1 if i > 0 else n + i
+                        for i in (int(p.split("/", 1)[0]) for p in parts[1:])
+                    ]
                     faces.extend((idx[0], idx[k], idx[k + 1]) for k in range(1, len(idx) - 1))
         v = np.array(verts, dtype=np.float64).reshape(-1, 3)
     except ValueError as exc:  # non-numeric or missing fields
@@ -533,7 +557,9 @@ def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return v, f.astype(np.int32)
 
 
-def merge_vertices(vertices: np.ndarray, faces: np.ndarray, decimals: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def merge_vertices(
+    vertices: np.ndarray, faces: np.ndarray, decimals: int = 6
+) -> tuple[np.ndarray, np.ndarray]:
     """Weld vertices that coincide after rounding (ShapeNet duplicates them per UV seam)."""
     key = np.round(vertices, decimals)
     _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
@@ -554,8 +580,16 @@ def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = No
         raise ValueError(f"limit must be positive or None, got {limit}")
     root = Path(path)
     synsets = _shapenet_synsets(root)
-    models = [(c, obj) for c, s in enumerate(synsets) for obj in sorted(s.glob(f"*/{SHAPENET_MODEL.as_posix()}"))]
-    order = np.random.default_rng(seed).permutation(len(models)) if limit is not None else np.arange(len(models))
+    models = [
+        (c, obj)
+        for c, s in enumerate(synsets)
+        for obj in sorted(s.glob(f"*/{SHAPENET_MODEL.as_posix()}"))
+    ]
+    order = (
+        np.random.default_rng(seed).permutation(len(models))
+        if limit is not None
+        else np.arange(len(models))
+    )
     loaded: dict[int, Mesh] = {}
     unreadable = degenerate = 0
     for k in tqdm(order, desc="ShapeNet", unit="model", disable=not progress):
@@ -569,12 +603,16 @@ def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = No
             continue
         try:
             v, f = simplify_to(v, f, max_faces)
-            loaded[int(k)] = (normalize_unit_bbox(v), f, cls)
+            loaded[int(k)] = (normalize_mesh(v), f, cls)
         except ValueError:  # decimation stalled above budget, or the mesh is flat to a point
             degenerate += 1
     if unreadable or degenerate:
-        warnings.warn(f"{root}: skipped {unreadable + degenerate} ShapeNet model(s): {unreadable} unreadable, "
-                      f"{degenerate} degenerate or not reducible to {max_faces} faces", stacklevel=2)
+        warnings.warn(
+            f"{root}: skipped {unreadable + degenerate} ShapeNet model(s): {unreadable} "
+            f"unreadable, "
+            f"{degenerate} degenerate or not reducible to {max_faces} faces",
+            stacklevel=2,
+        )
     if not loaded:
         raise CorpusError(f"{root}: no usable ShapeNet model")
     return [loaded[k] for k in sorted(loaded)]

@@ -26,9 +26,15 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.scales import SCALE_RANGE
-from basic_shapes.shards import (Shard, ShardError, dataset_fingerprint, is_ood_variant,
-                                 label_fingerprint,
-                                 list_shards, mesh_uid)
+from basic_shapes.shards import (
+    Shard,
+    ShardError,
+    dataset_fingerprint,
+    is_ood_variant,
+    label_fingerprint,
+    list_shards,
+    mesh_uid,
+)
 
 FLOOR_AMPLITUDE = 1e-4
 FLOOR_DB = -80.0

@@ -19,8 +19,17 @@ from tqdm import tqdm
 
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES, OOD_METRIC_NAMES
-from benchmark.protocol import (Model, ModelError, Predictions, PredictionsWriter, check_prediction,
-                                make_results, score, scored_mesh_rows, why)
+from benchmark.protocol import (
+    Model,
+    ModelError,
+    Predictions,
+    PredictionsWriter,
+    check_prediction,
+    make_results,
+    score,
+    scored_mesh_rows,
+    why,
+)
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 
@@ -37,7 +46,9 @@ def hardware(threads: int | None = None) -> dict:
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as fh:
-            cpu = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
+            cpu = next(
+                line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")
+            )
     except (OSError, StopIteration):
         pass
     torch = sys.modules.get("torch")
@@ -135,9 +146,15 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
             else speed_block(None)
         if model is not None:
             with contextlib.ExitStack() as stack:
-                path = Path(write_predictions) if write_predictions else Path(
-                    stack.enter_context(tempfile.TemporaryDirectory(dir=scratch_dir))) / "predictions.h5"
-                who = str(overrides.get("name") or getattr(model, "name", None) or type(model).__name__)
+                path = (
+                    Path(write_predictions)
+                    if write_predictions
+                    else Path(stack.enter_context(tempfile.TemporaryDirectory(dir=scratch_dir)))
+                    / "predictions.h5"
+                )
+                who = str(
+                    overrides.get("name") or getattr(model, "name", None) or type(model).__name__
+                )
                 ms = predict_test_split(model, data, path, batch_size, who, progress)
                 speed = speed_block(ms)
                 with Predictions(path, data) as preds:
@@ -147,7 +164,10 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
             with Predictions(predictions, data) as preds:
                 metrics = score(data, preds, per_object=True)
         dataset_seed = data.config.get("seed")
-        seeds = {"dataset": dataset_seed if isinstance(dataset_seed, int) else None, "train": train_seed}
+        seeds = {
+            "dataset": dataset_seed if isinstance(dataset_seed, int) else None,
+            "train": train_seed,
+        }
         per_object = metrics.pop("per_object")
         results = make_results(data.fingerprint, metrics, model_info(model, overrides), speed,
                                seeds, label_fingerprint=data.label_fingerprint)

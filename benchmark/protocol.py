@@ -12,7 +12,6 @@ only (never unpickled) and validated, with one-line errors naming the file.
 
 from __future__ import annotations
 
-import datetime
 import hashlib
 import importlib
 import importlib.util
@@ -26,7 +25,7 @@ from typing import Protocol
 import h5py
 import numpy as np
 
-from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
+from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset, utc_timestamp
 from basic_shapes.shards import ood_remesher
 from benchmark import __version__
 from benchmark.data import BenchmarkData
@@ -107,7 +106,9 @@ def check_prediction(out, n: int, target_shape: tuple[int, ...], who: str) -> np
     try:
         arr = np.asarray(out)
     except Exception as exc:
-        raise ModelError(f"{who}: predict returned {type(out).__name__}, not an array ({why(exc)})") from None
+        raise ModelError(
+            f"{who}: predict returned {type(out).__name__}, not an array ({why(exc)})"
+        ) from None
     if arr.shape != (n, *target_shape) or arr.dtype.kind not in "fiu":
         raise ModelError(f"{who}: predict returned {arr.dtype}{arr.shape}, expected a real "
                          f"array of shape {(n, *target_shape)}")
@@ -131,7 +132,9 @@ class MeanResponseModel:
             self.mean = sum(data.target(o).astype(np.float64) for o in rows) / len(rows)
 
     def predict(self, batch: dict) -> np.ndarray:
-        return np.broadcast_to(self.mean, (len(batch["scale_m"]), *self.mean.shape)).astype(np.float32)
+        return np.broadcast_to(self.mean, (len(batch["scale_m"]), *self.mean.shape)).astype(
+            np.float32
+        )
 
 
 class NearestScaleModel:
@@ -174,7 +177,7 @@ class PredictionsWriter:
         self.label_fingerprint = label_fingerprint
         self.n, self.shape, self.filled = n_meshes, tuple(target_shape), 0
 
-    def __enter__(self) -> "PredictionsWriter":
+    def __enter__(self) -> PredictionsWriter:
         self._atomic = atomic_path(self.path)
         tmp = self._atomic.__enter__()
         self.file = h5py.File(tmp, "w", libver="earliest")
@@ -241,7 +244,9 @@ class Predictions:
         if _attr(f, "format") != PREDICTIONS_FORMAT:
             self._fail(f"not a predictions file (format attribute is not {PREDICTIONS_FORMAT!r})")
         if _attr(f, "version") != str(PREDICTIONS_VERSION):
-            self._fail(f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}")
+            self._fail(
+                f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}"
+            )
         if _attr(f, "dataset_fingerprint") != data.fingerprint:
             self._fail(f"made for dataset {str(_attr(f, 'dataset_fingerprint'))[:64]}, not for "
                        f"{data.directory} ({data.fingerprint})")
@@ -306,7 +311,7 @@ class Predictions:
     def close(self) -> None:
         self.file.close()
 
-    def __enter__(self) -> "Predictions":
+    def __enter__(self) -> Predictions:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -365,7 +370,7 @@ def make_results(dataset_fingerprint: str, metrics: dict, model: dict, speed: di
     results = {"benchmark_version": __version__, "dataset_fingerprint": dataset_fingerprint,
                "label_fingerprint": label_fingerprint,
                "model": model, "metrics": metrics, "speed": speed, "seeds": seeds,
-               "created": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+               "created": utc_timestamp()}
     validate_results(results, "results")
     return results
 

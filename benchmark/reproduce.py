@@ -28,14 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.infra import atomic_path
+from basic_shapes.infra import add_quiet_flag, atomic_path, number
 from basic_shapes.shards import ShardError
+from benchmark.models import FACE_EMBEDDINGS, REGISTRY
 
-EMBEDDINGS = ("direct", "graph", "token")
+EMBEDDINGS = FACE_EMBEDDINGS  # the paper's encoders: pretrained, with an Ideal row
 ROWS: tuple[tuple[str, str], ...] = (
     *[(e, r) for e in EMBEDDINGS for r in ("basic", "classification", "autoencoder")],
     *[(e, "ideal") for e in EMBEDDINGS],
-    ("invariant", "basic"),
+    *[(e, "basic") for e in REGISTRY if e not in EMBEDDINGS],
 )
 PRETRAINING = {"basic": "none", "classification": "classification", "autoencoder": "autoencoder",
                "ideal": "none"}
@@ -525,7 +526,6 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = {"direct": "tab:blue", "graph": "tab:orange", "token": "tab:green", "invariant": "tab:red"}
     markers = {"basic": "o", "classification": "s", "autoencoder": "^", "ideal": "*"}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for r in rows:
@@ -535,7 +535,7 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
         if ci:
             ax.errorbar(r["ms_per_mesh"], r["complex_mse"], fmt="none", ecolor="0.6",
                         yerr=[[r["complex_mse"] - ci[0]], [ci[1] - r["complex_mse"]]])
-        ax.scatter(r["ms_per_mesh"], r["complex_mse"], c=colors[r["embedding"]],
+        ax.scatter(r["ms_per_mesh"], r["complex_mse"], c=REGISTRY[r["embedding"]].colour,
                    marker=markers[r["regime"]], s=80 if r["regime"] == "ideal" else 45,
                    edgecolors="black" if r["no_skill"] else "none", zorder=3)
         ax.annotate(r["name"], (r["ms_per_mesh"], r["complex_mse"]), fontsize=7,
@@ -575,17 +575,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "speed_vs_error.png, checkpoints/, results/, data/)")
     parser.add_argument("--data", help="reuse this labelled dataset instead of generating one")
     parser.add_argument("--seeds", help="comma-separated training seeds (default: the preset's)")
-    parser.add_argument("--rows", help="comma-separated subset of rows, e.g. graph-basic,graph-ideal "
-                        f"(default: all {len(ROWS)})")
+    parser.add_argument(
+        "--rows",
+        help="comma-separated subset of rows, e.g. graph-basic,graph-ideal "
+        f"(default: all {len(ROWS)})",
+    )
     parser.add_argument("--shapenet", help="pretrain on a local ShapeNetCore v2 directory")
-    parser.add_argument("--nproc", type=int, default=None,
+    parser.add_argument("--nproc", type=number(int, minimum=1, maximum=1024), default=None,
                         help="GPUs for torchrun (paper preset; default: all visible)")
-    parser.add_argument("--jobs", type=int, default=None,
-                        help="runs trained in parallel processes (default: the preset's; 1 on GPU)")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads per job (default: CPU cores / jobs)")
-    parser.add_argument("--force", action="store_true", help="retrain runs that are already done")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
+                        help="runs trained at once in worker processes (default: the preset's; "
+                        "0 or 1 = one at a time in this process; 1 on GPU)")
+    parser.add_argument("--threads", type=number(int, minimum=1, maximum=1024), default=None,
+                        help="torch threads per worker (default: CPU cores / workers)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="retrain runs that are already done")
+    add_quiet_flag(parser)
 
 
 def _rows(spec: str | None) -> list[tuple[str, str]]:
@@ -654,10 +659,8 @@ def run(args: argparse.Namespace) -> None:
     preset = PRESETS[args.preset]
     rows = _rows(args.rows)
     seeds = _seeds(args.seeds, preset)
-    jobs = args.jobs or preset.jobs
+    jobs = preset.jobs if args.workers is None else max(1, args.workers)
     threads = args.threads or max(1, (os.cpu_count() or 1) // jobs)
-    if jobs < 1 or threads < 1:
-        raise SystemExit("benchmark reproduce: --jobs and --threads must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     timing: dict = {}
@@ -688,7 +691,7 @@ def run(args: argparse.Namespace) -> None:
     records: dict[str, dict[int, dict]] = {}
     todo = []
     for cfg in cfgs:
-        done = None if args.force else _finished(out, cfg, fingerprint)
+        done = None if args.overwrite else _finished(out, cfg, fingerprint)
         if done is None:
             todo.append(cfg)
         else:
@@ -711,11 +714,14 @@ def run(args: argparse.Namespace) -> None:
     if jobs > 1 and len(todo) > 1:
         # Runs are independent: a pool of single-threaded workers keeps both cores busy
         # without OpenMP threads of one process waiting on each other; costly rows first.
-        todo.sort(key=lambda c: (-COST[c.regime] * (0.5 if c.embedding == "invariant" else 1),
+        todo.sort(key=lambda c: (-COST[c.regime] * REGISTRY[c.embedding].cost,
                                  c.seed))
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_start_worker,
-                                 initargs=(threads, fingerprint, corpus_path, shapenet_cfg)) as pool:
+        with ProcessPoolExecutor(
+            jobs,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_start_worker,
+            initargs=(threads, fingerprint, corpus_path, shapenet_cfg),
+        ) as pool:
             futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
             for k, fut in enumerate(as_completed(futures)):
                 cfg, result = fut.result()

@@ -36,9 +36,19 @@ from torch import nn
 from torch.utils.data import DistributedSampler
 from tqdm import tqdm
 
+from basic_shapes.infra import add_quiet_flag
 from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
-from benchmark.models import (EMBEDDINGS, FACE_EMBEDDINGS, ClassificationHead, MeshSimulator,
-                              ReconstructionHead, build_model, collate, featurize)
+from benchmark.models import (
+    EMBEDDINGS,
+    FACE_EMBEDDINGS,
+    REGISTRY,
+    ClassificationHead,
+    MeshSimulator,
+    ReconstructionHead,
+    build_model,
+    collate,
+    featurize,
+)
 from benchmark.models.features import MeshFeatures
 
 REGIMES = ("basic", "ideal", "classification", "autoencoder")
@@ -162,8 +172,12 @@ def corpus_examples(meshes: list, cache: FeatureCache | None = None,
                     key: tuple = ()) -> list[Example]:
     cache = cache or FeatureCache()
     zero = np.zeros(3, np.int64)
-    return [cache.get(("corpus", *key, i), lambda v=v, f=f, c=c: Example(featurize(v, f), zero, None, c))
-            for i, (v, f, c) in enumerate(meshes)]
+    return [
+        cache.get(
+            ("corpus", *key, i), lambda v=v, f=f, c=c: Example(featurize(v, f), zero, None, c)
+        )
+        for i, (v, f, c) in enumerate(meshes)
+    ]
 
 
 # --- batching ---------------------------------------------------------------------------------
@@ -197,8 +211,12 @@ def make_batch(examples: list[Example], idx: list[int]):
     items = [examples[i] for i in idx]
     target = None if items[0].target is None else np.stack([it.target for it in items])
     label = None if items[0].label is None else [it.label for it in items]
-    return collate([it.features for it in items], scale_bin=np.stack([it.scale_bin for it in items]),
-                   target=target, label=label)
+    return collate(
+        [it.features for it in items],
+        scale_bin=np.stack([it.scale_bin for it in items]),
+        target=target,
+        label=label,
+    )
 
 
 # --- tasks (loss modules, what DDP wraps) -----------------------------------------------------
@@ -350,11 +368,13 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
                                   lr=cfg.pretrain_lr, weight_decay=cfg.weight_decay,
                                   seed=cfg.seed + 1, desc=f"{cfg.name} pretrain", device=device,
                                   progress=progress)
-    examples, groups = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant",
+    examples, groups = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes,
                                           scale_bins, cache, progress)
-    val, _ = benchmark_examples(data, cfg.regime, cfg.embedding == "invariant", scale_bins,
+    val, _ = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins,
                                 cache, progress, split="val")
-    model.decoder.set_output_statistics(torch.from_numpy(np.stack([examples[g[0]].target for g in groups])))
+    model.decoder.set_output_statistics(
+        torch.from_numpy(np.stack([examples[g[0]].target for g in groups]))
+    )
     task = RegressionTask(model, cfg.loss, data.target_shape)
     history["train"] = fit(task, examples, groups, epochs=cfg.epochs, batch_size=cfg.batch_size,
                            lr=cfg.lr, weight_decay=cfg.weight_decay, seed=cfg.seed,
@@ -373,18 +393,26 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``benchmark train``: one per ``TrainConfig`` field, plus I/O."""
     parser.add_argument("--data", required=True, help="directory of labelled shards")
-    parser.add_argument("--out", required=True, help="checkpoint directory to write (model.pt + config.json)")
-    parser.add_argument("--results", help="also evaluate on the test split and write this results JSON")
-    parser.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--out", required=True, help="checkpoint directory to write (model.pt + config.json)"
+    )
+    parser.add_argument(
+        "--results", help="also evaluate on the test split and write this results JSON"
+    )
+    parser.add_argument(
+        "--device", default=None, help="torch device (default: cuda if available, else cpu)"
+    )
+    add_quiet_flag(parser)
     defaults = TrainConfig()
     choices = {"embedding": EMBEDDINGS, "regime": REGIMES, "loss": LOSSES}
-    helps = {"embedding": "face embedding, or the topology-invariant model",
-             "regime": "basic (simple meshes), ideal (all meshes), or pretraining by "
-                       "classification / autoencoder then fine-tuning on simple meshes",
-             "loss": "mse, or intensity (intensity-weighted MSE + MSE)",
-             "shapenet": "pretrain on a local ShapeNetCore v2 directory instead of the procedural corpus",
-             "pretrain_meshes": "corpus size (procedural), or a cap on ShapeNet models (0: all)"}
+    helps = {
+        "embedding": "face embedding, or the topology-invariant model",
+        "regime": "basic (simple meshes), ideal (all meshes), or pretraining by "
+        "classification / autoencoder then fine-tuning on simple meshes",
+        "loss": "mse, or intensity (intensity-weighted MSE + MSE)",
+        "shapenet": "pretrain on a local ShapeNetCore v2 directory, not the procedural corpus",
+        "pretrain_meshes": "corpus size (procedural), or a cap on ShapeNet models (0: all)",
+    }
     for f in fields(TrainConfig):
         default = getattr(defaults, f.name)
         kind = str if f.name == "shapenet" else type(default)

@@ -3,7 +3,7 @@
 A version fixes everything its meshes and labels depend on: the generator's sizes and seed
 (splits, variants and OOD meshes follow from them), the radar grid (``xband-v1`` with some
 axes coarsened) and the per-mesh physics asked for; the simulation-mesh rule comes with the
-toolkit. ``benchmark dataset NAME --out DIR`` builds it with the toolkit's own CLIs
+toolkit. ``benchmark dataset NAME --data DIR`` builds it with the toolkit's own CLIs
 (resumable, byte-deterministic) and compares the fingerprints with the ones recorded here
 from a reference build. ``leaderboard submit`` accepts only datasets that are a registered
 version (same generator config and radar config), and the board names the version.
@@ -124,17 +124,17 @@ def build(version: DatasetVersion, directory: str | Path, *, workers: int | None
     radar = directory.parent / f"{directory.name}.radar.json"
     with atomic_path(radar) as tmp:
         tmp.write_text(version.radar_config().to_json())
-    cluster = ["--scheduler", scheduler] if scheduler else []
-    gen_workers = [] if workers is None else ["--workers", str(workers)]
-    t_gen = run_tool([*_tool("basic-shapes", "basic_shapes.cli"), "generate", "--out",
+    common = ["--scheduler", scheduler] if scheduler else \
+        [] if workers is None else ["--workers", str(workers)]
+    common += ["--quiet"] if quiet else []
+    t_gen = run_tool([*_tool("basic-shapes", "basic_shapes.cli"), "generate", "--data",
                       str(directory), "--classes", ",".join(version.classes),
                       "--objects-per-class", str(version.objects_per_class),
                       "--variants", str(version.variants), "--seed", str(version.seed),
-                      *gen_workers, *cluster], "basic-shapes generate", quiet)
-    label_workers = [] if workers is None else ["--workers", str(max(1, workers))]
-    t_label = run_tool([*_tool("radar-sim", "radar_sim.cli"), "label", str(directory),
+                      *common], "basic-shapes generate", quiet)
+    t_label = run_tool([*_tool("radar-sim", "radar_sim.cli"), "label", "--data", str(directory),
                         "--config", str(radar), "--mesh-labels", version.mesh_labels,
-                        *label_workers, *cluster], "radar-sim label", quiet)
+                        *common], "radar-sim label", quiet)
     found = fingerprints(directory)
     expected = version.fingerprints
     return {"version": version.name, "generate_s": t_gen, "label_s": t_label, **found,
@@ -172,20 +172,19 @@ def identify(directory: str | Path, registry: dict | None = None) -> DatasetVers
     for v in (registry or VERSIONS).values():
         if gen == _generator_config(v) and radar == json.loads(v.radar_config().to_json()):
             return v
-    raise VersionError(f"{directory}: not a registered dataset version (see `benchmark dataset "
-                       f"--list`; build one with `benchmark dataset NAME --out DIR`)")
+    raise VersionError(f"{directory}: not a registered dataset version (benchmark dataset "
+                       f"--list names them; build one with benchmark dataset NAME --data DIR)")
 
 
 def add_arguments(p) -> None:
-    from basic_shapes.infra import number
+    from basic_shapes.infra import add_cluster_flags, add_quiet_flag
 
     p.add_argument("name", nargs="?", help="dataset version (see --list)")
-    p.add_argument("--out", help="dataset directory to build into (resumes if it exists)")
+    p.add_argument("--data", metavar="DIR",
+                   help="dataset directory to build into (resumes if it exists)")
     p.add_argument("--list", action="store_true", help="list the registered versions and exit")
-    p.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
-                   help="Dask worker processes (default: one per core)")
-    p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
-    p.add_argument("--quiet", action="store_true", help="no progress output from the tools")
+    add_cluster_flags(p)
+    add_quiet_flag(p)
 
 
 def run(args) -> int:
@@ -194,13 +193,13 @@ def run(args) -> int:
             recorded = "fingerprints recorded" if v.fingerprints else "no fingerprints recorded"
             print(f"{v.name:10s} {v.grid():42s} {recorded}\n{'':10s} {v.summary}")
         return 0
-    if not args.out:
-        raise VersionError("benchmark dataset: --out DIR is required to build a version")
+    if not args.data:
+        raise VersionError("--data DIR is required to build a version")
     version = get(args.name)
-    report = build(version, args.out, workers=args.workers, scheduler=args.scheduler,
+    report = build(version, args.data, workers=args.workers, scheduler=args.scheduler,
                    quiet=args.quiet)
     print(json.dumps(report, indent=2))
     if report["matches_recorded"] is False:
-        raise VersionError(f"{args.out}: fingerprints differ from those recorded for "
+        raise VersionError(f"{args.data}: fingerprints differ from those recorded for "
                            f"{version.name} (see docs/DATASETS.md)")
     return 0

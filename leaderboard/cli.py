@@ -6,16 +6,16 @@ import sys
 from argparse import RawDescriptionHelpFormatter
 from pathlib import Path
 
-from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
+from basic_shapes.infra import ArgumentParser, add_debug_flag, add_quiet_flag, cli_boundary, number
 from leaderboard.store import DEFAULT_ENTRIES
 
 EPILOG = """examples:
   leaderboard submit out/results.json --predictions out/predictions.h5 --data data/bs \\
       --name "my-model" --link https://example.org/paper
-  leaderboard seed --from out/reproduce --data data/bs
+  leaderboard seed --from out/reproduce/results --data out/reproduce/data
   leaderboard simulator --data data/bs
   leaderboard render --out site/
-  leaderboard serve --dir site/ --port 8000
+  leaderboard serve site/ --port 8000
 
 Entries are JSON files in the entries folder (default: the repository's leaderboard/entries/);
 publish a new one by pull request (docs/SUBMITTING.md)."""
@@ -48,15 +48,21 @@ def build_parser() -> ArgumentParser:
     s.add_argument("--name", help="name on the board (default: the results' model.name)")
     s.add_argument("--link", help="http(s) URL of a paper or code for this entry")
 
-    d = sub.add_parser("seed", help="submit every <row>/results.json + predictions.h5 of a directory",
-                       description="Submit each row that `benchmark reproduce` wrote "
-                       "(DIR/<row>/results.json beside DIR/<row>/predictions.h5). Rows already on "
-                       "the board are skipped; every refusal is listed, then the exit is non-zero.")
-    d.add_argument("--from", dest="from_dir", type=Path, required=True, help="reproduce output dir")
+    d = sub.add_parser(
+        "seed",
+        help="submit every <row>/results.json + predictions.h5 of a directory",
+        description="Submit each row that `benchmark reproduce` wrote "
+        "(OUT/results/<row>/results.json beside OUT/results/<row>/predictions.h5, "
+        "where OUT is reproduce's --out). Rows already on "
+        "the board are skipped; every refusal is listed, then the exit is non-zero.",
+    )
+    d.add_argument("--from", dest="from_dir", type=Path, required=True, metavar="OUT/results",
+                   help="the results/ folder inside `benchmark reproduce --out OUT`")
     d.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     d.add_argument("--entries", **new_entries)
     d.add_argument("--unregistered", **unregistered)
     d.add_argument("--link", help="http(s) URL shared by the seeded entries")
+    add_quiet_flag(d)
 
     m = sub.add_parser("simulator", help="record the physics simulator's point for a dataset",
                        description="Write the dataset's simulator entry: Complex MSE = variation "
@@ -77,8 +83,8 @@ def build_parser() -> ArgumentParser:
     r.add_argument("--entries", **entries)
 
     v = sub.add_parser("serve", help="preview the rendered site locally (http.server)")
-    v.add_argument("--dir", type=Path, default=Path("site"),
-                   help="site folder (default: %(default)s)")
+    v.add_argument("site", type=Path, nargs="?", default=Path("site"),
+                   help="rendered site folder (default: %(default)s)")
     v.add_argument("--port", type=number(int, minimum=0, maximum=65535), default=8000,
                    help="port (default: %(default)s; 0 = any free)")
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default: %(default)s)")
@@ -94,15 +100,17 @@ def run(args) -> None:
     elif args.command == "seed":
         from leaderboard.submit import seed
         accepted, skipped, refused = seed(args.from_dir, args.data, args.entries, args.link,
-                                          unregistered=args.unregistered)
-        for path in accepted:
-            print(f"accepted: {path}")
-        for msg in skipped:
-            print(f"skipped: {msg}")
+                                          unregistered=args.unregistered,
+                                          progress=not args.quiet)
+        if not args.quiet:
+            for path in accepted:
+                print(f"accepted: {path}")
+            for msg in skipped:
+                print(f"skipped: {msg}")
         for msg in refused:
             print(f"refused: {msg}", file=sys.stderr)
         if refused:
-            raise SystemExit(f"leaderboard seed: {len(accepted)} accepted, {len(skipped)} skipped, "
+            raise SystemExit(f"{len(accepted)} accepted, {len(skipped)} skipped, "
                              f"{len(refused)} refused (first: {refused[0]})")
     elif args.command == "simulator":
         from leaderboard.simulator import record
@@ -118,16 +126,12 @@ def run(args) -> None:
         print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
     elif args.command == "serve":
         from leaderboard.serve import serve
-        serve(args.dir, args.port, args.host)
+        serve(args.site, args.port, args.host)
 
 
 def _main(argv: list[str]) -> None:
     args = build_parser().parse_args(argv)
-    try:
-        run(args)
-    except (ValueError, OSError) as exc:
-        lines = str(exc).strip().splitlines() or [repr(exc)]
-        raise SystemExit(f"leaderboard {args.command}: error: {lines[0]}") from None
+    run(args)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -41,12 +41,20 @@ def sample(data: BenchmarkData, predictions: Predictions) -> dict:
     uids = data.meshes["uid"][picks]
     physics = data.target(obj)
     sa, sr = (max(1, -(-n // MAX_SIDE)) for n in physics.shape[::2])  # ceil(n / MAX_SIDE)
-    return {"object_id": int(data.objects["id"][obj]),
-            "class": data.class_names[int(data.objects["class_index"][obj])],
-            "roll_deg": float(data.grid["roll_deg"][0]),
-            "aspect_deg": np.round(data.grid["aspect_deg"][::sa], 3).tolist(),
-            "range_m": np.round(data.grid["range_m"][::sr], 4).tolist(),
-            "physics_db": _image(physics, sa, sr),
-            "meshes": [{"mesh_uid": int(u), "variant": int(data.meshes["variant"][r]),
-                        "n_faces": int(data.meshes["n_faces"][r]), "predicted_db": _image(p, sa, sr)}
-                       for u, r, p in zip(uids, picks, predicted)]}
+    return {
+        "object_id": int(data.objects["id"][obj]),
+        "class": data.class_names[int(data.objects["class_index"][obj])],
+        "roll_deg": float(data.grid["roll_deg"][0]),
+        "aspect_deg": np.round(data.grid["aspect_deg"][::sa], 3).tolist(),
+        "range_m": np.round(data.grid["range_m"][::sr], 4).tolist(),
+        "physics_db": _image(physics, sa, sr),
+        "meshes": [
+            {
+                "mesh_uid": int(u),
+                "variant": int(data.meshes["variant"][r]),
+                "n_faces": int(data.meshes["n_faces"][r]),
+                "predicted_db": _image(p, sa, sr),
+            }
+            for u, r, p in zip(uids, picks, predicted)
+        ],
+    }

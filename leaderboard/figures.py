@@ -38,7 +38,9 @@ def _png(fig) -> bytes:
 
 def plottable(models: list[dict]) -> list[dict]:
     """Models with both a speed and a Complex MSE (either may be null in a results JSON)."""
-    return [e for e in models if e["speed"]["ms_per_mesh"] and e["metrics"]["complex_mse"] is not None]
+    return [
+        e for e in models if e["speed"]["ms_per_mesh"] and e["metrics"]["complex_mse"] is not None
+    ]
 
 
 def speed_vs_error(models: list[dict], simulator: dict | None,
@@ -84,7 +86,7 @@ def speed_vs_error(models: list[dict], simulator: dict | None,
 
 
 def example(models: list[dict]) -> bytes:
-    """Rows: up to EXAMPLE_ROWS models; columns: physics, simple-mesh and complex-mesh prediction."""
+    """Rows: up to EXAMPLE_ROWS models; columns: physics, simple- and complex-mesh prediction."""
     rows = models[:EXAMPLE_ROWS]
     s = rows[0]["sample"]
     physics = np.array(s["physics_db"])
@@ -106,5 +108,7 @@ def example(models: list[dict]) -> bytes:
             ax.set_ylabel("aspect (deg)", fontsize=8)
             ax.tick_params(labelsize=7)
     fig.colorbar(im, ax=axes, shrink=0.8, label="dB")
-    fig.suptitle(f"object {s['object_id']} ({_text(s['class'])}), roll {s['roll_deg']:g}°", fontsize=10)
+    fig.suptitle(
+        f"object {s['object_id']} ({_text(s['class'])}), roll {s['roll_deg']:g}°", fontsize=10
+    )
     return _png(fig)

@@ -228,7 +228,9 @@ def html_per_class(g: dict) -> str:
 
 
 def _img(name: str, size: tuple[int, int], alt: str) -> str:
-    return f'<figure><img src="{name}" width="{size[0]}" height="{size[1]}" alt="{_e(alt)}"></figure>'
+    return (
+        f'<figure><img src="{name}" width="{size[0]}" height="{size[1]}" alt="{_e(alt)}"></figure>'
+    )
 
 
 def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
@@ -329,7 +331,9 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     sizes = {name: _png_size(data) for name, data in files.items()}
     body = "\n".join(html_section(g, sizes) for g in groups) if groups else \
         "<p>No entries yet: see docs/SUBMITTING.md.</p>"
-    page = Template(resources.files("leaderboard").joinpath("templates/page.html").read_text("utf-8"))
+    page = Template(
+        resources.files("leaderboard").joinpath("templates/page.html").read_text("utf-8")
+    )
     files["index.html"] = page.substitute(body=body, n_entries=len(entries)).encode()
     files["LEADERBOARD.md"] = markdown(groups).encode()
     for name in ("sort.js", "style.css"):

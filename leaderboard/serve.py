@@ -33,7 +33,9 @@ def serve(directory: str | os.PathLike, port: int = 8000, host: str = "127.0.0.1
         server = make_server(directory, port, host)
     except OSError as exc:
         raise ValueError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from None
-    print(f"serving {directory} at http://{host}:{server.server_port}/ (Ctrl-C to stop)", flush=True)
+    print(
+        f"serving {directory} at http://{host}:{server.server_port}/ (Ctrl-C to stop)", flush=True
+    )
     with server:
         try:
             server.serve_forever()

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import os
 import time
-from datetime import datetime, timezone
 
 import numpy as np
 
+from basic_shapes.infra import utc_timestamp
 from basic_shapes.shards import Shard, is_ood_variant
 from benchmark.data import BenchmarkData, db_target
 from benchmark.evaluate import speed_block
@@ -109,7 +109,7 @@ def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT
         "speed": {**(speed_block(ms_per_mesh) if timed else
                      {**speed_block(ms_per_mesh, self_reported=True), "hardware": hardware_text}),
                   "source": "measured by leaderboard simulator" if timed else "given by hand"},
-        "submitted": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "submitted": utc_timestamp(),
         "sample": None,
     }
     return write_entry(entries_dir, entry, replace=True)

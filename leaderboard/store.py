@@ -122,7 +122,9 @@ def validate_entry(entry) -> dict:
     if not isinstance(entry, dict):
         raise EntryError("an entry must be a JSON object")
     if entry.get("entry_version") != ENTRY_VERSION:
-        raise EntryError(f"entry_version must be {ENTRY_VERSION}, got {entry.get('entry_version')!r}")
+        raise EntryError(
+            f"entry_version must be {ENTRY_VERSION}, got {entry.get('entry_version')!r}"
+        )
     if entry.get("kind") not in KINDS:
         raise EntryError(f"kind must be one of {', '.join(KINDS)}")
     if not re.fullmatch(r"[a-z0-9][a-z0-9-]*", str(entry.get("id", ""))):

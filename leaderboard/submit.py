@@ -13,17 +13,26 @@ from __future__ import annotations
 
 import hashlib
 import os
-from datetime import datetime, timezone
 from pathlib import Path
 
 from tqdm import tqdm
 
+from basic_shapes.infra import utc_timestamp
 from benchmark.data import BenchmarkData
 from benchmark.protocol import Predictions, load_results, score_predictions
 from leaderboard import example
-from leaderboard.store import (DEFAULT_ENTRIES, ENTRY_VERSION, METRIC_NAMES, EntryError,
-                               check_link, check_metrics, check_text, load_entries, slug,
-                               write_entry)
+from leaderboard.store import (
+    DEFAULT_ENTRIES,
+    ENTRY_VERSION,
+    METRIC_NAMES,
+    EntryError,
+    check_link,
+    check_metrics,
+    check_text,
+    load_entries,
+    slug,
+    write_entry,
+)
 
 # A claimed metric x is accepted iff |x - rescored| <= ABS_TOL + REL_TOL * |rescored|:
 # re-scoring the same predictions differs at most by summation order (~1e-12 relative), while
@@ -60,10 +69,16 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
                      f"{rescored['no_skill']}")
     cl, rs = claimed["per_class"], rescored["per_class"]
     if set(cl) != set(rs):
-        diffs.append(f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}")
+        diffs.append(
+            f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}"
+        )
     else:
-        diffs += [f"claimed per_class.{c}.{k} {cl[c].get(k)!r} differs from the re-score {rs[c][k]!r}"
-                  for c in sorted(cl) for k in METRIC_NAMES if not close(cl[c].get(k), rs[c][k])]
+        diffs += [
+            f"claimed per_class.{c}.{k} {cl[c].get(k)!r} differs from the re-score {rs[c][k]!r}"
+            for c in sorted(cl)
+            for k in METRIC_NAMES
+            if not close(cl[c].get(k), rs[c][k])
+        ]
     return diffs
 
 
@@ -73,10 +88,6 @@ def sha256_file(path: str | os.PathLike) -> str:
         for block in iter(lambda: fh.read(1 << 22), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
@@ -96,7 +107,7 @@ def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> 
 def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
            data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
            name: str | None = None, link: str | None = None, unregistered: bool = False) -> Path:
-    """Verify one submission and write its entry; raise SubmissionError (nothing written) if refused."""
+    """Verify one submission and write its entry; refused: SubmissionError, nothing written."""
     try:
         results = load_results(results_path)
     except ValueError as exc:
@@ -113,8 +124,10 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         raise _refuse(data_dir, exc) from None
     version = dataset_version(data_dir, unregistered)
     if results["dataset_fingerprint"] != fingerprint:
-        raise SubmissionError(f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
-                              f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)")
+        raise SubmissionError(
+            f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
+            f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)"
+        )
     if results["label_fingerprint"] != labels:
         raise SubmissionError(f"{results_path}: label fingerprint "
                               f"{results['label_fingerprint'][:16]}... belongs to other labels "
@@ -151,7 +164,7 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
                   "source": "self-reported by the submitter (benchmark evaluate), not re-measured"},
         "seeds": results["seeds"],
         "created": results["created"],
-        "submitted": _now(),
+        "submitted": utc_timestamp(),
         "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha,
                   "predictions_content_sha256": content_sha},
         "sample": sample,
@@ -177,7 +190,7 @@ def _check_duplicate(entries_dir, predictions_path, container_sha: str, content_
 
 def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
          entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None,
-         unregistered: bool = False):
+         unregistered: bool = False, progress: bool = True):
     """Submit every ``<row>/results.json`` + ``<row>/predictions.h5`` of a reproduce output dir.
 
     Each entry is named after its row directory (unique per table row, unlike model names).
@@ -188,7 +201,7 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
         raise SubmissionError(f"{from_dir}: no <row>/results.json files "
                               f"(expected `benchmark reproduce` output)")
     accepted, skipped, refused = [], [], []
-    for results in tqdm(rows, desc="submitting", unit="row"):
+    for results in tqdm(rows, desc="submitting", unit="row", disable=not progress):
         predictions = results.with_name("predictions.h5")
         if not predictions.is_file():
             refused.append(f"{results}: no predictions.h5 beside it")

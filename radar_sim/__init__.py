@@ -6,9 +6,9 @@ Public API (docs/RADAR.md): ``monostatic_field``, ``detect_mode``, ``RadarConfig
 
 __version__ = "0.1.0"
 
-from radar_sim.config import RadarConfig, RadarResult, simulate  # noqa: E402
-from radar_sim.field import monostatic_field  # noqa: E402
-from radar_sim.geometry import MeshError, UnitsWarning, detect_mode  # noqa: E402
+from radar_sim.config import RadarConfig, RadarResult, simulate
+from radar_sim.field import monostatic_field
+from radar_sim.geometry import MeshError, UnitsWarning, detect_mode
 from radar_sim.rcs import rcs
 
 __all__ = ["MeshError", "RadarConfig", "RadarResult", "UnitsWarning", "__version__", "detect_mode",

@@ -14,10 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.infra import ArgumentParser, add_debug_flag, cli_boundary, number
+from basic_shapes.infra import (
+    ArgumentParser,
+    add_cluster_flags,
+    add_debug_flag,
+    add_quiet_flag,
+    cli_boundary,
+    number,
+)
 from basic_shapes.shards import Shard, ShardError, find_object
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_mesh_labels
-from radar_sim.meshio import UNITS, MeshFileError, load_mesh
+from radar_sim.meshio import UNITS, load_mesh
 
 CONVENTION = "dB = 20 log10|A| = 10 log10 sigma (sigma in m^2, dBsm)"
 
@@ -60,12 +67,6 @@ def _png_path(text: str) -> str:
     return text
 
 
-def _positive(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
-    return int(text)
-
-
 def _mesh_labels(text: str) -> str:
     try:
         parse_mesh_labels(text)
@@ -83,7 +84,7 @@ def load_config(spec: str):
             return RadarConfig.from_file(spec)
         return RadarConfig.named(spec)
     except ValueError as exc:
-        raise SystemExit(f"radar-sim: {exc}") from None
+        raise SystemExit(f"--config: {exc}") from None
 
 
 def line_of_sight(aspect_deg: np.ndarray, roll_deg: float) -> np.ndarray:
@@ -111,8 +112,9 @@ def units_hint(path: str):
 def cmd_label(args) -> None:
     request = LabelRequest(load_config(args.config), args.mesh_labels, args.mode,
                            args.frequency_response)
-    summary = label_directory(args.directory, request, workers=args.workers,
-                              scheduler=args.scheduler, overwrite=args.overwrite)
+    summary = label_directory(args.data, request, workers=args.workers,
+                              scheduler=args.scheduler, overwrite=args.overwrite,
+                              progress=not args.quiet)
     reused = f" ({summary.reused} finished before an interruption)" if summary.reused else ""
     print(f"labelled {len(summary.labelled)} shard(s), {summary.objects} object(s){reused}; "
           f"skipped {len(summary.skipped)} shard(s) already labelled with this config")
@@ -215,21 +217,26 @@ def simulated_signature(vertices, faces, config: str, mode: str, title: str):
 def cmd_plot(args) -> None:
     from radar_sim.plot import plot_signature
 
-    if not Path(args.source).exists():
-        raise SystemExit(f"radar-sim: {args.source}: no such file or directory")
-    if Path(args.source).is_dir():
+    if (args.meshfile is None) == (args.data is None):
+        raise SystemExit("plot needs a MESHFILE or --data DIR --object ID (one of the two)")
+    source = args.meshfile or args.data
+    if not Path(source).exists():
+        raise SystemExit(f"{source}: no such file or directory")
+    if args.data is not None:
+        if not Path(args.data).is_dir():
+            raise SystemExit(f"--data {args.data}: not a dataset directory")
         if args.object is None:
-            raise SystemExit(f"radar-sim: {args.source} is a dataset directory: pass --object ID")
-        signature = dataset_signature(args.source, args.object, args.config, args.mode,
+            raise SystemExit(f"--data {args.data}: pass --object ID")
+        signature = dataset_signature(args.data, args.object, args.config, args.mode,
                                       args.variant)
     else:
-        if args.variant is not None:
-            raise SystemExit(f"radar-sim: {args.source} is a mesh file: --variant needs a "
-                             f"dataset directory")
-        vertices, faces = load_mesh(args.source, args.units)
-        with units_hint(args.source):
+        if args.variant is not None or args.object is not None:
+            raise SystemExit(f"{args.meshfile} is a mesh file: --object and --variant need "
+                             f"--data DIR")
+        vertices, faces = load_mesh(args.meshfile, args.units)
+        with units_hint(args.meshfile):
             signature = simulated_signature(vertices, faces, args.config, args.mode,
-                                            Path(args.source).name)
+                                            Path(args.meshfile).name)
     coords, profiles, response, title = signature
     plot_signature(args.out, range_profiles=profiles, frequency_response=response,
                    roll=args.roll, title=title, **coords)
@@ -248,12 +255,13 @@ def build_parser() -> ArgumentParser:
                        "object's label is the physics of its analytic primitive (on a simulation "
                        "mesh refined for the top frequency); finished objects survive a kill; a "
                        "shard already labelled with the same config is skipped. Runs on Dask.")
-    q.add_argument("directory", help="dataset directory holding shard-*.h5")
-    q.add_argument("--config", default="xband-v1", help="config name or JSON file (default %(default)s)")
-    q.add_argument("--workers", type=_positive, default=None,
-                   help="local worker processes, one thread each (default: one per core)")
-    q.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler "
-                   "(tcp://host:8786) instead of a local cluster")
+    q.add_argument("--data", required=True, metavar="DIR",
+                   help="dataset directory holding shard-*.h5")
+    q.add_argument(
+        "--config", default="xband-v1", help="config name or JSON file (default %(default)s)"
+    )
+    add_cluster_flags(q, "worker processes, one thread each")
+    add_quiet_flag(q)
     q.add_argument("--mesh-labels", type=_mesh_labels, default="none", help="also store the "
                    "physics on stored meshes (representations, the simple one included): none, "
                    "sample:K (K per object, drawn from the object seed) or all (default none)")
@@ -281,9 +289,11 @@ def build_parser() -> ArgumentParser:
                        description="Plot |range profile| (dB) against range and aspect, and the "
                        "RCS (dBsm) against aspect at the frequency sample nearest the band centre "
                        "(named in the title), at one roll angle.")
-    q.add_argument("source", help="dataset directory (with --object) or a mesh file")
+    q.add_argument("meshfile", nargs="?", default=None,
+                   help="OBJ, STL or PLY file (or give --data DIR --object ID)")
+    q.add_argument("--data", metavar="DIR", default=None, help="dataset directory (with --object)")
     q.add_argument("--object", type=number(int, minimum=0), default=None,
-                   help="object id (dataset directories)")
+                   help="object id in --data")
     q.add_argument("--variant", type=number(int, minimum=0), default=None,
                    help="plot the physics on this representation mesh of the object (0 = "
                    "simple, 1.. = complex), simulated; default: the object's label")
@@ -304,8 +314,8 @@ def _main(argv: list[str]) -> None:
     try:
         args.run(args)
     except MeshError as exc:
-        source = getattr(args, "meshfile", None) or getattr(args, "source", None) or args.directory
-        raise SystemExit(f"radar-sim: error: {source}: {exc}") from None
+        source = getattr(args, "meshfile", None) or args.data
+        raise SystemExit(f"{source}: {exc}") from None
 
 
 def main(argv: list[str] | None = None) -> None:

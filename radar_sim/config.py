@@ -60,19 +60,21 @@ class RadarConfig:
             problems.append(f"window in {WINDOWS}")
         if not (1 <= self.n_range <= self.n_freq and self.n_range % 2 == 1):
             problems.append("n_range odd and between 1 and n_freq")
-        if self.name == "xband-v1" and any(getattr(self, f.name) != f.default for f in fields(self)):
+        if self.name == "xband-v1" and any(
+            getattr(self, f.name) != f.default for f in fields(self)
+        ):
             problems.append("a name other than 'xband-v1' (reserved for the default grid)")
         if problems:
             raise ValueError(f"invalid radar config {self.name!r}: need " + "; ".join(problems))
 
     @classmethod
-    def named(cls, name: str) -> "RadarConfig":
+    def named(cls, name: str) -> RadarConfig:
         if name not in NAMED:
             raise ValueError(f"unknown radar config {name!r}; known: {sorted(NAMED)}")
         return NAMED[name]
 
     @classmethod
-    def from_file(cls, path) -> "RadarConfig":
+    def from_file(cls, path) -> RadarConfig:
         """A JSON object with the fields of RadarConfig (missing fields take the defaults)."""
         path = Path(path)
         data = load_json(path, max_bytes=CONFIG_MAX_BYTES, max_depth=2,

@@ -253,7 +253,9 @@ class _PhaseSums:
             self.uniform = dk > 0 and bool(np.all(np.abs(grid - k) <= 1e-9 * dk))
             self.dk = dk
         if self.uniform:
-            self._steps = np.array([2.0 * k[0], 2.0 * self.dk, 2.0 * self.dk * self.q])[:, None, None]
+            self._steps = np.array([2.0 * k[0], 2.0 * self.dk, 2.0 * self.dk * self.q])[
+                :, None, None
+            ]
 
     def phasors(self, s: np.ndarray):
         parts = facet.split(s)
@@ -355,7 +357,13 @@ def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
             if not hit.any():
                 break
             face, dist = face[hit], dist[hit]
-            d, field, tube_a, tube_b, phase = d[hit], field[hit], tube_a[hit], tube_b[hit], phase[hit]
+            d, field, tube_a, tube_b, phase = (
+                d[hit],
+                field[hit],
+                tube_a[hit],
+                tube_b[hit],
+                phase[hit],
+            )
             previous = point[hit]
             point = previous + lift[hit] * caster.offset + dist[:, None] * d
             n = normals[face]

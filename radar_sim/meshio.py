@@ -36,13 +36,16 @@ def load_mesh(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for malformed files
-        raise MeshFileError(f"{path}: not a readable {path.suffix[1:].upper()} mesh "
-                            f"({exc.__class__.__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
-                            ) from None
+        raise MeshFileError(
+            f"{path}: not a readable {path.suffix[1:].upper()} mesh "
+            f"({exc.__class__.__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+        ) from None
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), np.float64)
     if len(faces) == 0:
-        raise MeshFileError(f"{path}: holds no triangles (empty, or not a {path.suffix[1:].upper()} mesh)")
+        raise MeshFileError(
+            f"{path}: holds no triangles (empty, or not a {path.suffix[1:].upper()} mesh)"
+        )
     if not np.isfinite(vertices).all():
         raise MeshFileError(f"{path}: vertices contain NaN or inf")
     merged = trimesh.Trimesh(vertices, faces, process=False)

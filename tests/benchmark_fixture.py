@@ -19,8 +19,14 @@ import h5py
 import numpy as np
 import trimesh
 
-from basic_shapes.shards import (MeshRecord, ObjectRecord, rewrite_atomically, shard_name,
-                                 write_radar, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    rewrite_atomically,
+    shard_name,
+    write_radar,
+    write_shard,
+)
 
 CLASSES = ["cube", "cylinder", "sphere"]
 STRENGTH = {"cube": 1.0, "cylinder": 0.5, "sphere": 0.2}

@@ -269,7 +269,7 @@ def test_same_arrays_in_separate_processes_whatever_ran_before(tmp_path):
 
 
 def test_stage_benchmark_writes_json_and_refuses_unknown_classes(tmp_path, capsys):
-    spec = importlib.util.spec_from_file_location("mesh_core", ROOT / "benchmarks/mesh_core.py")
+    spec = importlib.util.spec_from_file_location("mesh_core", ROOT / "perf/mesh_core.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     out = tmp_path / "core.json"

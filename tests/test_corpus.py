@@ -1,4 +1,4 @@
-"""Pretraining corpus: procedural families, augmentation, corpus files, ShapeNetCore v2 loader.
+"""Pretraining corpus: procedural families, corpus files, ShapeNetCore v2 loader.
 
 Closedness, orientation and bounding boxes are checked with trimesh and plain numpy, not with
 the module's own helpers.
@@ -117,7 +117,9 @@ def test_same_bytes_in_a_fresh_process():
     code = ("import sys; sys.path.insert(0, 'tests'); from test_corpus import digest\n"
             "from benchmark.corpus import procedural_corpus\n"
             "print(digest(procedural_corpus(12, 9, 200)))")
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    )
     assert out.stdout.strip() == digest(C.procedural_corpus(12, seed=9, max_faces=200))
 
 
@@ -156,48 +158,8 @@ def test_simplify_leaves_small_meshes_alone():
 
 
 def test_normalize_refuses_a_flat_point():
-    with pytest.raises(ValueError, match="degenerate"):
-        C.normalize_unit_bbox(np.zeros((4, 3)))
-
-
-# --------------------------------------------------------------------------- augmentation
-
-
-def test_augment_is_seeded_and_keeps_the_unit_bbox(corpus):
-    v = corpus[0][0]
-    a = C.augment(v, np.random.default_rng(4))
-    b = C.augment(v, np.random.default_rng(4))
-    c = C.augment(v, np.random.default_rng(5))
-    assert a.dtype == np.float32 and a.shape == v.shape
-    assert a.tobytes() == b.tobytes()
-    assert not np.array_equal(a, c)
-    for out in (a, c):
-        assert_unit_bbox(out)
-
-
-def test_augment_rotation_is_rigid_and_scaling_is_per_axis(corpus):
-    v = corpus[1][0].astype(np.float64)
-
-    def distances(x):
-        x = np.asarray(x, dtype=np.float64)
-        return np.linalg.norm(x[:, None] - x[None], axis=-1)
-
-    d0 = distances(v)
-    rotated = C.augment(v, np.random.default_rng(0), scale=(1.0, 1.0), jitter=0.0)
-    ratio = distances(rotated)[d0 > 1e-3] / d0[d0 > 1e-3]
-    assert ratio.std() / ratio.mean() < 1e-5  # one global factor: a rotation, then the bbox rescale
-    assert not np.allclose(rotated, C.normalize_unit_bbox(v), atol=1e-3)
-
-    stretched = C.augment(v, np.random.default_rng(0), scale=(0.5, 2.0), jitter=0.0, rotate=False)
-    ratio = distances(stretched)[d0 > 1e-3] / d0[d0 > 1e-3]
-    assert ratio.std() / ratio.mean() > 1e-2  # not a similarity any more
-
-
-def test_augment_jitter_moves_vertices_by_about_sigma(corpus):
-    v = corpus[2][0]
-    moved = C.augment(v, np.random.default_rng(1), scale=(1.0, 1.0), jitter=0.01, rotate=False)
-    shift = np.linalg.norm(moved.astype(np.float64) - v, axis=1)
-    assert 0.003 < np.median(shift) < 0.05
+    with pytest.raises(ValueError, match="zero extent"):
+        C.normalize_mesh(np.zeros((4, 3)))
 
 
 # --------------------------------------------------------------------------- corpus files
@@ -210,7 +172,9 @@ def sha(path) -> str:
 def test_corpus_file_round_trip_and_cache(tmp_path):
     path = tmp_path / "corpus.h5"
     assert C.build_corpus_file(path, 12, seed=4, max_faces=200) == path
-    assert digest(C.load_corpus_file(path)) == digest(C.procedural_corpus(12, seed=4, max_faces=200))
+    assert digest(C.load_corpus_file(path)) == digest(
+        C.procedural_corpus(12, seed=4, max_faces=200)
+    )
     meshes, names, meta = C.read_corpus_file(path)
     assert tuple(names) == C.FAMILIES and meta["seed"] == 4 and meta["n_meshes"] == 12
 
@@ -305,10 +269,19 @@ def shapenet(tmp_path):
     write_cube_obj(model_path(root, "03001627", "bbb2"))
     model_path(root, "03001627", "bbb3").write_text("v 0 0 0\nv 1 0 0\nf 1 2 7\n")  # broken
     model_path(root, "03001627", "bbb4").write_bytes(b"\x00\x01\xffnot an obj\n")  # garbage
-    (root / "taxonomy.json").write_text(json.dumps([
-        {"synsetId": "02691156", "name": "airplane,aeroplane,plane", "children": [], "numInstances": 2},
-        {"synsetId": "03001627", "name": "chair", "children": [], "numInstances": 4},
-    ]))
+    (root / "taxonomy.json").write_text(
+        json.dumps(
+            [
+                {
+                    "synsetId": "02691156",
+                    "name": "airplane,aeroplane,plane",
+                    "children": [],
+                    "numInstances": 2,
+                },
+                {"synsetId": "03001627", "name": "chair", "children": [], "numInstances": 4},
+            ]
+        )
+    )
     return root
 
 
@@ -362,7 +335,10 @@ def test_wrong_layout_is_one_clear_line(tmp_path):
 def test_shapenet_with_only_broken_models_is_an_error(tmp_path):
     root = tmp_path / "sn"
     model_path(root, "02691156", "x").write_text("v 0 0 0\nf 1 2 3\n")
-    with pytest.warns(UserWarning, match="1 unreadable"), pytest.raises(C.CorpusError, match="no usable"):
+    with (
+        pytest.warns(UserWarning, match="1 unreadable"),
+        pytest.raises(C.CorpusError, match="no usable"),
+    ):
         C.load_shapenet(root)
 
 

@@ -80,7 +80,9 @@ def test_normalize_mesh_independent_formula():
     extent = v.max(0) - v.min(0)
     expected = (v - (v.max(0) + v.min(0)) / 2) / extent.max()
     np.testing.assert_allclose(normalize_mesh(v), expected, atol=1e-6)
-    np.testing.assert_allclose(normalize_mesh(v, scale=[1.0, 10.0, 2.0]), expected * extent.max() / 10, atol=1e-6)
+    np.testing.assert_allclose(
+        normalize_mesh(v, scale=[1.0, 10.0, 2.0]), expected * extent.max() / 10, atol=1e-6
+    )
     for bad in (np.zeros((0, 3)), np.zeros((4, 2)), np.full((3, 3), np.nan), np.ones((3, 3))):
         with pytest.raises(ValueError):
             normalize_mesh(bad)
@@ -89,7 +91,9 @@ def test_normalize_mesh_independent_formula():
 def test_batch_feeds_normalized_meshes_with_object_scale(data):
     rows = data.mesh_rows("test")
     b = data.batch(rows)
-    assert set(b) == {"vertices", "faces", "scale_bins", "scale_m"} and len(b["vertices"]) == len(rows)
+    assert set(b) == {"vertices", "faces", "scale_bins", "scale_m"} and len(b["vertices"]) == len(
+        rows
+    )
     for r, v, f, s, bins in zip(rows, b["vertices"], b["faces"], b["scale_m"], b["scale_bins"]):
         raw_v, raw_f = data.mesh(int(r))
         obj_scale = data.objects["scale"][data.meshes["object"][r]]
@@ -130,7 +134,9 @@ def test_torch_dataset_items_and_collate(data, data_dir):
     assert int(item["class_index"]) == int(data.objects["class_index"][obj])
     assert int(item["object_id"]) == int(data.objects["id"][obj])
     np.testing.assert_array_equal(item["target"].numpy(), data.target(obj))
-    np.testing.assert_array_equal(item["scale_bins"].numpy(), data.scale_bins.index(data.objects["scale"][obj]))
+    np.testing.assert_array_equal(
+        item["scale_bins"].numpy(), data.scale_bins.index(data.objects["scale"][obj])
+    )
     batch = collate_meshes([ideal[i] for i in range(3)])
     assert isinstance(batch["vertices"], list) and batch["target"].shape == (3, *data.target_shape)
     assert batch["mesh_uid"].shape == (3,)
@@ -196,8 +202,13 @@ def test_wrong_label_shape_is_refused(tmp_path):
 
 def test_broken_mesh_is_named(tmp_path):
     src = make_dataset(tmp_path, objects_per_class=1, n_test_per_class=1, n_shards=1)
-    rewrite_atomically(src / shard_name(0), lambda f: f["meshes/vertices"].__setitem__(0, [np.nan] * 3))
-    with BenchmarkData(src) as d, pytest.raises(ShardError, match=r"shard-00000.h5: mesh_uid 0: .*non-finite"):
+    rewrite_atomically(
+        src / shard_name(0), lambda f: f["meshes/vertices"].__setitem__(0, [np.nan] * 3)
+    )
+    with (
+        BenchmarkData(src) as d,
+        pytest.raises(ShardError, match=r"shard-00000.h5: mesh_uid 0: .*non-finite"),
+    ):
         d.batch(d.mesh_rows("test"))
 
 

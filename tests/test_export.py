@@ -47,7 +47,7 @@ def labelled(raw, tmp_path_factory):
 @pytest.fixture(scope="module")
 def exported(labelled, tmp_path_factory):
     out = tmp_path_factory.mktemp("g2s") / "nc"
-    assert cli.main(["export", str(labelled), "--format", "g2s", "--out", str(out)]) == 0
+    assert cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(out)]) == 0
     return out
 
 
@@ -126,18 +126,22 @@ def test_meshes_are_padded_and_match_the_shards(exported, labelled):
 
 def test_same_dataset_same_bytes(labelled, exported, tmp_path):
     again = tmp_path / "again"
-    assert cli.main(["export", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    assert (
+        cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    )
     assert digests(again) == digests(exported)
-    assert cli.main(["export", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    assert (
+        cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(again)]) == 0
+    )
     assert digests(again) == digests(exported)  # re-export in place: same files, no *.tmp
 
 
 def test_unlabelled_dataset_is_refused(raw, tmp_path):
     out = tmp_path / "nc"
     with pytest.raises(SystemExit) as exc:
-        cli.main(["export", str(raw), "--format", "g2s", "--out", str(out)])
+        cli.main(["export", "--data", str(raw), "--format", "g2s", "--out", str(out)])
     err = str(exc.value.code)
-    assert err.startswith("basic-shapes: error:") and "\n" not in err
+    assert err.startswith("basic-shapes export: error:") and "\n" not in err
     assert "shard-00000.h5: has no radar labels" in err
     assert not out.exists()
 
@@ -147,7 +151,7 @@ def test_foreign_files_in_out_are_kept(labelled, tmp_path):
     out.mkdir()
     (out / "shard-00009.nc").write_bytes(b"someone else's")
     with pytest.raises(SystemExit) as exc:
-        cli.main(["export", str(labelled), "--format", "g2s", "--out", str(out)])
+        cli.main(["export", "--data", str(labelled), "--format", "g2s", "--out", str(out)])
     assert "shard-00009.nc, not part of this export" in str(exc.value.code)
     assert [p.name for p in out.iterdir()] == ["shard-00009.nc"]
     assert (out / "shard-00009.nc").read_bytes() == b"someone else's"

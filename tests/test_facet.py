@@ -56,7 +56,9 @@ def field_ref(tri, direction, k, two_sided=True):
         x = [2 * kk * sum(r[i] * p[i] for i in range(3)) for p in v]
     dd = dd_ref(*x)
     with mpmath.workdps(40):
-        return complex(2 / mpmath.sqrt(mpmath.pi) * kk * proj * dd), float(proj * kk / mpmath.sqrt(mpmath.pi))
+        return complex(2 / mpmath.sqrt(mpmath.pi) * kk * proj * dd), float(
+            proj * kk / mpmath.sqrt(mpmath.pi)
+        )
 
 
 def unit(*v):
@@ -82,18 +84,28 @@ HARD = {
     "edge nearly perpendicular 1e-5": (SQUARE_EDGE, unit(0.6, 1e-5, 0.8)),
     "grazing 1e-9 above the plane": (TRI, unit(1.0, 0.3, 1e-9)),
     "grazing 1e-3 above the plane": (TRI, unit(1.0, 0.3, 1e-3)),
-    "sliver height 1e-9": (np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.1, 1e-9, 0.0]]),
-                           unit(0.3, 0.5, 0.8)),
-    "sliver two vertices 1e-12 apart": (np.array([[0.0, 0.0, 0.0], [0.1, 0.02, 0.01],
-                                                   [0.1, 0.02, 0.01 + 1e-12]]), unit(0.2, 0.1, 1.0)),
-    "equal-phase pair, far third": (np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0], [0.5, 0.1, 0.0]]),
-                                    unit(1.0, 0.0, 1.0)),
+    "sliver height 1e-9": (
+        np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.1, 1e-9, 0.0]]),
+        unit(0.3, 0.5, 0.8),
+    ),
+    "sliver two vertices 1e-12 apart": (
+        np.array([[0.0, 0.0, 0.0], [0.1, 0.02, 0.01], [0.1, 0.02, 0.01 + 1e-12]]),
+        unit(0.2, 0.1, 1.0),
+    ),
+    "equal-phase pair, far third": (
+        np.array([[0.0, 0.0, 0.0], [0.0, 0.3, 0.0], [0.5, 0.1, 0.0]]),
+        unit(1.0, 0.0, 1.0),
+    ),
     "1e-4 m facet": (1e-4 * np.array([[0, 0, 0], [1, 0.2, 0], [0.3, 1, 0.1]]), unit(0.1, 0.2, 1.0)),
     "1e3 m facet": (1e3 * np.array([[0, 0, 0], [1, 0.2, 0], [0.3, 1, 0.1]]), unit(0.1, 0.2, 1.0)),
-    "1e3 m facet near specular": (1e3 * np.array([[0, 0, 0.5], [1, 0.2, 0.5], [0.3, 1, 0.5]]),
-                                  tilt(1e-7)),
-    "small facet 1e3 m from origin": (np.array([[1e3, 0, 0], [1e3 + 0.1, 0.02, 0], [1e3, 0.1, 0.01]]),
-                                      unit(0.4, 0.3, 0.9)),
+    "1e3 m facet near specular": (
+        1e3 * np.array([[0, 0, 0.5], [1, 0.2, 0.5], [0.3, 1, 0.5]]),
+        tilt(1e-7),
+    ),
+    "small facet 1e3 m from origin": (
+        np.array([[1e3, 0, 0], [1e3 + 0.1, 0.02, 0], [1e3, 0.1, 0.01]]),
+        unit(0.4, 0.3, 0.9),
+    ),
     "half-radian spread": (np.array([[0, 0, 0], [1e-4, 0, 0], [0, 1e-4, 0]]), unit(1, 1, 0.01)),
 }
 
@@ -120,7 +132,9 @@ def test_fast_path_matches_mpmath_on_hard_cases(name):
     area = np.linalg.norm(facet.area_vectors(tri))
     for k, g in zip(K, got):
         ref, _ = field_ref(tri, direction, k)
-        bound = 1e-12 * area * k / np.sqrt(np.pi) + 8 * np.finfo(float).eps * 2 * k * radius * abs(ref)
+        bound = 1e-12 * area * k / np.sqrt(np.pi) + 8 * np.finfo(float).eps * 2 * k * radius * abs(
+            ref
+        )
         assert abs(g - ref) <= bound, (name, k, g, ref, abs(g - ref) / bound)
 
 

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from basic_shapes import cli
-from basic_shapes.generate import GenerateConfig, generate, plan_objects
+from basic_shapes.generate import GenerateConfig, plan_objects
 from basic_shapes.shards import Shard, dataset_fingerprint, iter_objects
 
 SMALL = ["--classes", "cube,cylinder,sphere", "--objects-per-class", "2", "--variants", "3",
@@ -20,31 +20,45 @@ SMALL = ["--classes", "cube,cylinder,sphere", "--objects-per-class", "2", "--var
 
 
 def _digests(d):
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.glob("shard-*.h5"))}
+    return {
+        p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.glob("shard-*.h5"))
+    }
 
 
 def _run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "basic_shapes.cli", *args], capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "basic_shapes.cli", *args], capture_output=True, text=True
+    )
 
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("gen") / "one"
-    assert cli.main(["generate", "--out", str(out), "--workers", "1", *SMALL]) == 0
+    assert cli.main(["generate", "--data", str(out), "--workers", "1", *SMALL]) == 0
     return out
 
 
 def test_bytes_do_not_depend_on_workers(dataset, tmp_path):
-    assert cli.main(["generate", "--out", str(tmp_path / "two"), "--workers", "2", *SMALL]) == 0
-    assert cli.main(["generate", "--out", str(tmp_path / "zero"), "--workers", "0", *SMALL]) == 0
+    assert cli.main(["generate", "--data", str(tmp_path / "two"), "--workers", "2", *SMALL]) == 0
+    assert cli.main(["generate", "--data", str(tmp_path / "zero"), "--workers", "0", *SMALL]) == 0
     from basic_shapes.cluster import dask_client
 
     with dask_client(workers=2) as client:  # an existing cluster, reached through --scheduler
         address = client.scheduler.address
-        assert cli.main(["generate", "--out", str(tmp_path / "sched"), "--scheduler", address, *SMALL]) == 0
+        assert (
+            cli.main(
+                ["generate", "--data", str(tmp_path / "sched"), "--scheduler", address, *SMALL]
+            )
+            == 0
+        )
     one = _digests(dataset)
     assert len(one) == 3
-    assert one == _digests(tmp_path / "two") == _digests(tmp_path / "zero") == _digests(tmp_path / "sched")
+    assert (
+        one
+        == _digests(tmp_path / "two")
+        == _digests(tmp_path / "zero")
+        == _digests(tmp_path / "sched")
+    )
 
 
 def test_dataset_content(dataset):
@@ -60,7 +74,9 @@ def test_dataset_content(dataset):
             np.testing.assert_allclose(v.max(0) - v.min(0), obj["scale"], rtol=2e-2)
         if obj["class"] == "cube":  # planar shape: exact box volume for every variant
             for _, v, f in meshes:
-                assert trimesh.Trimesh(v, f).volume == pytest.approx(np.prod(obj["scale"]), rel=1e-5)
+                assert trimesh.Trimesh(v, f).volume == pytest.approx(
+                    np.prod(obj["scale"]), rel=1e-5
+                )
         seen.add((obj["class"], obj["split"]))
     assert {c for c, _ in seen} == {"cube", "cylinder", "sphere"}
     assert {s for _, s in seen} == {"train", "test"}
@@ -83,10 +99,13 @@ def test_split_is_ninety_ten_by_object():
 def test_resume_after_kill_is_byte_identical(tmp_path):
     args = ["--classes", "cube", "--objects-per-class", "3", "--variants", "40",
             "--objects-per-shard", "1", "--seed", "9", "--workers", "0"]
-    assert cli.main(["generate", "--out", str(tmp_path / "ref"), *args]) == 0
+    assert cli.main(["generate", "--data", str(tmp_path / "ref"), *args]) == 0
     out = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-m", "basic_shapes.cli", "generate", "--out", str(out), *args],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "basic_shapes.cli", "generate", "--data", str(out), *args],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 120
     while not list(out.glob("shard-*.h5")) and time.time() < deadline:
         time.sleep(0.01)
@@ -94,7 +113,7 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
     proc.wait()
     done = _digests(out)
     assert 1 <= len(done) < 3, "the kill should land between shards"
-    r = _run_cli("generate", "--out", str(out), *args)
+    r = _run_cli("generate", "--data", str(out), *args)
     assert r.returncode == 0, r.stderr
     assert f"({len(done)} already done)" in r.stdout
     assert _digests(out) == _digests(tmp_path / "ref")
@@ -110,14 +129,15 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
     (["--objects-per-class", "100000", "--scale-range", "1.0", "1.1"], "dissimilar scales"),
 ])
 def test_bad_generate_arguments(tmp_path, args, message):
-    r = _run_cli("generate", "--out", str(tmp_path / "x"), *args)
+    sizes = ["--objects-per-class", "1", "--variants", "0"]  # the last of a flag wins
+    r = _run_cli("generate", "--data", str(tmp_path / "x"), *sizes, *args)
     assert r.returncode != 0
     assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
 def test_other_config_in_out_dir_is_refused_and_kept(dataset):
     before = _digests(dataset)
-    r = _run_cli("generate", "--out", str(dataset), *SMALL[:-1], "6")
+    r = _run_cli("generate", "--data", str(dataset), *SMALL[:-1], "6")
     assert r.returncode != 0 and "different config (seed differ)" in r.stderr
     assert _digests(dataset) == before
 
@@ -127,19 +147,34 @@ def test_truncated_shard_is_reported_by_info(dataset, tmp_path):
     bad.mkdir()
     raw = (dataset / "shard-00000.h5").read_bytes()
     (bad / "shard-00000.h5").write_bytes(raw[: len(raw) // 3])
-    r = _run_cli("info", str(bad))
+    r = _run_cli("info", "--data", str(bad))
     assert r.returncode != 0 and "shard-00000.h5: not a readable HDF5 shard" in r.stderr
 
 
 def test_info_show_export(dataset, tmp_path):
-    r = _run_cli("info", str(dataset))
+    r = _run_cli("info", "--data", str(dataset))
     assert r.returncode == 0, r.stderr
     assert "cube: 2 objects (1 train / 0 val / 1 test), 8 meshes" in r.stdout
     assert dataset_fingerprint(dataset) in r.stdout
     png = tmp_path / "o.png"
-    assert cli.main(["show", str(dataset), "--object", "2", "--out", str(png)]) == 0
+    assert cli.main(["show", "--data", str(dataset), "--object", "2", "--out", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert cli.main(["export", str(dataset), "--format", "stl", "--out", str(tmp_path / "e"), "--object", "0"]) == 0
+    assert (
+        cli.main(
+            [
+                "export",
+                "--data",
+                str(dataset),
+                "--format",
+                "stl",
+                "--out",
+                str(tmp_path / "e"),
+                "--object",
+                "0",
+            ]
+        )
+        == 0
+    )
     files = sorted((tmp_path / "e").rglob("*.stl"))
     assert len(files) == 4 + 9  # object 0 is a test object: its 9 OOD meshes too
     with Shard(dataset / "shard-00000.h5") as s:

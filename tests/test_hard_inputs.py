@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from radar_sim import (MeshError, RadarConfig, UnitsWarning, detect_mode, facet, monostatic_field,
-                       simulate)
+from radar_sim import (
+    MeshError,
+    RadarConfig,
+    UnitsWarning,
+    detect_mode,
+    facet,
+    monostatic_field,
+    simulate,
+)
 from radar_sim.field import C0
 
 TRI_V = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]])
@@ -239,7 +246,9 @@ def test_modes_are_detected_recorded_and_forced():
     assert simulate(v, f, config, mode="shadowed").mode == "shadowed"
     ell = (manifold3d.Manifold.cube([0.4, 0.1, 0.3]) + manifold3d.Manifold.cube([0.1, 0.4, 0.3]))
     ell = ell.to_mesh()
-    assert detect_mode(np.asarray(ell.vert_properties)[:, :3], np.asarray(ell.tri_verts)) == "bounce2"
+    assert (
+        detect_mode(np.asarray(ell.vert_properties)[:, :3], np.asarray(ell.tri_verts)) == "bounce2"
+    )
     dimple = trimesh.creation.box((0.5, 0.5, 0.5)).subdivide().subdivide()
     dv = np.array(dimple.vertices)
     top = np.isclose(dv[:, 2], 0.25)

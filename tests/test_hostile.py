@@ -26,13 +26,21 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from benchmark_fixture import make_dataset
 
 from basic_shapes import infra
-from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, ShardError, iter_objects,
-                                 mesh_uid, shard_name, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    Shard,
+    ShardError,
+    iter_objects,
+    mesh_uid,
+    shard_name,
+    write_shard,
+)
 from benchmark.data import BenchmarkData
 from benchmark.protocol import write_predictions, write_results
+from benchmark_fixture import make_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 MEMORY_LIMIT = 3 << 30  # address space of one CLI process (imports alone take ~1 GiB virtual)
@@ -253,7 +261,7 @@ def test_2_shard_declaring_a_billion_vertices_is_refused(ws):
         del f["meshes/vertices"]
         f["meshes"].create_dataset("vertices", (10**9, 3), np.float32, chunks=(4096, 3))
     d = shard_copy(ws, "bomb-shard", huge)
-    cli("basic_shapes", "info", d, phrase="/meshes/vertices declares", watch=[d])
+    cli("basic_shapes", "info", "--data", d, phrase="/meshes/vertices declares", watch=[d])
 
 
 def test_2_radar_config_sizes_and_generate_capacity_are_bounded(ws, tmp_path):
@@ -269,8 +277,8 @@ def test_2_radar_config_sizes_and_generate_capacity_are_bounded(ws, tmp_path):
         cfg.write_text(json.dumps({"name": "huge", **fields}))
         cli("radar_sim", "plot", mesh, "--config", cfg, "--out", tmp_path / "x.png",
             phrase=phrase, watch=[tmp_path])
-    cli("basic_shapes", "generate", "--out", tmp_path / "g", "--objects-per-class", "17000",
-        phrase="at most about", watch=[tmp_path])
+    cli("basic_shapes", "generate", "--data", tmp_path / "g", "--objects-per-class", "17000",
+        "--variants", "9", phrase="at most about", watch=[tmp_path])
     assert not (tmp_path / "g").exists()
 
 
@@ -356,7 +364,7 @@ def test_4_generate_keeps_other_peoples_tmp_files(tmp_path):
     for name in ("notes.tmp", "paper.tex.tmp"):
         (out / name).write_text("mine")
     (out / "shard-00000.h5.tmp").write_text("a leftover of ours")
-    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "generate", "--out", out,
+    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "generate", "--data", out,
                            "--classes", "cube", "--objects-per-class", "1", "--variants", "0",
                            "--workers", "0"], capture_output=True, text=True, cwd=ROOT,
                           timeout=300)
@@ -373,20 +381,31 @@ def test_5_non_dask_schedulers_are_refused_within_seconds(ws, tmp_path, servers)
     for address, phrase in [(servers["http"], "no Dask handshake"),
                             (servers["banner"], "not a Dask scheduler")]:
         t0 = time.perf_counter()
-        cli("basic_shapes", "generate", "--out", tmp_path / "g", "--classes", "cube",
-            "--objects-per-class", "1", "--scheduler", address, phrase=phrase, watch=[tmp_path])
+        cli("basic_shapes", "generate", "--data", tmp_path / "g", "--classes", "cube",
+            "--objects-per-class", "1", "--variants", "0", "--scheduler", address, phrase=phrase,
+            watch=[tmp_path])
         data = shard_copy(ws, f"label-{len(RECORD)}")
-        cli("radar_sim", "label", data, "--overwrite", "--scheduler", address, phrase=phrase,
-            watch=[data])
+        cli(
+            "radar_sim",
+            "label",
+            "--data",
+            data,
+            "--overwrite",
+            "--scheduler",
+            address,
+            phrase=phrase,
+            watch=[data],
+        )
         assert time.perf_counter() - t0 < 40
-    cli("basic_shapes", "generate", "--out", tmp_path / "g", "--scheduler", "tcp://127.0.0.1:1",
-        phrase="cannot connect", watch=[tmp_path])
+    cli("basic_shapes", "generate", "--data", tmp_path / "g", "--objects-per-class", "1",
+        "--variants", "0", "--scheduler", "tcp://127.0.0.1:1", phrase="cannot connect",
+        watch=[tmp_path])
 
 
 def test_5_negative_workers_are_refused(tmp_path, ws):
-    cli("basic_shapes", "generate", "--out", tmp_path / "g", "--workers", "-1", rc=2,
+    cli("basic_shapes", "generate", "--data", tmp_path / "g", "--workers", "-1", rc=2,
         phrase="argument --workers: '-1' must be >= 0", watch=[tmp_path])
-    cli("radar_sim", "label", ws["data"], "--workers", "-1", rc=2, phrase="--workers",
+    cli("radar_sim", "label", "--data", ws["data"], "--workers", "-1", rc=2, phrase="--workers",
         watch=[ws["data"]])
 
 
@@ -436,8 +455,18 @@ def test_6_inconsistent_shards_are_refused_by_evaluate(ws, tmp_path, case):
 
 def test_6_bad_offsets_are_refused_by_label_and_export(ws, tmp_path):
     d = shard_copy(ws, "offsets-label", _set("meshes/vertex_offset", 2, 2**62))
-    cli("radar_sim", "label", d, "--overwrite", "--workers", "1", phrase="vertex_offset", watch=[d])
-    cli("basic_shapes", "export", d, "--out", tmp_path / "e", phrase="vertex_offset",
+    cli(
+        "radar_sim",
+        "label",
+        "--data",
+        d,
+        "--overwrite",
+        "--workers",
+        "1",
+        phrase="vertex_offset",
+        watch=[d],
+    )
+    cli("basic_shapes", "export", "--data", d, "--out", tmp_path / "e", phrase="vertex_offset",
         watch=[d, tmp_path])
 
 
@@ -455,7 +484,7 @@ def test_6_edited_shard_is_not_resumed_as_done(ws):
     cfg = Config()
     assert not _is_done(d / shard_name(0), cfg)
     assert _is_done(ws["data"] / shard_name(0), cfg)
-    label = cli("radar_sim", "label", d, "--overwrite", "--workers", "1",
+    label = cli("radar_sim", "label", "--data", d, "--overwrite", "--workers", "1",
                 phrase="does not match its stored fingerprint", watch=[d])
     assert str(d / shard_name(0)) in label
 
@@ -467,8 +496,18 @@ def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
     obj = ObjectRecord(0, 0, np.array([0.3, 0.3, 0.3]), 1, "test",
                        [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})])
     write_shard(d / shard_name(0), [obj], ["cube"], {"fixture": True}, "0.1.0")
-    cli("radar_sim", "label", d, "--workers", "1", "--mesh-labels", "all", phrase="object 0: mesh row 0: mesh has no face",
-        watch=[d])
+    cli(
+        "radar_sim",
+        "label",
+        "--data",
+        d,
+        "--workers",
+        "1",
+        "--mesh-labels",
+        "all",
+        phrase="object 0: mesh row 0: mesh has no face",
+        watch=[d],
+    )
 
 
 # --- 7/10. one-line errors instead of tracebacks -------------------------------------------------
@@ -487,8 +526,19 @@ def test_7_rcs_flags(tmp_path, args, phrase):
 
 
 def test_7_plot_into_a_missing_directory(tmp_path, ws):
-    cli("radar_sim", "plot", ws["data"], "--object", "0", "--out", tmp_path / "missing/dir/x.png",
-        rc=2, phrase="does not exist", watch=[tmp_path])
+    cli(
+        "radar_sim",
+        "plot",
+        "--data",
+        ws["data"],
+        "--object",
+        "0",
+        "--out",
+        tmp_path / "missing/dir/x.png",
+        rc=2,
+        phrase="does not exist",
+        watch=[tmp_path],
+    )
 
 
 @pytest.mark.parametrize("args, phrase", [
@@ -501,7 +551,7 @@ def test_7_plot_into_a_missing_directory(tmp_path, ws):
     (["--objects-per-shard", "0"], "argument --objects-per-shard"),
 ])
 def test_10_generate_flags_name_the_flag(tmp_path, args, phrase):
-    cli("basic_shapes", "generate", "--out", tmp_path / "g", *args, rc=2, phrase=phrase,
+    cli("basic_shapes", "generate", "--data", tmp_path / "g", *args, rc=2, phrase=phrase,
         watch=[tmp_path])
 
 
@@ -509,7 +559,7 @@ def test_7_dataset_json_holding_a_list(tmp_path):
     out = tmp_path / "g"
     out.mkdir()
     (out / "dataset.json").write_text("[]")
-    cli("basic_shapes", "generate", "--out", out, "--objects-per-class", "1",
+    cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
         phrase="dataset config is not a JSON object", watch=[tmp_path])
 
 
@@ -525,12 +575,20 @@ def test_8_model_calling_sys_exit_0_is_an_error(ws, tmp_path):
 
 
 def test_debug_flag_shows_the_traceback(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "info", tmp_path / "none",
-                           "--debug"], capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-m", "basic_shapes.cli", "info", "--data", tmp_path / "none", "--debug"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert proc.returncode == 1 and "Traceback" in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "info", tmp_path / "none"],
-                          capture_output=True, text=True, cwd=ROOT,
-                          env={**os.environ, infra.DEBUG_ENV: "1"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "basic_shapes.cli", "info", "--data", tmp_path / "none"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, infra.DEBUG_ENV: "1"},
+    )
     assert "Traceback" in proc.stderr
 
 

@@ -21,8 +21,15 @@ import trimesh
 
 import radar_sim
 from basic_shapes.analytic import simulation_mesh, solid_for
-from basic_shapes.shards import (MeshRecord, ObjectRecord, Shard, dataset_fingerprint,
-                                 label_fingerprint, shard_name, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    Shard,
+    dataset_fingerprint,
+    label_fingerprint,
+    shard_name,
+    write_shard,
+)
 from radar_sim.cli import main
 from radar_sim.label import SIDECAR, LabelRequest, label_directory, select_mesh_rows
 
@@ -107,7 +114,7 @@ def labelled(dataset, lband, tmp_path_factory):
     """The dataset labelled through the CLI on a 2-worker LocalCluster."""
     out = tmp_path_factory.mktemp("two") / "data"
     shutil.copytree(dataset, out)
-    main(["label", str(out), "--workers", "2", *options(lband)])
+    main(["label", "--data", str(out), "--workers", "2", *options(lband)])
     return out
 
 
@@ -157,7 +164,7 @@ def test_sphere_label_matches_an_independent_fine_mesh(tmp_path):
     xband = {"name": "test-xband-coarse", "n_aspect": 7, "n_roll": 3}
     (tmp_path / "x.json").write_text(json.dumps(xband))
     data = write_dataset(tmp_path / "data", n_objects=3, objects_per_shard=3)
-    main(["label", str(data), "--config", str(tmp_path / "x.json"), "--workers", "1"])
+    main(["label", "--data", str(data), "--config", str(tmp_path / "x.json"), "--workers", "1"])
     with Shard(data / shard_name(0)) as s:
         scale = s.objects()["scale"][2]
         assert s.class_names[s.objects()["class"][2]] == "sphere"
@@ -194,7 +201,7 @@ def test_xarray_reads_named_dimensions(labelled):
 def test_bytes_do_not_depend_on_worker_count(dataset, labelled, lband, tmp_path):
     one = tmp_path / "one"
     shutil.copytree(dataset, one)
-    main(["label", str(one), "--workers", "1", *options(lband)])
+    main(["label", "--data", str(one), "--workers", "1", *options(lband)])
     assert digests(one) == digests(labelled)
     assert digests(one) != digests(dataset)
 
@@ -205,13 +212,22 @@ def test_existing_scheduler(dataset, labelled, lband, tmp_path):
     work = tmp_path / "data"
     shutil.copytree(dataset, work)
     with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
-        main(["label", str(work), "--scheduler", cluster.scheduler_address, *options(lband)])
+        main(
+            [
+                "label",
+                "--data",
+                str(work),
+                "--scheduler",
+                cluster.scheduler_address,
+                *options(lband),
+            ]
+        )
     assert digests(work) == digests(labelled)
 
 
 def test_rerun_skips_labelled_shards(labelled, lband, capsys):
     before = {p: p.stat().st_mtime_ns for p in labelled.glob("shard-*.h5")}
-    main(["label", str(labelled), *options(lband)])
+    main(["label", "--data", str(labelled), *options(lband)])
     assert "skipped 6 shard(s)" in capsys.readouterr().out
     assert {p: p.stat().st_mtime_ns for p in labelled.glob("shard-*.h5")} == before
 
@@ -233,11 +249,11 @@ def test_killed_run_resumes_per_object_to_identical_bytes(lband, tmp_path):
     done = tmp_path / "done"
     shutil.copytree(raw, done)
     args = ["--config", lband, "--mesh-labels", "all"]
-    main(["label", str(done), "--workers", "1", *args])
+    main(["label", "--data", str(done), "--workers", "1", *args])
     work = tmp_path / "work"
     shutil.copytree(raw, work)
     sidecar = work / SIDECAR / "shard-00000"
-    proc = subprocess.Popen([sys.executable, "-m", "radar_sim.cli", "label", str(work),
+    proc = subprocess.Popen([sys.executable, "-m", "radar_sim.cli", "label", "--data", str(work),
                              "--workers", "1", *args], start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
@@ -250,7 +266,7 @@ def test_killed_run_resumes_per_object_to_identical_bytes(lband, tmp_path):
     finished = len(list(sidecar.glob("object-*.h5")))
     assert 2 <= finished < 12, f"kill was not mid-shard ({finished} of 12 objects finished)"
     assert digests(work) == digests(raw)  # the shard itself is untouched until complete
-    proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "label", str(work),
+    proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "label", "--data", str(work),
                            "--workers", "2", *args], capture_output=True, text=True, check=True)
     assert f"{finished} finished before an interruption" in proc.stdout
     assert proc.stdout.count("] shard-00000.h5 object") == 12 - finished
@@ -275,7 +291,7 @@ def test_relabelling_with_another_band_changes_the_label_fingerprint(labelled, l
     other = tmp_path / "sband.json"
     other.write_text(json.dumps({**LBAND, "name": "test-sband", "f_start_hz": 2e9,
                                  "f_stop_hz": 3e9}))
-    main(["label", str(work), "--config", str(other), "--overwrite"])
+    main(["label", "--data", str(work), "--config", str(other), "--overwrite"])
     assert dataset_fingerprint(work) == before
     assert label_fingerprint(work) != labels_before
     with BenchmarkData(work) as data, pytest.raises(PredictionsError, match="made for labels"):
@@ -286,12 +302,14 @@ def test_other_config_is_an_error_unless_overwrite(labelled, lband, tmp_path):
     work = tmp_path / "data"
     shutil.copytree(labelled, work)
     before = digests(work)
-    message = _one_line_error(["label", str(work), "--config", lband])  # no mesh labels
+    message = _one_line_error(["label", "--data", str(work), "--config", lband])  # no mesh labels
     assert "already labelled, with different radar options" in message
     assert str(work / shard_name(0)) in message
     other = tmp_path / "other.json"
     other.write_text('{"name": "coarse", "n_freq": 64, "n_range": 63}')
-    message = _one_line_error(["label", str(work), "--config", str(other), *options(lband)[2:]])
+    message = _one_line_error(
+        ["label", "--data", str(work), "--config", str(other), *options(lband)[2:]]
+    )
     assert "already labelled, with different radar config (" in message
     assert digests(work) == before
     # relabel with the physics forced: on convex primitives shadow rays hide nothing
@@ -311,7 +329,7 @@ def test_objects_outside_the_range_window_are_refused(tmp_path):
     small = tmp_path / "small.json"
     small.write_text(json.dumps({**LBAND, "name": "tiny-window", "n_range": 3}))
     before = digests(data)
-    message = _one_line_error(["label", str(data), "--config", str(small)])
+    message = _one_line_error(["label", "--data", str(data), "--config", str(small)])
     assert str(data / shard_name(0)) in message and "object 0 (cube," in message
     assert "range window of radar config 'tiny-window'" in message
     assert digests(data) == before and not (data / SIDECAR).exists()
@@ -321,7 +339,7 @@ def _one_line_error(argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)
     message = str(exc.value.code)
-    assert message.startswith("radar-sim: ") and "\n" not in message
+    assert message.startswith(f"radar-sim {argv[0]}: error: ") and "\n" not in message
     return message
 
 
@@ -330,20 +348,24 @@ def test_bad_datasets_fail_fast_and_change_nothing(dataset, tmp_path):
     foreign.mkdir()
     with h5py.File(foreign / shard_name(0), "w") as f:
         f["x"] = 1
-    assert "not a basic-shapes shard" in _one_line_error(["label", str(foreign)])
+    assert "not a basic-shapes shard" in _one_line_error(["label", "--data", str(foreign)])
 
     truncated = tmp_path / "truncated"
     shutil.copytree(dataset, truncated)
     data = (truncated / shard_name(3)).read_bytes()
     (truncated / shard_name(3)).write_bytes(data[:len(data) // 2])
     before = digests(truncated)
-    message = _one_line_error(["label", str(truncated)])
+    message = _one_line_error(["label", "--data", str(truncated)])
     assert str(truncated / shard_name(3)) in message and "not a readable HDF5 shard" in message
     assert digests(truncated) == before  # validated before any work: nothing labelled
 
-    assert "no such dataset directory" in _one_line_error(["label", str(tmp_path / "missing")])
-    assert "holds no shards" in _one_line_error(["label", str(tmp_path)])
-    assert "xband-v9" in _one_line_error(["label", str(truncated), "--config", "xband-v9"])
+    assert "no such dataset directory" in _one_line_error(
+        ["label", "--data", str(tmp_path / "missing")]
+    )
+    assert "holds no shards" in _one_line_error(["label", "--data", str(tmp_path)])
+    assert "xband-v9" in _one_line_error(
+        ["label", "--data", str(truncated), "--config", "xband-v9"]
+    )
 
 
 def test_unreachable_scheduler(dataset, tmp_path):
@@ -352,7 +374,7 @@ def test_unreachable_scheduler(dataset, tmp_path):
     work = tmp_path / "data"
     shutil.copytree(dataset, work)
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        message = _one_line_error(["label", str(work), "--scheduler", "tcp://127.0.0.1:1"])
+        message = _one_line_error(["label", "--data", str(work), "--scheduler", "tcp://127.0.0.1:1"])
     assert "cannot use the Dask cluster tcp://127.0.0.1:1" in message
     assert digests(work) == digests(dataset)
 
@@ -360,18 +382,22 @@ def test_unreachable_scheduler(dataset, tmp_path):
 def test_bad_mesh_names_shard_and_object(lband, tmp_path):
     data = write_dataset(tmp_path / "nan", n_objects=2, objects_per_shard=2, corrupt=1)
     before = digests(data)
-    message = _one_line_error(["label", str(data), "--workers", "1", "--config", lband,
+    message = _one_line_error(["label", "--data", str(data), "--workers", "1", "--config", lband,
                                "--mesh-labels", "all"])
     assert str(data / shard_name(0)) in message and "object 1" in message
     assert digests(data) == before
 
 
 def test_cli_exit_status_and_stderr(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "label", str(tmp_path / "nope")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "radar_sim.cli", "label", "--data", str(tmp_path / "nope")],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode != 0
-    assert proc.stderr.strip().splitlines() == [f"radar-sim: error: {tmp_path / 'nope'}: no such "
-                                                f"dataset directory"]
+    assert proc.stderr.strip().splitlines() == [
+        f"radar-sim label: error: {tmp_path / 'nope'}: no such dataset directory"
+    ]
 
 
 def test_info_prints_both_fingerprints(dataset, labelled, capsys):
@@ -394,9 +420,11 @@ def test_sidecars_of_another_request_are_dropped_only_once_all_shards_are_valid(
         f.attrs["request"] = "labels of another config"
     good = (work / shard_name(3)).read_bytes()
     (work / shard_name(3)).write_bytes(good[:len(good) // 2])
-    assert "not a readable HDF5 shard" in _one_line_error(["label", str(work), *options(lband)])
+    assert "not a readable HDF5 shard" in _one_line_error(
+        ["label", "--data", str(work), *options(lband)]
+    )
     assert stale.is_file()  # validation failed: nothing touched
     (work / shard_name(3)).write_bytes(good)
-    main(["label", str(work), "--workers", "1", *options(lband)])
+    main(["label", "--data", str(work), "--workers", "1", *options(lband)])
     assert "finished before an interruption" not in capsys.readouterr().out
     assert digests(work) == digests(labelled) and not (work / SIDECAR).exists()

@@ -1,4 +1,4 @@
-"""leaderboard: submissions are re-scored by the real benchmark scorer and refused unless they agree.
+"""leaderboard: submissions are re-scored by the real benchmark scorer, refused unless they agree.
 
 The test dataset is written with ``basic_shapes.shards.write_shard`` from trimesh meshes (three
 classes; each object has a simple mesh and two complex meshes of the same shape) and carries an
@@ -24,8 +24,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from basic_shapes.shards import (MeshRecord, ObjectRecord, dataset_fingerprint, label_fingerprint,
-                                 mesh_uid, rewrite_atomically, write_radar, write_shard)
+from basic_shapes.shards import (
+    MeshRecord,
+    ObjectRecord,
+    dataset_fingerprint,
+    label_fingerprint,
+    mesh_uid,
+    rewrite_atomically,
+    write_radar,
+    write_shard,
+)
 from leaderboard import cli, store
 from leaderboard.submit import REL_TOL
 
@@ -79,8 +87,12 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
         objects = []
         for oid in chunk:
             scale = _scale(oid, salt)
-            meshes = [MeshRecord(v, m.vertices.astype(np.float32), m.faces.astype(np.int32), 0.0,
-                                 {"variant": v}) for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))]
+            meshes = [
+                MeshRecord(
+                    v, m.vertices.astype(np.float32), m.faces.astype(np.int32), 0.0, {"variant": v}
+                )
+                for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))
+            ]
             objects.append(ObjectRecord(oid, oid // 3, scale, 1000 + oid,
                                         "test" if oid in TEST_OBJECTS else "train", meshes))
         path = directory / f"shard-{shard:05d}.h5"
@@ -105,7 +117,7 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
 
 def write_predictions(path: Path, data: Path, offsets=OFFSETS, drop: int = 0,
                       fingerprint: str | None = None, collapse: bool = False) -> Path:
-    """Predictions = exact dB target + per-class offset; ``drop`` leaves out the last test meshes."""
+    """Predictions = exact dB target + per-class offset; ``drop`` omits the last test meshes."""
     uids, rows = [], []
     for oid in TEST_OBJECTS:
         t = target_db(response(_scale(oid, 0), oid))
@@ -232,10 +244,16 @@ def _tamper(results: Path, out: Path, edit) -> Path:
 
 
 TAMPERS = {
-    "simple": (lambda r: r["metrics"].__setitem__("simple_mse", r["metrics"]["simple_mse"] * (1 - 10 * REL_TOL)),
-               "claimed simple_mse"),
-    "per-class": (lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
-                  "claimed per_class.sphere.complex_mse"),
+    "simple": (
+        lambda r: r["metrics"].__setitem__(
+            "simple_mse", r["metrics"]["simple_mse"] * (1 - 10 * REL_TOL)
+        ),
+        "claimed simple_mse",
+    ),
+    "per-class": (
+        lambda r: r["metrics"]["per_class"]["sphere"].__setitem__("complex_mse", 1.0),
+        "claimed per_class.sphere.complex_mse",
+    ),
     "no-skill": (lambda r: r["metrics"].__setitem__("no_skill", True), "claimed no_skill"),
     "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
     "labels": (lambda r: r.__setitem__("label_fingerprint", "ab" * 32), "belongs to other labels"),
@@ -416,7 +434,10 @@ def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_pat
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     run("render", "--out", site, "--entries", entries)
     html = (site / "index.html").read_text()
-    assert "no-speed" in html and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
+    assert (
+        "no-speed" in html
+        and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
+    )
     assert png_size(site / f"speed-vs-error-{dataset_fingerprint(data)[:12]}.png")[0] > 100
 
 
@@ -460,7 +481,7 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
         rewrite_atomically(shard, drop_labels)
     config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
     (tmp_path / "coarse.json").write_text(json.dumps(config))
-    radar_sim_main(["label", str(real), "--config", str(tmp_path / "coarse.json"),
+    radar_sim_main(["label", "--data", str(real), "--config", str(tmp_path / "coarse.json"),
                     "--mesh-labels", "all", "--workers", "1"])
     entries = tmp_path / "entries"
     run("simulator", "--data", real, "--entries", entries)
@@ -499,9 +520,21 @@ def test_what_benchmark_evaluate_writes_is_accepted(data, tmp_path):
     """The harness's own output (a reference model run by `benchmark evaluate`) is on the board."""
     from benchmark.cli import main as benchmark_main
     results, pred = tmp_path / "results.json", tmp_path / "predictions.h5"
-    benchmark_main(["evaluate", "--data", str(data), "--model", "benchmark.protocol:NearestScaleModel",
-                    "--model-arg", f"data_dir={data}", "--out", str(results),
-                    "--write-predictions", str(pred)])
+    benchmark_main(
+        [
+            "evaluate",
+            "--data",
+            str(data),
+            "--model",
+            "benchmark.protocol:NearestScaleModel",
+            "--model-arg",
+            f"data_dir={data}",
+            "--out",
+            str(results),
+            "--write-predictions",
+            str(pred),
+        ]
+    )
     entries = tmp_path / "entries"
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     (entry,) = store.load_entries(entries)

@@ -63,7 +63,9 @@ def test_random_arrays_against_vectorized_formulae():
     assert r["complex_mse"] == pytest.approx(per_complex.mean(), rel=1e-12)
     assert r["variation_mse"] == pytest.approx(per_var.mean(), rel=1e-12)
     for j, name in enumerate("abc"):
-        assert r["per_class"][name]["complex_mse"] == pytest.approx(per_complex[cls == j].mean(), rel=1e-12)
+        assert r["per_class"][name]["complex_mse"] == pytest.approx(
+            per_complex[cls == j].mean(), rel=1e-12
+        )
     lo, hi = r["simple_mse_ci"]
     assert lo < r["simple_mse"] < hi
 
@@ -208,7 +210,9 @@ def test_intensity_weighted_mse_against_numpy_and_has_gradients():
     loss = intensity_weighted_mse(pred, torch.tensor(t))
     assert loss.item() == pytest.approx(expected, rel=1e-12)
     loss.backward()
-    assert pred.grad is not None and torch.all(torch.isfinite(pred.grad)) and pred.grad.abs().sum() > 0
+    assert (
+        pred.grad is not None and torch.all(torch.isfinite(pred.grad)) and pred.grad.abs().sum() > 0
+    )
 
 
 def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():

@@ -11,7 +11,8 @@ import trimesh
 
 from benchmark.models import EMBEDDINGS, FACE_EMBEDDINGS, build_model, collate, featurize
 from benchmark.models.features import N_BINS, face_adjacency, face_geometry
-from benchmark.models.invariant import fibonacci_directions, ray_probes
+from benchmark.models.probes import N_RAYS, ray_probes
+from radar_sim.geometry import fibonacci_directions
 
 N_OUT = 2 * 3 * 4
 
@@ -72,7 +73,9 @@ def test_direct_features_reconstruct_the_triangles():
     v, f = ragged_meshes()[2]
     feats = featurize(v, f)
     tri = feats.direct[:, :3, None] + feats.direct[:, 3:12].reshape(-1, 3, 3).transpose(0, 2, 1)
-    np.testing.assert_allclose(np.sort(tri.transpose(0, 2, 1), axis=1), np.sort(v[f], axis=1), atol=1e-6)
+    np.testing.assert_allclose(
+        np.sort(tri.transpose(0, 2, 1), axis=1), np.sort(v[f], axis=1), atol=1e-6
+    )
     normal = feats.direct[:, 12:]
     np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-6)
     np.testing.assert_allclose(np.einsum("ij,ij->i", normal, v[f[:, 1]] - v[f[:, 0]]), 0, atol=1e-6)
@@ -135,7 +138,7 @@ def test_vq_codebook_is_used_and_quantizes_to_codebook_vectors():
         assert commit.item() > 0  # the commitment loss reaches the training loss
     m.eval()
     with torch.no_grad():
-        quantized, _ = m.embedding(batch)
+        quantized, _, _ = m.embedding(batch)
     codes = m.embedding.last_codes
     assert codes.shape == (*batch.mask.shape, 2)
     assert (codes[~batch.mask] == -1).all() and (codes[batch.mask] >= 0).all()
@@ -153,7 +156,7 @@ def test_unknown_model_name():
 
 # --- the invariant model ------------------------------------------------------------------
 def test_ray_probes_of_a_box_and_a_sphere_against_geometry():
-    d = fibonacci_directions()
+    d = fibonacci_directions(N_RAYS)
     half = np.array([0.5, 0.25, 0.15])
     probes = ray_probes(*normalized(trimesh.creation.box(extents=2 * half)))
     expected = np.min(half / np.maximum(np.abs(d), 1e-12), axis=1)  # exit distance of a box
@@ -185,3 +188,17 @@ def test_invariant_model_same_prediction_for_two_meshings_of_a_box():
     torch.testing.assert_close(a, b, atol=1e-5, rtol=0)
     assert (a - c).abs().max() > 100 * (a - b).abs().max() + 1e-4  # it does see shape
     assert (ga - gb).abs().max() > 1e-3  # a face-based encoder is fooled by the meshing
+
+
+def test_every_registered_embedding_keeps_the_one_forward_contract():
+    """(emb (B, L, dim), mask (B, L), scalar aux) from every registry entry; padding masked."""
+    meshes = ragged_meshes()
+    batch = collate([featurize(v, f, probes=True) for v, f in meshes])
+    n_faces = [len(f) for _, f in meshes]
+    for name in EMBEDDINGS:
+        torch.manual_seed(0)
+        model = build_model(name, N_OUT, 8, dim=16, embed_layers=1, agg_layers=1, n_heads=2)
+        emb, mask, aux = model.embedding(batch)
+        assert emb.shape[:2] == mask.shape and emb.shape[2] == 16 and aux.ndim == 0, name
+        expected = [N_RAYS] * 3 if name == "invariant" else n_faces
+        assert mask.sum(1).tolist() == expected, name

@@ -51,7 +51,9 @@ def test_plate_sinc_pattern():
     dirs = np.stack([np.sin(theta), 0 * theta, np.cos(theta)], axis=1)
     got = np.abs(monostatic_field(v, f, [freq], dirs)[:, 0]) ** 2
     u = k * a * np.sin(theta)
-    exact = 4 * np.pi * (a * b) ** 2 / (C0 / freq) ** 2 * np.cos(theta) ** 2 * np.sinc(u / np.pi) ** 2
+    exact = (
+        4 * np.pi * (a * b) ** 2 / (C0 / freq) ** 2 * np.cos(theta) ** 2 * np.sinc(u / np.pi) ** 2
+    )
     shown = exact > exact.max() * 1e-6
     assert shown.sum() > 140
     assert np.max(np.abs(db(got[shown]) - db(exact[shown]))) <= 0.01

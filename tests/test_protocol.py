@@ -13,8 +13,17 @@ from basic_shapes.shards import dataset_fingerprint, label_fingerprint
 from benchmark.cli import main
 from benchmark.data import BenchmarkData
 from benchmark.evaluate import evaluate
-from benchmark.protocol import (ModelError, NearestScaleModel, PredictionsError, ResultsError, load_model,
-                                load_results, score_predictions, write_predictions, write_results)
+from benchmark.protocol import (
+    ModelError,
+    NearestScaleModel,
+    PredictionsError,
+    ResultsError,
+    load_model,
+    load_results,
+    score_predictions,
+    write_predictions,
+    write_results,
+)
 from benchmark_fixture import CLASSES, make_dataset
 
 GEOMETRY_MODEL = '''
@@ -29,9 +38,11 @@ class GeometryModel:
 
     def predict(self, batch):
         out = []
-        for v, f, bins, s in zip(batch["vertices"], batch["faces"], batch["scale_bins"], batch["scale_m"]):
+        for v, f, bins, s in zip(batch["vertices"], batch["faces"], batch["scale_bins"],
+                                 batch["scale_m"]):
             base = -30.0 + 0.37 * bins.sum() + 0.011 * len(f) + 3.3 * np.abs(v).mean() + s.prod()
-            out.append(base + np.sin(np.arange(7 * 5 * 16)).reshape(7, 5, 16) * s[0] * 10 + self.offset)
+            wave = np.sin(np.arange(7 * 5 * 16)).reshape(7, 5, 16)
+            out.append(base + wave * s[0] * 10 + self.offset)
         return np.stack(out)
 '''
 
@@ -66,7 +77,9 @@ def independent_metrics(data_dir, preds_path):
             ids, split, resp = f["objects/id"][()], f["objects/split"][()], f["radar/response"][()]
             owner, variant = f["meshes/object_index"][()], f["meshes/variant"][()]
         for k in np.flatnonzero(split == b"test"):
-            t = 20 * np.log10(np.maximum(np.abs(resp[k].astype(np.complex128)), 1e-4)).astype(np.float32)
+            t = 20 * np.log10(np.maximum(np.abs(resp[k].astype(np.complex128)), 1e-4)).astype(
+                np.float32
+            )
             s = by_uid[ids[k] * 1000]
             cs = [by_uid[ids[k] * 1000 + v] for v in variant[owner == k] if v > 0]
             simple.append(np.mean((t - s) ** 2))
@@ -121,22 +134,31 @@ def test_models_load_from_module_and_file(data_dir, model_file):
     m = load_model("benchmark.protocol:NearestScaleModel", {"data_dir": str(data_dir), "k": "2"})
     assert isinstance(m, NearestScaleModel) and m.k == 2
     assert load_model(f"{model_file}:GeometryModel").name == "geometry"
-    for spec, problem in [("nocolon", "module:Class"), ("benchmark.protocol:Nope", "has no Nope"),
-                          ("no_such_module_xyz:Model", "cannot import"), ("/no/file.py:Model", "no such file"),
-                          ("benchmark.protocol:MeanResponseModel", "constructing MeanResponseModel failed"),
-                          ("benchmark.protocol:PredictionsError", "has no predict")]:
+    for spec, problem in [
+        ("nocolon", "module:Class"),
+        ("benchmark.protocol:Nope", "has no Nope"),
+        ("no_such_module_xyz:Model", "cannot import"),
+        ("/no/file.py:Model", "no such file"),
+        ("benchmark.protocol:MeanResponseModel", "constructing MeanResponseModel failed"),
+        ("benchmark.protocol:PredictionsError", "has no predict"),
+    ]:
         with pytest.raises(ModelError, match=problem):
             load_model(spec)
 
 
 def test_reference_rows_match_the_reference_models_and_the_mean_has_no_skill(data_dir):
     kw = {"data_dir": str(data_dir)}
-    mean = evaluate(data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False)
+    mean = evaluate(
+        data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False
+    )
     near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw),
                     progress=False)  # k = 3, as the reference
     refs = mean["metrics"]["references"]
     assert set(refs) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
-    for model, name in ((mean, "train-mean"), (near, "nearest-scale")):  # two code paths, one number
+    for model, name in (
+        (mean, "train-mean"),
+        (near, "nearest-scale"),
+    ):  # two code paths, one number
         for k in ("simple_mse", "complex_mse", "variation_mse"):
             assert refs[name][k] == pytest.approx(model["metrics"][k], rel=1e-5, abs=1e-6)
     assert mean["metrics"]["no_skill"] is True and refs["train-mean"]["no_skill"] is True
@@ -189,16 +211,29 @@ def _with_nan(t):
 
 
 MALFORMED = {
-    "wrong grid": (lambda u, t, a: (u, t[..., :-1], a),
-                   r"/target_db is float32\(18, 7, 5, 15\), expected float32\(18, 7, 5, 16\)"),
+    "wrong grid": (
+        lambda u, t, a: (u, t[..., :-1], a),
+        r"/target_db is float32\(18, 7, 5, 15\), expected float32\(18, 7, 5, 16\)",
+    ),
     "float64": (lambda u, t, a: (u, t.astype(np.float64), a), "/target_db is float64"),
     "int32 uid": (lambda u, t, a: (u.astype(np.int32), t, a), "/mesh_uid is int32"),
     "missing mesh": (lambda u, t, a: (u[1:], t[1:], a), "missing 1 of 18 test meshes"),
-    "extra mesh": (lambda u, t, a: (np.append(u, 999999), np.concatenate([t, t[:1]]), a),
-                   "1 rows are not test-split meshes"),
-    "duplicate": (lambda u, t, a: (np.append(u, u[0]), np.concatenate([t, t[:1]]), a), "1 duplicated mesh_uid"),
-    "fingerprint": (lambda u, t, a: (u, t, {**a, "dataset_fingerprint": "0" * 64}), "made for dataset 0000"),
-    "labels": (lambda u, t, a: (u, t, {**a, "label_fingerprint": "0" * 64}), "made for labels 0000"),
+    "extra mesh": (
+        lambda u, t, a: (np.append(u, 999999), np.concatenate([t, t[:1]]), a),
+        "1 rows are not test-split meshes",
+    ),
+    "duplicate": (
+        lambda u, t, a: (np.append(u, u[0]), np.concatenate([t, t[:1]]), a),
+        "1 duplicated mesh_uid",
+    ),
+    "fingerprint": (
+        lambda u, t, a: (u, t, {**a, "dataset_fingerprint": "0" * 64}),
+        "made for dataset 0000",
+    ),
+    "labels": (
+        lambda u, t, a: (u, t, {**a, "label_fingerprint": "0" * 64}),
+        "made for labels 0000",
+    ),
     "version": (lambda u, t, a: (u, t, {**a, "version": 7}), "version 7 is not 1"),
     "foreign": (lambda u, t, a: (u, t, {}), "not a predictions file"),
     "nan": (lambda u, t, a: (u, _with_nan(t), a), "non-finite prediction for mesh_uid"),
@@ -235,23 +270,48 @@ def test_results_json_round_trip_and_validation(model_run, tmp_path):
     write_results(path, results)
     assert load_results(path) == results
     cases = {
-        "missing": ({k: v for k, v in results.items() if k != "speed"},
-                    "speed must be a JSON object"),
+        "missing": (
+            {k: v for k, v in results.items() if k != "speed"},
+            "speed must be a JSON object",
+        ),
         "fingerprint": ({**results, "dataset_fingerprint": "abc"}, "not a sha256"),
         "labels": ({**results, "label_fingerprint": "abc"}, "label_fingerprint is not a sha256"),
-        "bool mse": ({**results, "metrics": {**results["metrics"], "simple_mse": True}}, "simple_mse must be"),
-        "negative": ({**results, "metrics": {**results["metrics"], "variation_mse": -1.0}}, "variation_mse must be"),
+        "bool mse": (
+            {**results, "metrics": {**results["metrics"], "simple_mse": True}},
+            "simple_mse must be",
+        ),
+        "negative": (
+            {**results, "metrics": {**results["metrics"], "variation_mse": -1.0}},
+            "variation_mse must be",
+        ),
         "params": ({**results, "model": {**results["model"], "params": "many"}}, "model.params"),
-        "per class": ({**results, "metrics": {**results["metrics"], "per_class": {"cube": {}}}}, "per_class.cube.simple_mse"),
+        "per class": (
+            {**results, "metrics": {**results["metrics"], "per_class": {"cube": {}}}},
+            "per_class.cube.simple_mse",
+        ),
         "created": ({**results, "created": "yesterday"}, "created is not a UTC timestamp"),
-        "interval": ({**results, "metrics": {**results["metrics"], "simple_mse_ci": [3.0, 1.0]}},
-                     "simple_mse_ci must have lo <= hi"),
-        "skill": ({**results, "metrics": {**results["metrics"], "skill": {
-            **results["metrics"]["skill"], "reference": "oracle"}}}, "skill.reference must be"),
-        "per object": ({**results, "per_object": {**results["per_object"], "simple_mse": [1.0]}},
-                       "per_object.simple_mse must be a list of 6"),
-        "self-reported": ({**results, "speed": {**results["speed"], "self_reported": "yes"}},
-                          "speed.self_reported must be true or false"),
+        "interval": (
+            {**results, "metrics": {**results["metrics"], "simple_mse_ci": [3.0, 1.0]}},
+            "simple_mse_ci must have lo <= hi",
+        ),
+        "skill": (
+            {
+                **results,
+                "metrics": {
+                    **results["metrics"],
+                    "skill": {**results["metrics"]["skill"], "reference": "oracle"},
+                },
+            },
+            "skill.reference must be",
+        ),
+        "per object": (
+            {**results, "per_object": {**results["per_object"], "simple_mse": [1.0]}},
+            "per_object.simple_mse must be a list of 6",
+        ),
+        "self-reported": (
+            {**results, "speed": {**results["speed"], "self_reported": "yes"}},
+            "speed.self_reported must be true or false",
+        ),
     }
     for name, (bad, problem) in cases.items():
         p = tmp_path / f"{name}.json"
@@ -270,9 +330,31 @@ def test_results_json_round_trip_and_validation(model_run, tmp_path):
 
 def test_cli_evaluate_both_paths(data_dir, model_file, tmp_path, capsys):
     preds, r1, r2 = tmp_path / "p.h5", tmp_path / "out" / "r1.json", tmp_path / "r2.json"
-    assert main(["evaluate", "--quiet", "--data", str(data_dir), "--model", f"{model_file}:GeometryModel",
-                 "--model-arg", "offset=1", "--out", str(r1), "--write-predictions", str(preds),
-                 "--params", "12", "--regime", "basic", "--train-seed", "3"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--quiet",
+                "--data",
+                str(data_dir),
+                "--model",
+                f"{model_file}:GeometryModel",
+                "--model-arg",
+                "offset=1",
+                "--out",
+                str(r1),
+                "--write-predictions",
+                str(preds),
+                "--params",
+                "12",
+                "--regime",
+                "basic",
+                "--train-seed",
+                "3",
+            ]
+        )
+        == 0
+    )
     assert main(["evaluate", "--data", str(data_dir), "--predictions", str(preds), "--out", str(r2),
                  "--name", "geometry-file", "--speed-ms", "2.5"]) == 0
     a, b = load_results(r1), load_results(r2)
@@ -290,15 +372,27 @@ def test_cli_errors_are_one_line_and_keep_existing_results(data_dir, tmp_path):
     bad = tmp_path / "bad.h5"
     with h5py.File(bad, "w") as f:
         f["x"] = np.zeros(3)
-    for argv, problem in [(["--predictions", str(bad)], "not a predictions file"),
-                          (["--predictions", str(bad), "--write-predictions", "x.h5"], "needs --model"),
-                          (["--model", "m:M", "--speed-ms", "3"], "goes with --predictions"),
-                          (["--model", "nope"], "module:Class")]:
+    for argv, problem in [
+        (["--predictions", str(bad)], "not a predictions file"),
+        (["--predictions", str(bad), "--write-predictions", "x.h5"], "needs --model"),
+        (["--model", "m:M", "--speed-ms", "3"], "goes with --predictions"),
+        (["--model", "nope"], "module:Class"),
+    ]:
         with pytest.raises(SystemExit) as err:
             main(["evaluate", "--data", str(data_dir), "--out", str(out), *argv])
         assert problem in str(err.value.code) and "\n" not in str(err.value.code)
     with pytest.raises(SystemExit) as err:
-        main(["evaluate", "--data", str(tmp_path / "none"), "--predictions", str(bad), "--out", str(out)])
+        main(
+            [
+                "evaluate",
+                "--data",
+                str(tmp_path / "none"),
+                "--predictions",
+                str(bad),
+                "--out",
+                str(out),
+            ]
+        )
     assert "no such dataset directory" in str(err.value.code)
     assert out.read_text() == "keep me"
 
@@ -307,8 +401,9 @@ def test_scoring_and_evaluate_do_not_import_torch(data_dir, model_run):
     code = textwrap.dedent(f"""
         import sys
         from benchmark.cli import main
-        main(["evaluate", "--quiet", "--data", {str(data_dir)!r}, "--predictions", {str(model_run[1])!r},
-              "--out", {str(model_run[1].with_suffix('.json'))!r}])
+        main(["evaluate", "--quiet", "--data", {str(data_dir)!r},
+              "--predictions", {str(model_run[1])!r},
+              "--out", {str(model_run[1].with_suffix(".json"))!r}])
         assert "torch" not in sys.modules, "torch was imported"
     """)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

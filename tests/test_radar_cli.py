@@ -34,7 +34,7 @@ def one_line_error(argv) -> str:
     with pytest.raises(SystemExit) as exc:
         main(argv)
     message = str(exc.value.code)
-    assert message.startswith("radar-sim: ") and "\n" not in message
+    assert message.startswith(f"radar-sim {argv[0]}: error: ") and "\n" not in message
     return message
 
 
@@ -92,11 +92,25 @@ def test_plot_mesh_file_and_dataset(tmp_path):
     _check_png(tmp_path / "sphere.png")
 
     data = write_dataset(tmp_path / "data", n_objects=2, objects_per_shard=2)
-    main(["plot", str(data), "--object", "1", "--roll", "30", "--out", str(tmp_path / "o1.png")])
+    main(
+        [
+            "plot",
+            "--data",
+            str(data),
+            "--object",
+            "1",
+            "--roll",
+            "30",
+            "--out",
+            str(tmp_path / "o1.png"),
+        ]
+    )
     _check_png(tmp_path / "o1.png")
-    assert "no object with id 7" in one_line_error(["plot", str(data), "--object", "7",
+    assert "no object with id 7" in one_line_error(["plot", "--data", str(data), "--object", "7",
                                                     "--out", str(tmp_path / "o7.png")])
-    assert "--object" in one_line_error(["plot", str(data), "--out", str(tmp_path / "o.png")])
+    assert "--object" in one_line_error(
+        ["plot", "--data", str(data), "--out", str(tmp_path / "o.png")]
+    )
     assert "no such file or directory" in one_line_error(["plot", str(tmp_path / "nope"),
                                                           "--out", str(tmp_path / "n.png")])
 
@@ -107,7 +121,7 @@ def test_plot_uses_stored_labels(tmp_path):
     data = write_dataset(tmp_path / "data", n_objects=1)
     _, _, simulated, title = dataset_signature(data, 0, "xband-v1")
     assert "label on its 12-face simulation mesh" in title  # a cube: the box itself
-    main(["label", str(data), "--workers", "1", "--frequency-response"])
+    main(["label", "--data", str(data), "--workers", "1", "--frequency-response"])
     coords, profiles, response, title = dataset_signature(data, 0, "xband-v1")
     assert "stored label" in title
     with h5py.File(data / "shard-00000.h5") as f:
@@ -117,7 +131,7 @@ def test_plot_uses_stored_labels(tmp_path):
     np.testing.assert_array_equal(response, simulated.astype(np.complex64))
     config = radar_sim.RadarConfig.named("xband-v1")
     np.testing.assert_array_equal(coords["aspect_deg"], config.aspect_deg)
-    main(["plot", str(data), "--object", "0", "--out", str(tmp_path / "o0.png")])
+    main(["plot", "--data", str(data), "--object", "0", "--out", str(tmp_path / "o0.png")])
     _check_png(tmp_path / "o0.png")
 
 
@@ -152,7 +166,7 @@ def test_generated_spheres_never_take_the_bounce_path(tmp_path):
     from radar_sim import detect_mode
     from radar_sim.geometry import prepare
 
-    generate(["generate", "--out", str(tmp_path / "d"), "--classes", "sphere",
+    generate(["generate", "--data", str(tmp_path / "d"), "--classes", "sphere",
               "--objects-per-class", "3", "--variants", "19", "--seed", "0", "--workers", "1"])
     modes, strict = [], []
     with Shard(next((tmp_path / "d").glob("shard-*.h5"))) as s:

@@ -47,7 +47,7 @@ def test_variant_simulates_that_mesh(small, tmp_path):
     expected = radar_sim.simulate(vertices, faces, radar_sim.RadarConfig.from_file(config))
     np.testing.assert_array_equal(response, expected.frequency_response)
     np.testing.assert_array_equal(profiles, expected.range_profiles)
-    main(["plot", str(data), "--object", "0", "--variant", "2", "--config", str(config),
+    main(["plot", "--data", str(data), "--object", "0", "--variant", "2", "--config", str(config),
           "--out", str(tmp_path / "v2.png")])
     assert (tmp_path / "v2.png").stat().st_size > 10_000
 
@@ -55,12 +55,12 @@ def test_variant_simulates_that_mesh(small, tmp_path):
 def test_variant_errors(small, tmp_path):
     data, config = small
     with pytest.raises(SystemExit) as exc:
-        main(["plot", str(data), "--object", "0", "--variant", "5", "--out",
+        main(["plot", "--data", str(data), "--object", "0", "--variant", "5", "--out",
               str(tmp_path / "x.png")])
     assert "object 0 has no variant 5 (--variant 0..2)" in str(exc.value.code)
     mesh = tmp_path / "box.ply"
     trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(mesh)
     with pytest.raises(SystemExit) as exc:
         main(["plot", str(mesh), "--variant", "1", "--out", str(tmp_path / "y.png")])
-    assert "--variant needs a dataset directory" in str(exc.value.code)
+    assert "--object and --variant need --data DIR" in str(exc.value.code)
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "y.png").exists()

@@ -9,7 +9,6 @@ import sys
 import numpy as np
 import pytest
 import trimesh
-from benchmark_fixture import make_dataset
 
 from basic_shapes import remesh, verify
 from basic_shapes.blender import object_meshes
@@ -21,6 +20,7 @@ from basic_shapes.shards import (
     ood_variant,
 )
 from benchmark.data import BasicShapes, BenchmarkData
+from benchmark_fixture import make_dataset
 
 SCALES = [np.array([0.6, 1.3, 0.9]), np.array([2.0, 0.2, 0.35])]  # the second: aspect 10
 

@@ -3,7 +3,14 @@ import math
 import numpy as np
 import pytest
 
-from basic_shapes.scales import MAX_RADIUS, SCALE_RANGE, ScaleError, capacity, min_pairwise_distance, sample_scales
+from basic_shapes.scales import (
+    MAX_RADIUS,
+    SCALE_RANGE,
+    ScaleError,
+    capacity,
+    min_pairwise_distance,
+    sample_scales,
+)
 
 
 def test_scales_are_dissimilar_in_range_and_fit_the_radar_window():
@@ -20,7 +27,9 @@ def test_scales_are_dissimilar_in_range_and_fit_the_radar_window():
 
 def test_similarity_ignores_axis_permutation():
     assert min_pairwise_distance(np.array([[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]])) == 0.0
-    assert min_pairwise_distance(np.array([[1.0, 1.0, 1.0], [1.1, 1.0, 1.0]])) == pytest.approx(math.log(1.1))
+    assert min_pairwise_distance(np.array([[1.0, 1.0, 1.0], [1.1, 1.0, 1.0]])) == pytest.approx(
+        math.log(1.1)
+    )
 
 
 def test_scales_are_seeded():

@@ -1,4 +1,4 @@
-"""The rendered leaderboard in a real headless Chromium (Debian's /usr/bin/chromium, `make browser`).
+"""The rendered leaderboard in a real headless Chromium (Debian's chromium, `make browser`).
 
 Four submissions go through the real ``leaderboard submit`` (re-scored by the benchmark), the
 site is rendered and served by ``leaderboard.serve`` on a free localhost port, and playwright
@@ -93,7 +93,9 @@ def test_page_sorts_renders_images_and_stays_local(site):
             per_class = page.locator("table.per-class thead th", has_text="Variation MSE")
             per_class.locator("button").click()
             values = page.eval_on_selector_all(
-                "table.per-class tbody tr", "rows => rows.map(r => parseFloat(r.cells[4].dataset.value))")
+                "table.per-class tbody tr",
+                "rows => rows.map(r => parseFloat(r.cells[4].dataset.value))",
+            )
             assert len(values) == 4 * len(CLASSES) and values == sorted(values)
 
             images = page.evaluate("Array.from(document.images).map(i => [i.getAttribute('src'), "

@@ -14,11 +14,23 @@ from benchmark import corpus
 from benchmark.cli import main as benchmark_main
 from benchmark.data import BenchmarkData, ScaleBins
 from benchmark.models import ReconstructionHead, build_model
-from benchmark.models.checkpoint import CheckpointError, CheckpointModel, load_checkpoint, save_checkpoint
+from benchmark.models.checkpoint import (
+    CheckpointError,
+    CheckpointModel,
+    load_checkpoint,
+    save_checkpoint,
+)
 from benchmark.protocol import load_results, score_predictions
 from benchmark.reproduce import ROWS, findings
-from benchmark.train import (PretrainTask, TrainConfig, benchmark_examples, corpus_examples,
-                             epoch_batches, fit, train)
+from benchmark.train import (
+    PretrainTask,
+    TrainConfig,
+    benchmark_examples,
+    corpus_examples,
+    epoch_batches,
+    fit,
+    train,
+)
 from tests.benchmark_fixture import make_dataset
 
 TINY = dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32, codebook_size=16,
@@ -127,8 +139,12 @@ def test_train_cli_writes_checkpoint_and_results(data_dir, tmp_path, capsys):
                     "--embedding", "direct", "--regime", "ideal", "--results",
                     str(tmp_path / "r.json"), "--quiet", *flags])
     results = load_results(tmp_path / "r.json")
-    assert results["model"] == {"name": "direct-ideal", "embedding": "direct", "regime": "ideal",
-                                "params": json.loads((tmp_path / "ck" / "config.json").read_text())["params"]}
+    assert results["model"] == {
+        "name": "direct-ideal",
+        "embedding": "direct",
+        "regime": "ideal",
+        "params": json.loads((tmp_path / "ck" / "config.json").read_text())["params"],
+    }
     assert results["seeds"]["train"] == 0 and results["metrics"]["n_objects"] == 3
     assert "direct-ideal: checkpoint in" in capsys.readouterr().out
 
@@ -185,8 +201,20 @@ def test_tiny_preset_end_to_end(tmp_path):
     from leaderboard import cli as leaderboard_cli
 
     entries, site = tmp_path / "entries", tmp_path / "site"
-    assert leaderboard_cli.main(["seed", "--from", str(out / "results"), "--data", str(out / "data"),
-                                 "--entries", str(entries)]) is None
+    assert (
+        leaderboard_cli.main(
+            [
+                "seed",
+                "--from",
+                str(out / "results"),
+                "--data",
+                str(out / "data"),
+                "--entries",
+                str(entries),
+            ]
+        )
+        is None
+    )
     assert len(list(entries.glob("*.json"))) == 13
     assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} \
         == {"tiny-v1"}  # reproduce built the registered version, and submit identified it
@@ -226,7 +254,10 @@ def test_findings_are_decided_by_paired_intervals():
     assert embed["verdict"] == "holds" and (embed["holds"], embed["of"]) == (18, 18)
     pretraining = f["autoencoder pretraining beats classification pretraining and none"]
     assert pretraining["verdict"] == "holds"
-    assert f["graph + autoencoder is best of the non-Ideal paper rows on all three metrics"]["of"] == 24
+    assert (
+        f["graph + autoencoder is best of the non-Ideal paper rows on all three metrics"]["of"]
+        == 24
+    )
     ideal = f["every non-Ideal model falls short of its Ideal model on Variation MSE"]
     assert ideal["verdict"] == "holds" and ideal["of"] == 9
     for c in embed["comparisons"]:  # every comparison reports its interval and half-width
@@ -296,8 +327,13 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
 
 def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
     root = tmp_path / "ShapeNetCore.v2"
-    shapes = {"02691156": [trimesh.creation.box(), trimesh.creation.icosphere(1)],
-              "03001627": [trimesh.creation.cylinder(0.5, 1.0, sections=8), trimesh.creation.box((1, 2, 3))]}
+    shapes = {
+        "02691156": [trimesh.creation.box(), trimesh.creation.icosphere(1)],
+        "03001627": [
+            trimesh.creation.cylinder(0.5, 1.0, sections=8),
+            trimesh.creation.box((1, 2, 3)),
+        ],
+    }
     for synset, meshes in shapes.items():
         for k, mesh in enumerate(meshes):
             path = root / synset / f"m{k}" / "models" / "model_normalized.obj"

@@ -6,6 +6,9 @@ is the full model, ``ClassificationHead`` / ``ReconstructionHead`` are the pretr
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -18,8 +21,38 @@ from benchmark.models.graph import GraphEmbedding
 from benchmark.models.invariant import ProbeEmbedding
 from benchmark.models.token import TokenEmbedding
 
-EMBEDDINGS = ("direct", "graph", "token", "invariant")
-FACE_EMBEDDINGS = ("direct", "graph", "token")  # the paper's; the only ones pretrained
+
+@dataclass(frozen=True)
+class Embedding:
+    """One entry of the registry: how to build the embedding and how the table shows it.
+
+    Forward contract of every embedding: ``module(batch) -> (emb (B, L, dim), mask (B, L)
+    bool, aux loss scalar)``. ``face``: one token per face (the paper's encoders), so it can be
+    pretrained on a corpus and has an Ideal row; ``probes``: needs ``featurize(probes=True)``;
+    ``cost``: relative training time (reproduce schedules the longest runs first).
+    """
+
+    build: Callable[..., nn.Module]
+    face: bool
+    colour: str
+    probes: bool = False
+    cost: float = 1.0
+
+
+REGISTRY: dict[str, Embedding] = {
+    "direct": Embedding(lambda dim, **_: DirectEmbedding(dim), face=True, colour="tab:blue"),
+    "graph": Embedding(lambda dim, embed_layers, **_: GraphEmbedding(dim, embed_layers),
+                       face=True, colour="tab:orange"),
+    "token": Embedding(lambda dim, embed_layers, codebook_size, n_quantizers, **_:
+                       TokenEmbedding(dim, embed_layers, codebook_size, n_quantizers),
+                       face=True, colour="tab:green"),
+    "invariant": Embedding(lambda dim, **_: ProbeEmbedding(dim), face=False, colour="tab:red",
+                           probes=True, cost=0.5),
+}
+"""Adding an embedding is one entry here: the CLI choices, the table's rows and the plot's
+colours all derive from it."""
+EMBEDDINGS = tuple(REGISTRY)
+FACE_EMBEDDINGS = tuple(name for name, e in REGISTRY.items() if e.face)  # the paper's
 
 
 class MeshSimulator(nn.Module):
@@ -31,12 +64,7 @@ class MeshSimulator(nn.Module):
 
     def embed_faces(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(B, L, dim) embeddings, their mask, and the embedding's auxiliary loss."""
-        out = self.embedding(batch)
-        if len(out) == 3:
-            emb, aux, mask = out
-        else:
-            (emb, aux), mask = out, batch.mask
-        return emb, mask, aux
+        return self.embedding(batch)
 
     def encode(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor]:
         emb, mask, aux = self.embed_faces(batch)
@@ -86,16 +114,10 @@ def build_model(name: str, n_outputs: int, n_scale_bins: int, dim: int = 64,
 ) -> MeshSimulator:
     """One of ``EMBEDDINGS`` with the shared aggregator and decoder. Every argument is a
     plain number, so the call's keyword arguments are the model's JSON config."""
-    if name == "direct":
-        embedding = DirectEmbedding(dim)
-    elif name == "graph":
-        embedding = GraphEmbedding(dim, embed_layers)
-    elif name == "token":
-        embedding = TokenEmbedding(dim, embed_layers, codebook_size, n_quantizers)
-    elif name == "invariant":
-        embedding = ProbeEmbedding(dim)
-    else:
+    if name not in REGISTRY:
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(EMBEDDINGS)}")
+    embedding = REGISTRY[name].build(dim=dim, embed_layers=embed_layers,
+                                     codebook_size=codebook_size, n_quantizers=n_quantizers)
     return MeshSimulator(embedding, Aggregator(dim, agg_layers, n_heads),
                          Decoder(dim, n_outputs, n_scale_bins, hidden=decoder_hidden))
 
@@ -104,5 +126,17 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
 
 
-__all__ = ["EMBEDDINGS", "FACE_EMBEDDINGS", "MeshSimulator", "MeshBatch", "ClassificationHead",
-           "ReconstructionHead", "build_model", "collate", "count_parameters", "featurize"]
+__all__ = [
+    "EMBEDDINGS",
+    "FACE_EMBEDDINGS",
+    "REGISTRY",
+    "Embedding",
+    "MeshSimulator",
+    "MeshBatch",
+    "ClassificationHead",
+    "ReconstructionHead",
+    "build_model",
+    "collate",
+    "count_parameters",
+    "featurize",
+]

@@ -16,7 +16,14 @@ import numpy as np
 import torch
 
 from basic_shapes.infra import atomic_path
-from benchmark.models import MeshSimulator, build_model, collate, count_parameters, featurize
+from benchmark.models import (
+    REGISTRY,
+    MeshSimulator,
+    build_model,
+    collate,
+    count_parameters,
+    featurize,
+)
 
 CHECKPOINT_FORMAT = "basic-shapes-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -52,7 +59,9 @@ def load_checkpoint(directory: str | os.PathLike,
     try:
         config = json.loads((directory / CONFIG).read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise CheckpointError(f"{directory / CONFIG}: unreadable checkpoint config ({exc})") from None
+        raise CheckpointError(
+            f"{directory / CONFIG}: unreadable checkpoint config ({exc})"
+        ) from None
     if config.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{directory / CONFIG}: not a {CHECKPOINT_FORMAT} config")
     kwargs = dict(config["model"])
@@ -60,7 +69,7 @@ def load_checkpoint(directory: str | os.PathLike,
     try:
         state = torch.load(directory / WEIGHTS, map_location=map_location, weights_only=True)
         model.load_state_dict(state)
-    except Exception as exc:  # noqa: BLE001 - any failure means the weights are unusable
+    except Exception as exc:
         raise CheckpointError(f"{directory / WEIGHTS}: cannot load weights "
                               f"({exc.__class__.__name__}: {str(exc).splitlines()[0]})") from None
     return model.eval(), config
@@ -89,7 +98,7 @@ class CheckpointModel:
         self.model.to(self.device)
         self.scale_bins = ScaleBins(**self.config["scale_bins"])
         self.target_shape = tuple(self.config["target_shape"])
-        self.probes = self.config["model"]["name"] == "invariant"
+        self.probes = REGISTRY[self.config["model"]["name"]].probes
         self.name = self.config.get("name", self.config["model"]["name"])
         self.embedding = self.config.get("embedding", self.config["model"]["name"])
         self.regime = self.config.get("regime")
@@ -110,9 +119,13 @@ class CheckpointModel:
     def predict(self, batch: dict) -> np.ndarray:
         """(B, n_aspect, n_roll, n_range) float32 predicted dB target."""
         bins = self.scale_bins.index(np.asarray(batch["scale_m"], np.float64)).reshape(-1, 3)
-        items = [featurize(v, f, probes=self.probes) for v, f in zip(batch["vertices"], batch["faces"])]
+        items = [
+            featurize(v, f, probes=self.probes) for v, f in zip(batch["vertices"], batch["faces"])
+        ]
         out = np.empty((len(items), int(np.prod(self.target_shape))), np.float32)
         for chunk in self._chunks([it.n_faces for it in items]):
-            pred, _ = self.model(collate([items[i] for i in chunk], scale_bin=bins[chunk]).to(self.device))
+            pred, _ = self.model(
+                collate([items[i] for i in chunk], scale_bin=bins[chunk]).to(self.device)
+            )
             out[chunk] = pred.float().cpu().numpy()
         return out.reshape(-1, *self.target_shape)

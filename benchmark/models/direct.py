@@ -16,7 +16,7 @@ class DirectEmbedding(nn.Module):
         self.dim = dim
         self.proj = nn.Sequential(nn.Linear(DIRECT_DIM, dim), nn.GELU(), nn.Linear(dim, dim))
 
-    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, L, dim) face embeddings (zero on padding) and an auxiliary loss (none here)."""
+    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(B, L, dim) face embeddings (zero on padding), the face mask, no auxiliary loss."""
         emb = self.proj(batch.direct) * batch.mask[..., None]
-        return emb, emb.new_zeros(())
+        return emb, batch.mask, emb.new_zeros(())

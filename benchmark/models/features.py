@@ -13,6 +13,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from benchmark.models.probes import ray_probes
+
 N_BINS = 128  # discretization levels per quantity, as in MeshGPT
 COORD_RANGE = 0.5
 DIRECT_DIM = 15  # centre (3) + corner vectors (9) + unit normal (3)
@@ -89,8 +91,6 @@ class MeshFeatures:
 def featurize(vertices: np.ndarray, faces: np.ndarray, probes: bool = False) -> MeshFeatures:
     """Direct (Kohler et al.) and discretized MeshGPT-style features of one normalized mesh;
     with ``probes``, also the ray probes of the invariant model."""
-    from benchmark.models.invariant import ray_probes
-
     g = face_geometry(vertices, faces)
     # Corners in a canonical order, sorted by (z, y, x) as MeshGPT does, so that neither
     # embedding depends on which corner a file lists first (the normal keeps the winding).
@@ -129,7 +129,7 @@ class MeshBatch:
     label: torch.Tensor | None = None  # (B,) long, pretraining class
     probes: torch.Tensor | None = None  # (B, N_RAYS, PROBE_DIM) float, invariant model
 
-    def to(self, device) -> "MeshBatch":
+    def to(self, device) -> MeshBatch:
         return MeshBatch(**{f.name: None if getattr(self, f.name) is None
                             else getattr(self, f.name).to(device) for f in fields(self)})
 

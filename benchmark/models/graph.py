@@ -32,10 +32,10 @@ class GraphEmbedding(nn.Module):
             start += n
         return self.proj(torch.cat(parts, 1))
 
-    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         x = self.node_features(batch)
         for conv, norm in zip(self.convs, self.norms):
             x = x + torch.nn.functional.gelu(norm(conv(x, batch.edge_index)))
         out = x.new_zeros(*batch.mask.shape, self.dim)
         out[batch.mask] = x
-        return out, x.new_zeros(())
+        return out, batch.mask, x.new_zeros(())

@@ -24,8 +24,8 @@ class TokenEmbedding(nn.Module):
                              threshold_ema_dead_code=1)
         self.last_codes: torch.Tensor | None = None  # (B, L, n_quantizers), -1 on padding
 
-    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        emb, _ = self.graph(batch)
+    def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        emb, _, _ = self.graph(batch)
         quantized, codes, commit = self.vq(emb, mask=batch.mask)
         self.last_codes = codes.detach()
-        return quantized * batch.mask[..., None], commit.sum()
+        return quantized * batch.mask[..., None], batch.mask, commit.sum()

@@ -1,13 +1,13 @@
 """What "auto" mode detection costs on generated spheres: the former rule against the current one.
 
-    python benchmarks/mode_detection.py [--objects 3] [--variants 19] [--n-aspect 16] [--n-roll 5]
+    python perf/mode_detection.py [--objects 3] [--variants 19] [--n-aspect 16] [--n-roll 5]
 
 Generates sphere objects with the real generator (Blender), detects each mesh's mode with the
 former rule (edges convex within 1e-6 R; "bounce2" for any re-hit) and the current one (1e-4 R;
 re-hits only count after crossing 0.1 R), and times ``simulate`` in both modes on a coarse
 grid (all 128 frequencies), in the same run. Also reports how far the cheaper mode's label is
 from the former one in the benchmark metric (dB²), for the meshes whose mode changed.
-Writes benchmarks/results/mode_detection.json and prints a table.
+Writes perf/results/mode_detection.json and prints a table.
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ import numpy as np
 from basic_shapes.generate import GenerateConfig, generate
 from basic_shapes.shards import Shard, list_shards
 from benchmark.data import db_target
-from radar_sim import RadarConfig, simulate
-from radar_sim import geometry
+from radar_sim import RadarConfig, geometry, simulate
 
 FORMER = {"CONVEX_TOL": 1e-6, "SEE_DISTANCE": 0.0}
 
@@ -84,7 +83,7 @@ def main() -> None:
         print(f"{r['mesh']:>5} {r['faces']:>6} {r['former']:>9} {r['current']:>9} {a:>9.3f} "
               f"{b:>9.3f} {a / b:>7.1f} {r['mse_db2']:>8.3g}")
     Path(args.out).write_text(json.dumps({
-        "command": "python benchmarks/mode_detection.py", "grid": json.loads(config.to_json()),
+        "command": "python perf/mode_detection.py", "grid": json.loads(config.to_json()),
         "counts": counts, "rows": rows}, indent=1) + "\n")
     print(f"wrote {args.out}")
 

@@ -9,7 +9,7 @@ milliseconds per accepted mesh (rejected tries and verification included) and tr
 mesh. Writes JSON and prints a table; ``--figure`` draws one object's simple mesh, a training
 variant and its OOD meshes (docs/img/ood.png).
 
-    .venv/bin/python benchmarks/ood_remeshers.py --objects 10 --per-remesher 3 \\
+    .venv/bin/python perf/ood_remeshers.py --objects 10 --per-remesher 3 \\
         --figure docs/img/ood.png
 """
 
@@ -28,9 +28,9 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from basic_shapes import blender, primitives, remesh, verify  # noqa: E402
-from basic_shapes.scales import SCALE_RANGE  # noqa: E402
-from basic_shapes.shards import OOD_REMESHERS  # noqa: E402
+from basic_shapes import blender, primitives, remesh, verify
+from basic_shapes.scales import SCALE_RANGE
+from basic_shapes.shards import OOD_REMESHERS
 
 
 def _stats(x) -> dict:

@@ -8,11 +8,11 @@ analytic primitive, the HDF5 write, and the rest (drawing parameters, the Python
 2-worker bound is 2 / (CPU seconds per mesh): what two busy cores give with no other load.
 Out-of-distribution test meshes (basic_shapes/remesh.py) are timed apart, new code only.
 
-    python benchmarks/generate_throughput.py --compare old=/tmp/old [--objects-per-class 3]
+    python perf/generate_throughput.py --compare old=/tmp/old [--objects-per-class 3]
 
 ``--compare``: a checkout of other code, e.g. ``git worktree add /tmp/old 8e35ef8``. ``--wall``
 also times `generate` on 1 and 2 Dask workers (only meaningful on a quiet machine, load < 1).
-Writes benchmarks/results/generate_throughput.json and prints a table. The paper-scale goal is
+Writes perf/results/generate_throughput.json and prints a table. The paper-scale goal is
 300,000 meshes in 15 minutes on this 2-core machine (333 meshes/s); issue 10 asks for 450.
 """
 
@@ -150,7 +150,7 @@ def main() -> None:
     ap.add_argument("--ood", type=int, default=3, help="OOD meshes per remesher (new code)")
     ap.add_argument("--wall", action="store_true", help="also time generate on 1 and 2 workers")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results"
+    ap.add_argument("--out", type=Path, default=ROOT / "perf" / "results"
                     / "generate_throughput.json")
     args = ap.parse_args()
     if args.child:

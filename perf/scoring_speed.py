@@ -1,6 +1,6 @@
 """Milliseconds per test mesh to score a predictions file, and to run a model end to end.
 
-    python benchmarks/scoring_speed.py [--objects-per-class 20] [--grid 61 21 107]
+    python perf/scoring_speed.py [--objects-per-class 20] [--grid 61 21 107]
 
 On the tests' analytic fixture dataset (tests/benchmark_fixture.py: 3 meshes per object,
 the full xband-v1 grid by default), side by side:
@@ -8,7 +8,7 @@ the full xband-v1 grid by default), side by side:
   evaluate  benchmark.evaluate.evaluate with NearestScaleModel: read meshes, predict, write the
             predictions file, score it
 and the time these would take on the paper's test split (300 objects x 100 meshes).
-Writes benchmarks/results/scoring_speed.json and prints a table.
+Writes perf/results/scoring_speed.json and prints a table.
 """
 
 from __future__ import annotations
@@ -23,17 +23,21 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from benchmark.evaluate import evaluate, hardware  # noqa: E402
-from benchmark.protocol import load_model, score_predictions  # noqa: E402
-from benchmark_fixture import make_dataset  # noqa: E402
+from benchmark.evaluate import evaluate, hardware
+from benchmark.protocol import load_model, score_predictions
+from benchmark_fixture import make_dataset
 
 PAPER_TEST_MESHES = 300 * 100
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--objects-per-class", type=int, default=20)
-    ap.add_argument("--grid", type=int, nargs=3, default=[61, 21, 107], metavar=("ASPECT", "ROLL", "RANGE"))
+    ap.add_argument(
+        "--grid", type=int, nargs=3, default=[61, 21, 107], metavar=("ASPECT", "ROLL", "RANGE")
+    )
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "scoring_speed.json"))
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -53,8 +57,11 @@ def main() -> None:
             for step, t in (("score", t_score), ("evaluate", t_eval))]
     print(f"{'step':>10} {'ms/mesh':>9} {'vs score':>9} {'paper test split (s)':>21}")
     for r in rows:
-        print(f"{r['step']:>10} {r['ms_per_mesh']:>9.3f} {r['ms_per_mesh'] / rows[0]['ms_per_mesh']:>8.2f}x "
-              f"{r['paper_test_split_s']:>21.1f}")
+        print(
+            f"{r['step']:>10} {r['ms_per_mesh']:>9.3f} "
+            f"{r['ms_per_mesh'] / rows[0]['ms_per_mesh']:>8.2f}x "
+            f"{r['paper_test_split_s']:>21.1f}"
+        )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"grid": args.grid, "test_meshes": n, "rows": rows,

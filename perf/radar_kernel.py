@@ -1,6 +1,6 @@
 """Speed of the first-bounce PO kernel on fine ellipsoid meshes, against the kernel it replaced.
 
-    python benchmarks/radar_kernel.py [--faces 2000 30000 130000 500000] [--old-max-faces 150000]
+    python perf/radar_kernel.py [--faces 2000 30000 130000 500000] [--old-max-faces 150000]
 
 One core (OMP/OPENBLAS/MKL/NUMBA threads = 1), one run. Meshes: UV spheres scaled to an
 ellipsoid with semi-axes 0.5 x 0.7 x 0.9 m (n segments x n/2 rings, or n x n for ~130k faces),
@@ -17,7 +17,7 @@ and the new labels' largest difference from the old ones and from the stable per
 relative to the label's peak |A|. Compile time: CPU seconds of numba's first call in a fresh
 process with an empty cache (compile + cache write), and with that cache (load), as Dask
 workers see it.
-Writes benchmarks/results/radar_kernel.json and prints a table.
+Writes perf/results/radar_kernel.json and prints a table.
 """
 
 from __future__ import annotations
@@ -27,21 +27,21 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse
-import importlib
-import json
-import platform
-import re
-import subprocess
-import sys
-import tempfile
-import time
-from pathlib import Path
+import argparse  # noqa: E402 - thread limits are set before numpy loads
+import importlib  # noqa: E402 - thread limits are set before numpy loads
+import json  # noqa: E402 - thread limits are set before numpy loads
+import platform  # noqa: E402 - thread limits are set before numpy loads
+import re  # noqa: E402 - thread limits are set before numpy loads
+import subprocess  # noqa: E402 - thread limits are set before numpy loads
+import sys  # noqa: E402 - thread limits are set before numpy loads
+import tempfile  # noqa: E402 - thread limits are set before numpy loads
+import time  # noqa: E402 - thread limits are set before numpy loads
+from pathlib import Path  # noqa: E402 - thread limits are set before numpy loads
 
-import numpy as np
+import numpy as np  # noqa: E402 - thread limits are set before numpy loads
 
-import radar_sim
-from radar_sim import facet, field, geometry
+import radar_sim  # noqa: E402 - thread limits are set before numpy loads
+from radar_sim import facet, field, geometry  # noqa: E402 - thread limits are set before numpy loads
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results"

@@ -1,6 +1,6 @@
 """Speed against error of three ways to evaluate the physical-optics facet integral.
 
-    python benchmarks/radar_accuracy.py [--quick]
+    python perf/radar_accuracy.py [--quick]
 
 Side by side, on the same meshes, directions and frequencies, single-threaded:
   exact     radar_sim.monostatic_field (closed-form facet integral, one geometric pass)
@@ -13,7 +13,7 @@ over mesh resolution, against two exact references:
             meshed as n x n squares, 2 triangles each (flat: the exact rule has no mesh error).
 Error = max over directions and frequencies of ||A| - |A_ref|| / max |A_ref| (peak-relative, so
 pattern nulls do not blow it up); for the sphere also the max dB error (dB = 20 log10|A|).
-Writes benchmarks/results/radar_accuracy.json and radar_accuracy.png and prints tables.
+Writes perf/results/radar_accuracy.json and radar_accuracy.png and prints tables.
 """
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ def run_case(name, meshes, frequencies, directions, reference, brute):
             m = int(method.split("-")[1]) if method.startswith("brute") else 1
             if method != "exact" and len(f) * m * m > MAX_POINTS:
                 continue
-            field, seconds = best_time(lambda: fn(v, f, frequencies, directions))
+            field, seconds = best_time(lambda fn=fn, v=v, f=f: fn(v, f, frequencies, directions))
             amp = np.abs(field)
             with np.errstate(divide="ignore"):
                 db = np.abs(20 * np.log10(amp) - 20 * np.log10(reference))
@@ -158,8 +158,11 @@ def print_table(name, rows, brute):
         cells = []
         for n in names:
             r = row["methods"].get(n)
-            cells.append(f"{'skipped':>22}" if r is None else
-                         f"{r['peak_relative_error']:>10.2e} | {r['seconds'] / ex['seconds']:>8.2f}x")
+            cells.append(
+                f"{'skipped':>22}"
+                if r is None
+                else f"{r['peak_relative_error']:>10.2e} | {r['seconds'] / ex['seconds']:>8.2f}x"
+            )
         print(f"{row['faces']:>7} " + " ".join(cells))
 
 
@@ -222,13 +225,17 @@ def main() -> None:
 
     lam = C / frequencies
     results = {
-        "sphere": {"description": f"PO sphere a = {radius} m, ka {2 * np.pi * radius / lam.max():.1f}"
-                                  f"-{2 * np.pi * radius / lam.min():.1f}, {len(sphere_dirs)} "
-                                  f"directions x {len(frequencies)} frequencies",
-                   "rows": run_case("sphere", spheres, frequencies, sphere_dirs, sphere_ref, brute)},
-        "plate": {"description": f"{side} m plate, aspect 0-60 deg x roll 0/30/45 deg x "
-                                 f"{len(frequencies)} frequencies",
-                  "rows": run_case("plate", plates, frequencies, plate_dirs, plate_ref, brute)},
+        "sphere": {
+            "description": f"PO sphere a = {radius} m, ka {2 * np.pi * radius / lam.max():.1f}"
+            f"-{2 * np.pi * radius / lam.min():.1f}, {len(sphere_dirs)} "
+            f"directions x {len(frequencies)} frequencies",
+            "rows": run_case("sphere", spheres, frequencies, sphere_dirs, sphere_ref, brute),
+        },
+        "plate": {
+            "description": f"{side} m plate, aspect 0-60 deg x roll 0/30/45 deg x "
+            f"{len(frequencies)} frequencies",
+            "rows": run_case("plate", plates, frequencies, plate_dirs, plate_ref, brute),
+        },
     }
     for name, case in results.items():
         print_table(f"{name} ({case['description']})", case["rows"], brute)

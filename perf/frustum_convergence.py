@@ -1,13 +1,13 @@
 """Is a frustum's label converged, and how far does the hidden ratio move it?
 
-    python benchmarks/frustum_convergence.py [--grid coarse|full] [--ratios 0.05,0.45,0.9]
+    python perf/frustum_convergence.py [--grid coarse|full] [--ratios 0.05,0.45,0.9]
 
-For the three extreme extents of benchmarks/label_convergence.py and several top_ratio values,
+For the three extreme extents of perf/label_convergence.py and several top_ratio values,
 the label on basic_shapes.analytic.simulation_mesh is compared (benchmark metric, dB^2) with
 the same rule at refinement 2, with an independent fine mesh (trimesh's revolution of the
 frustum's profile, 2048 sections, scaled per axis), and with the label of the same extents at
 the first ratio (how much the hidden parameter moves the label). Writes
-benchmarks/results/frustum_convergence.json and prints a table.
+perf/results/frustum_convergence.json and prints a table.
 """
 
 from __future__ import annotations

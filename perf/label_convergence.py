@@ -1,6 +1,6 @@
 """Is an object's label converged? The simulation-mesh rule against twice its resolution.
 
-    python benchmarks/label_convergence.py [--grid full|coarse] [--classes cube,sphere,...]
+    python perf/label_convergence.py [--grid full|coarse] [--classes cube,sphere,...]
                                            [--independent] [--faces-sample N]
 
 For the largest objects of each class (2 x 2 x 2 m and the flattened / elongated 0.2 x 2 x 2,
@@ -11,7 +11,7 @@ is converged when that MSE is <= 0.1 dB^2 on the full default grid ("xband-v1").
 ``--independent`` also compares the label with an independent fine mesh of the same primitive
 (trimesh icosphere / cylinder / cone, scaled per axis); the issue's bound is 1 dB^2.
 ``--faces-sample N`` reports mean / max faces over N log-uniform scales (0.2 - 2 m per axis).
-Writes benchmarks/results/label_convergence.json and prints a table.
+Writes perf/results/label_convergence.json and prints a table.
 """
 
 from __future__ import annotations

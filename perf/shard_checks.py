@@ -1,12 +1,12 @@
 """Cost of the hardened reading of shards and predictions (issue 12), against plain reading.
 
-    python benchmarks/shard_checks.py [--objects 8] [--meshes 100] [--repeat 5]
+    python perf/shard_checks.py [--objects 8] [--meshes 100] [--repeat 5]
 
 Builds one shard like a generated one (objects x meshes, icospheres of ~1280 faces) and times:
 opening it (``open_hdf5`` checks + ``Shard._validate``), ``Shard.verify`` (every face index and
 the fingerprint), and reading every mesh (what any job that uses the shard pays anyway); then
 how long a 6 KB predictions file declaring 1e9 rows takes to be refused. Writes
-benchmarks/results/shard_checks.json and prints a table. Report ratios, not absolute times:
+perf/results/shard_checks.json and prints a table. Report ratios, not absolute times:
 the machine is shared.
 """
 

@@ -6,7 +6,7 @@ parameters and the Python loop), meshes per second, attempts per mesh, rejection
 face-count quantiles and Hausdorff statistics. Writes JSON (every face count included) and
 prints a table; ``--figure`` also draws the face-count histogram of docs/GENERATOR.md.
 
-    .venv/bin/python benchmarks/mesh_core.py --objects 20 --variants 99 \\
+    .venv/bin/python perf/mesh_core.py --objects 20 --variants 99 \\
         --classes cube,cylinder,sphere,cone,torus --figure docs/img/face_counts.png
 """
 
@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from basic_shapes import blender, primitives  # noqa: E402
+from basic_shapes import blender, primitives
 
 STAGES = ("simple", "primitive", "loop_cuts", "decimate", "extract", "checks", "hausdorff",
           "analytic")
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             primitives.get(c)
         except ValueError as exc:
-            raise SystemExit(str(exc))
+            raise SystemExit(str(exc)) from None
     start = time.process_time()
     blender.object_meshes(classes[0], np.ones(3), 0, 0)  # Blender start-up
     startup = time.process_time() - start

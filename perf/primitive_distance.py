@@ -1,12 +1,12 @@
 """How far the stored meshes are from the object (the analytic primitive), per class and kind.
 
-    python benchmarks/primitive_distance.py
+    python perf/primitive_distance.py
 
 For each class, 4 objects (one 2 x 2 x 2 m, three with extents log-uniform in 0.2-2 m per axis,
 seed 0) x (simple mesh + 15 variants) from basic_shapes.blender.object_meshes: the stored
 ``primitive_distance`` (two-sided, relative to the bbox diagonal) by variant kind (simple,
 undecimated, collapse, unsubdiv), its bound ``verify.primitive_tolerance`` and the distance in
-wavelengths at 12 GHz. Writes benchmarks/results/primitive_distance.json and prints a table.
+wavelengths at 12 GHz. Writes perf/results/primitive_distance.json and prints a table.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Does class + scale still solve the hidden-parameter track? The reference rows beside the oracle.
 
-    python benchmarks/hidden_references.py DATA_DIR [--out benchmarks/results/hidden_references.json]
+    python perf/hidden_references.py DATA_DIR [--out perf/results/hidden_references.json]
 
 DATA_DIR is a labelled dataset (for example ``benchmark dataset hidden-cpu-v1``). Prints the
 four reference rows of benchmark.references (what ``benchmark evaluate`` shows) and the

@@ -1,6 +1,6 @@
 """Speed-up over the way peer tools evaluate PO, at equal accuracy.
 
-    python benchmarks/radar_peers.py [--aspects 61]
+    python perf/radar_peers.py [--aspects 61]
 
 PO-SBR-Python and radarsimpy re-evaluate the geometry for every frequency: illumination (and
 shadow rays), then a per-facet sum at that wavenumber. radar_sim makes one geometric pass per
@@ -19,7 +19,7 @@ Accuracy: peak-relative amplitude error max||A| - |A_ref|| / max|A_ref| against
           only through the mesh; the tests validate it against the closed forms),
   torus   likewise, 20k faces, non-convex, with shadowing.
 The target is max(1 %, radar_sim's own error). Times for the full 61 x 21 grid are these times
-x (1281 / orientations). Writes benchmarks/results/radar_peers.json and prints a table.
+x (1281 / orientations). Writes perf/results/radar_peers.json and prints a table.
 """
 
 from __future__ import annotations
@@ -37,10 +37,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-
-import radar_sim  # noqa: E402
 from radar_accuracy import C, line_of_sight, quadrature_points  # noqa: E402
 from radar_throughput import blender_uv_sphere  # noqa: E402
+
+import radar_sim  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 TARGET = 1e-2
@@ -121,7 +121,7 @@ def run_case(name, vertices, faces, mode, frequencies, directions, reference):
     peer_rows = []
     m = 1
     while m <= MAX_M:
-        field, seconds = timed(lambda: peer_style(vertices, faces, frequencies, directions, m,
+        field, seconds = timed(lambda m=m: peer_style(vertices, faces, frequencies, directions, m,
                                                   mode != "convex"))
         peer_rows.append({"m": m, "seconds": seconds, "error": error(field, reference)})
         print(f"  {name}: peer-style M={m}: error {peer_rows[-1]['error']:.2e} in {seconds:.2f} s",

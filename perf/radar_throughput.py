@@ -1,6 +1,6 @@
 """Throughput of the radar simulator, and of labelling a paper-sized dataset.
 
-    python benchmarks/radar_throughput.py [--paper-objects 3000] [--workers 1 2]
+    python perf/radar_throughput.py [--paper-objects 3000] [--workers 1 2]
 
 Side by side, one core (single-threaded numpy and Embree calls) unless said otherwise:
   1. `simulate` on the full default grid (xband-v1: 61 x 21 orientations x 128 frequencies) for
@@ -15,7 +15,7 @@ Side by side, one core (single-threaded numpy and Embree calls) unless said othe
      960-face UV spheres, 0.3-1.5 m) in shards of 8 objects; goal: 3000 objects <= 3 min.
      Paper shards also hold 99 complex meshes per object, which labelling does not simulate but
      copies when it rewrites a shard atomically: that copy is measured per MB and extrapolated.
-Writes benchmarks/results/radar_throughput.json and prints a table.
+Writes perf/results/radar_throughput.json and prints a table.
 """
 
 from __future__ import annotations
@@ -34,10 +34,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from radar_accuracy import best_time  # noqa: E402
 
 import radar_sim  # noqa: E402
-from basic_shapes.shards import MeshRecord, ObjectRecord, rewrite_atomically, shard_name, write_shard  # noqa: E402
-from radar_accuracy import best_time  # noqa: E402
+from basic_shapes.shards import (  # noqa: E402
+    MeshRecord,
+    ObjectRecord,
+    rewrite_atomically,
+    shard_name,
+    write_shard,
+)
 from radar_sim.label import LabelRequest, label_directory  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -169,9 +175,12 @@ def main() -> None:
     out["convex"] = {name: time_simulate(mesh, config, "auto")
                      for name, mesh in convex_objects().items()}
     for name, r in out["convex"].items():
-        print(f"  {name:>10} {r['faces']:>6} faces  mode {r['mode']:<8} {r['seconds'] * 1e3:8.1f} ms"
-              f"  (field {r['field_seconds'] * 1e3:.1f} ms)  {r['orientation_frequencies_per_second']:.3g}"
-              f" orientation-frequencies/s  goal ratio {r['seconds'] / GOAL_OBJECT_S:.2f}")
+        print(
+            f"  {name:>10} {r['faces']:>6} faces  mode {r['mode']:<8} {r['seconds'] * 1e3:8.1f} ms"
+            f"  (field {r['field_seconds'] * 1e3:.1f} ms)  "
+            f"{r['orientation_frequencies_per_second']:.3g}"
+            f" orientation-frequencies/s  goal ratio {r['seconds'] / GOAL_OBJECT_S:.2f}"
+        )
 
     print("2. 20k-face non-convex torus, full default grid, one core")
     torus = trimesh.creation.torus(0.5, 0.15, major_sections=200, minor_sections=50)
@@ -213,12 +222,18 @@ def main() -> None:
     print(f"  {'workers':>7} {'objects':>7} {'seconds':>8} {'obj/s':>7} {'paper s':>8} "
           f"{'vs 1st':>7} {'vs goal':>7}")
     for r in rows:
-        print(f"  {r['workers']:>7} {r['objects']:>7} {r['seconds']:>8.1f} "
-              f"{r['objects_per_second']:>7.1f} {r['paper_seconds']:>8.1f} "
-              f"{rows[0]['seconds'] / r['seconds']:>7.2f} {r['paper_seconds'] / GOAL_PAPER_S:>7.2f}")
-    print(f"  atomic rewrite of a paper-sized shard ({copy['shard_mb']:.1f} MB, 8 objects x 99 complex"
-          f" meshes of {PAPER_COMPLEX_FACES} faces): {copy['seconds'] * 1e3:.0f} ms; "
-          f"paper dataset (~{paper_mb / 1e3:.1f} GB) adds ~{out['label']['paper_rewrite_seconds_estimate']:.0f} s")
+        print(
+            f"  {r['workers']:>7} {r['objects']:>7} {r['seconds']:>8.1f} "
+            f"{r['objects_per_second']:>7.1f} {r['paper_seconds']:>8.1f} "
+            f"{rows[0]['seconds'] / r['seconds']:>7.2f} {r['paper_seconds'] / GOAL_PAPER_S:>7.2f}"
+        )
+    print(
+        f"  atomic rewrite of a paper-sized shard ({copy['shard_mb']:.1f} MB, 8 objects x 99 "
+        f"complex"
+        f" meshes of {PAPER_COMPLEX_FACES} faces): {copy['seconds'] * 1e3:.0f} ms; "
+        f"paper dataset (~{paper_mb / 1e3:.1f} GB) adds "
+        f"~{out['label']['paper_rewrite_seconds_estimate']:.0f} s"
+    )
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=2))
     print(f"wrote {args.out}")
