@@ -152,7 +152,8 @@ def _generator_config(version: DatasetVersion) -> dict:
     """The generator config ``build`` asks for (toolkit version aside)."""
     from basic_shapes.generate import GenerateConfig
 
-    cfg = GenerateConfig(classes=tuple(version.classes), objects_per_class=version.objects_per_class,
+    cfg = GenerateConfig(classes=tuple(version.classes),
+                         objects_per_class=version.objects_per_class,
                          variants=version.variants, seed=version.seed).to_json()
     cfg.pop("toolkit_version")
     return cfg

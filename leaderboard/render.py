@@ -306,7 +306,8 @@ def markdown(groups: list[dict]) -> str:
                     "|---|---|" + "---:|" * len(COLUMNS)]
             out += [f"| {_md(e['name'])} | {_md(c)} | "
                     + " | ".join(fmt_ci(m, k) for k in COLUMNS)
-                    + " |" for e in g["models"] for c, m in sorted(e["metrics"]["per_class"].items())]
+                    + " |" for e in g["models"]
+                    for c, m in sorted(e["metrics"]["per_class"].items())]
             out += [""]
         if g["example"]:
             out += [f"![Example predictions](example-{short}.png)", ""]
