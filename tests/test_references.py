@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from basic_shapes.generate import GenerateConfig, generate
-from basic_shapes.shards import iter_objects
+from basic_shapes.shards import is_ood_variant, iter_objects
 from benchmark.data import BenchmarkData
 from benchmark.references import MeshClassifier, References, normal_descriptor, strongest
 from benchmark_fixture import make_dataset
@@ -28,13 +28,18 @@ def test_class_from_normals_on_real_meshes_of_every_variant(generated):
     held = [(o, m) for k, (_, o, m) in enumerate(objs) if k % 2 == 1]
     clf = MeshClassifier(np.stack([normal_descriptor(m[0][1], m[0][2]) for _, m in train]),
                          np.array([CLASSES.index(o["class"]) for o, _ in train]))
-    truth, guess = [], []
+    right = {False: [], True: []}  # OOD mesh? -> hits
     for o, meshes in held:  # held-out objects, every variant (remeshed, cut, decimated)
-        for _, v, f in meshes:
-            truth.append(CLASSES.index(o["class"]))
-            guess.append(clf.predict(v, f))
-    accuracy = np.mean(np.array(truth) == np.array(guess))
-    assert len(truth) == 100 and accuracy >= 0.97, accuracy
+        for variant, v, f in meshes:
+            right[bool(is_ood_variant(variant))].append(
+                clf.predict(v, f) == CLASSES.index(o["class"]))
+    assert len(right[False]) == 100 and np.mean(right[False]) >= 0.97, np.mean(right[False])
+    # meshes from remeshers the reference never saw: it degrades (12 of these 18 right when
+    # measured; the reason the reference rows are scored on OOD meshes too), but stays far
+    # above chance (1/5)
+    print("class from the mesh, accuracy regular / OOD:", np.mean(right[False]),
+          np.mean(right[True]))
+    assert len(right[True]) == 18 and np.mean(right[True]) >= 0.5, np.mean(right[True])
 
 
 def test_descriptor_by_hand():
