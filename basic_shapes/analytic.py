@@ -30,6 +30,19 @@ the mesh shows it."""
 
 ALL_KINDS = KINDS + tuple(HIDDEN)
 
+
+HIDDEN_STREAM = 0x48494444
+"""Second key of the stream drawn from an object's seed for its hidden shape parameters (the
+variants use [seed, variant, attempt] with variant < 1000, so the streams never meet)."""
+
+
+def hidden_params(class_name: str, seed: int) -> dict:
+    """The object's hidden shape parameters, uniform over HIDDEN's intervals and drawn from
+    its seed alone ({} for a Basic Shapes kind): naming a class with hidden parameters is what
+    draws them (basic_shapes.generate, blender.object_meshes)."""
+    rng = np.random.default_rng([seed, HIDDEN_STREAM])
+    return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in HIDDEN.get(class_name, {}).items()}
+
 TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
 """Blender's default torus (radii in the default mesh, before scaling)."""
 

@@ -62,7 +62,8 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
     """The simple mesh (variant 0) and ``n_variants`` verified complex variants of one object.
 
     ``scale`` holds the bbox extents in metres (x, y, z); ``shape`` the object's hidden shape
-    parameters (``analytic.HIDDEN``), which every mesh and the primitive check use. Every
+    parameters (``analytic.HIDDEN``; default: drawn from ``seed`` as the generator does), which
+    every mesh and the primitive check use. Every
     variant is a closed manifold within ``verify.tolerance`` of the simple mesh (two-sided
     Hausdorff relative to the simple mesh's bbox diagonal) and differs in topology from every
     other mesh of the object.
@@ -76,6 +77,8 @@ def object_meshes(class_name: str, scale: np.ndarray, seed: int,
     if not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be in 0..2**64-1, got {seed}")
     known = class_name in analytic.ALL_KINDS  # a registry-only primitive has no analytic shape
+    if shape is None:
+        shape = analytic.hidden_params(class_name, int(seed))
     solid = analytic.solid_for(class_name, scale, shape) if known else None
     with _LOCK:  # bpy is not thread-safe: threads of one process take turns
         return _object_meshes(spec, class_name, scale, int(seed), n_variants, solid)

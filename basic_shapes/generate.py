@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import __version__
-from basic_shapes.analytic import HIDDEN, solid_for
+from basic_shapes.analytic import hidden_params, solid_for
 from basic_shapes.infra import atomic_path, load_json
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, ScaleError, capacity, sample_scales
 from basic_shapes.shards import (
@@ -119,18 +119,6 @@ class ObjectPlan:
 
 def _rng(seed: int, *key: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
-
-
-HIDDEN_STREAM = 0x48494444
-"""Second key of the stream drawn from an object's seed for its hidden shape parameters (the
-variants use [seed, variant, attempt] with variant < 1000, so the streams never meet)."""
-
-
-def hidden_params(class_name: str, seed: int) -> dict:
-    """The object's hidden shape parameters, uniform over ``analytic.HIDDEN``'s intervals and
-    drawn from its seed alone: naming a class with hidden parameters is what draws them."""
-    rng = np.random.default_rng([seed, HIDDEN_STREAM])
-    return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in HIDDEN.get(class_name, {}).items()}
 
 
 def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:

@@ -6,7 +6,11 @@ DATA_DIR is a labelled dataset (for example ``benchmark dataset hidden-cpu-v1``)
 four reference rows of benchmark.references (what ``benchmark evaluate`` shows) and the
 ``oracle`` (benchmark.references.OracleReference: nearest training objects in log scale and
 the hidden shape parameters), each with Simple / Complex MSE and 95% intervals over the test
-objects, and the paired oracle - class-scale-nn difference. Writes a JSON beside the table.
+objects, and the paired oracle - class-scale-nn difference. ``--floor N`` (frustum datasets)
+adds the error floor of any predictor blind to the ratio: each test object's label against
+the mean target over N ratios spread over [0, 0.9], simulated at the object's exact scale
+with the dataset's radar config (the best a class + scale model can do, up to the choice of
+mean). Writes a JSON beside the table.
 """
 
 from __future__ import annotations
@@ -15,7 +19,9 @@ import argparse
 import json
 from pathlib import Path
 
-from benchmark.data import BenchmarkData
+import numpy as np
+
+from benchmark.data import BenchmarkData, db_target
 from benchmark.references import REFERENCES, OracleReference, References, compare, summary
 
 RESULTS = Path(__file__).parent / "results"
@@ -25,6 +31,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data")
     parser.add_argument("--out", type=Path, default=RESULTS / "hidden_references.json")
+    parser.add_argument("--floor", type=int, default=0, help="ratios per test object")
     args = parser.parse_args(argv)
     with BenchmarkData(args.data) as data:
         refs = References(data)
@@ -33,6 +40,7 @@ def main(argv=None) -> None:
         scorers["oracle"] = oracle.score()
         rows = {name: summary(scorers[name]) for name in (*REFERENCES, "oracle")}
         paired = compare(scorers["oracle"].per_object(), scorers["class-scale-nn"].per_object())
+        floor = ratio_blind_floor(data, args.floor) if args.floor else None
         print(data.describe())
     print(f"hidden parameters: {', '.join(oracle.keys) or 'none'}")
     print(f"{'reference':15} {'Simple MSE':>24} {'Complex MSE':>24} {'objects':>8}")
@@ -43,11 +51,43 @@ def main(argv=None) -> None:
     for m, p in paired.items():
         print(f"oracle - class-scale-nn, {m}: {p['diff']:+.2f} [{p['ci'][0]:+.2f}, "
               f"{p['ci'][1]:+.2f}] ({p['verdict']})")
+    if floor:
+        print(f"ratio-blind floor ({args.floor} ratios at the exact scale): "
+              f"{floor['mse']:.2f} dB^2 over {floor['n_objects']} test objects "
+              f"(relabel at the true ratio: {floor['relabel_mse']:.2g})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")
     tmp.write_text(json.dumps({"data": str(args.data), "hidden": oracle.keys, "rows": rows,
-                               "oracle_vs_class_scale_nn": paired}, indent=1) + "\n")
+                               "oracle_vs_class_scale_nn": paired,
+                               "ratio_blind_floor": floor}, indent=1) + "\n")
     tmp.replace(args.out)
+
+
+def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
+    """Mean over test objects of MSE(mean target over n ratios at its scale, its target)."""
+    import radar_sim
+    from basic_shapes.analytic import solid_for, simulation_mesh
+    from benchmark.versions import get
+
+    config = get("hidden-cpu-v1").radar_config()
+    ratios = (np.arange(n) + 0.5) / n * 0.9
+
+    def label(scale, ratio):
+        v, f = simulation_mesh(solid_for("frustum", scale, {"top_ratio": float(ratio)}),
+                               config.f_stop_hz)
+        return db_target(radar_sim.simulate(v, f, config).range_profiles).astype(np.float64)
+
+    errors, relabel = [], []
+    for obj in data.test_objects():
+        scale = data.objects["scale"][obj].astype(np.float64)
+        target = data.target(int(obj)).astype(np.float64)
+        shard = data._shard(int(data.objects["shard"][obj]))
+        true = json.loads(shard.file["objects/params"][int(data.objects["row"][obj])])
+        relabel.append(float(np.mean((label(scale, true["top_ratio"]) - target) ** 2)))
+        blind = np.mean([label(scale, r) for r in ratios], axis=0)
+        errors.append(float(np.mean((blind - target) ** 2)))
+    return {"mse": float(np.mean(errors)), "per_object": errors, "n_objects": len(errors),
+            "ratios": ratios.tolist(), "relabel_mse": float(np.max(relabel))}
 
 
 if __name__ == "__main__":

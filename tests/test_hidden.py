@@ -183,3 +183,41 @@ def test_labels_depend_on_the_hidden_ratio_by_a_margin():
     between = float(np.mean((low - high) ** 2))
     own = float(np.mean((low - label(0.1, 2.0)) ** 2))
     assert between > 20.0 and between > 50 * own
+
+
+def test_oracle_picks_neighbours_by_scale_and_hidden_parameter(tmp_path):
+    """OracleReference by hand on the benchmark fixture with a made-up hidden parameter written
+    into /objects/params: nearest same-class training objects in (log scale, parameter), each
+    feature divided by its spread over the training objects."""
+    import h5py
+
+    from benchmark.data import BenchmarkData
+    from benchmark.references import OracleReference, References
+    from benchmark_fixture import make_dataset
+
+    directory = make_dataset(tmp_path / "d", objects_per_class=6)
+    rng = np.random.default_rng(5)
+    for path in list_shards(directory):
+        with h5py.File(path, "r+") as f:
+            n = len(f["objects/id"])
+            f["objects/params"][...] = [json.dumps({"top_ratio": float(x)})
+                                        for x in rng.uniform(0, 0.9, n)]
+    with BenchmarkData(directory) as data:
+        oracle = OracleReference(References(data))
+        assert oracle.keys == ["top_ratio"]
+        ratio = np.array([json.loads(data._shard(int(s)).file["objects/params"][int(r)])
+                          ["top_ratio"] for s, r in zip(data.objects["shard"],
+                                                        data.objects["row"])])
+        x = np.column_stack([np.log(data.objects["scale"]), ratio])
+        train = data.object_rows("train")
+        x = x / x[train].std(axis=0)
+        cls = data.objects["class_index"]
+        scorer = oracle.score()
+        for k, obj in enumerate(data.test_objects()):
+            same = train[cls[train] == cls[obj]]
+            near = same[np.argsort(np.linalg.norm(x[same] - x[obj], axis=1))[:3]]
+            assert sorted(oracle.nearest(int(obj))) == sorted(near)
+            pred = np.mean([data.target(int(o)) for o in near], axis=0)
+            target = data.target(int(obj)).astype(np.float64)
+            expected = np.mean((np.maximum(pred, -80.0) - target) ** 2)
+            assert scorer.per_object()["simple_mse"][k] == pytest.approx(expected, rel=1e-5)
