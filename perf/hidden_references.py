@@ -66,7 +66,7 @@ def main(argv=None) -> None:
 def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
     """Mean over test objects of MSE(mean target over n ratios at its scale, its target)."""
     import radar_sim
-    from basic_shapes.analytic import solid_for, simulation_mesh
+    from basic_shapes.analytic import simulation_mesh, solid_for
     from benchmark.versions import get
 
     config = get("hidden-cpu-v1").radar_config()
