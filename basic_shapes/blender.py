@@ -137,8 +137,11 @@ def _variant(blender, class_name, scale, seed, variant, reference, seen) -> Mesh
         start = _lap("checks", start)
         if reason is None:
             params["tolerance"] = verify.tolerance(class_name, params)
+            distance = reference.distance(v, f)
+            start = _lap("hausdorff", start)
             params["primitive_tolerance"] = verify.primitive_tolerance(class_name, params)
-            distance, gap = reference.distances(v, f, params["tolerance"], lap=_lap)
+            gap = reference.primitive_distance(v, f) if distance <= params["tolerance"] else None
+            _lap("analytic", start)
             if gap is not None and not gap > params["primitive_tolerance"]:
                 seen.add(key)
                 params["attempt"] = attempt

@@ -19,7 +19,6 @@ from __future__ import annotations
 import ctypes
 import functools
 import importlib.util
-import time
 from pathlib import Path
 
 import numpy as np
@@ -148,55 +147,38 @@ class Reference:
 
     def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
-        return self.distances(vertices, faces, hausdorff_tolerance=None, primitive=False)[0]
+        ms = self._ms
+        ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
+        other = ms.current_mesh_id()
+        try:
+            radius = SEARCH_RADIUS * self.diagonal
+            to_ref = _one_sided(ms, sampled=other, target=self._id, radius=radius)
+            from_ref = _one_sided(ms, sampled=self._id, target=other, radius=radius)
+        finally:
+            ms.set_current_mesh(other)
+            ms.delete_current_mesh()
+        return max(to_ref, from_ref) / self.diagonal
 
     def primitive_distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided distance from a mesh to the object's analytic surface, relative to the
         object's bbox diagonal (NaN for a Reference built without the Solid)."""
-        return self.distances(vertices, faces, hausdorff_tolerance=None, hausdorff=False)[1]
-
-    def distances(self, vertices: np.ndarray, faces: np.ndarray,
-                  hausdorff_tolerance: float | None, hausdorff: bool = True,
-                  primitive: bool = True, lap=None) -> tuple:
-        """(Hausdorff distance to the reference, distance to the primitive), both relative.
-
-        The mesh is loaded into MeshLab once (with its Hausdorff samples as unreferenced
-        vertices, which the closest-point search ignores) and serves all three MeshLab
-        queries. The primitive distance is None when the Hausdorff distance exceeds
-        ``hausdorff_tolerance`` (the mesh is rejected anyway), NaN without a Solid; either is
-        NaN when not asked for (``hausdorff``, ``primitive``).
-        ``lap(stage, start)``, when given, is charged the CPU time of each part
-        ("hausdorff", "analytic") and returns the next start (blender._lap).
-        """
-        lap = lap or (lambda stage, start: start)
-        start = time.process_time()
-        ms, v = self._ms, np.asarray(vertices, np.float64)
-        ms.add_mesh(_sampled_mesh(v, faces, self.spacing) if hausdorff else
-                    _pymeshlab().Mesh(vertex_matrix=v, face_matrix=np.asarray(faces, np.int32)))
+        solid = self.solid
+        if solid is None:
+            return float("nan")
+        v = np.asarray(vertices, np.float64)
+        spacing = solid.diagonal * SURFACE_SPACING * 4
+        points = np.concatenate([v, face_samples(v, faces, spacing)])
+        to_surface = float(analytic.surface_distance(solid, points).max())
+        ms = self._ms
+        ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=v, face_matrix=np.asarray(faces, np.int32)))
         other = ms.current_mesh_id()
         try:
-            distance = float("nan")
-            if hausdorff:
-                radius = SEARCH_RADIUS * self.diagonal
-                to_ref = _one_sided(ms, sampled=other, target=self._id, radius=radius)
-                from_ref = _one_sided(ms, sampled=self._id, target=other, radius=radius)
-                distance = max(to_ref, from_ref) / self.diagonal
-                start = lap("hausdorff", start)
-                if hausdorff_tolerance is not None and distance > hausdorff_tolerance:
-                    return distance, None
-            solid = self.solid
-            if solid is None or not primitive:
-                return distance, float("nan")
             from_surface = _one_sided(ms, sampled=self._surface_id, target=other,
                                       radius=SEARCH_RADIUS * solid.diagonal)
         finally:
             ms.set_current_mesh(other)
             ms.delete_current_mesh()
-        spacing = solid.diagonal * SURFACE_SPACING * 4
-        points = np.concatenate([v, face_samples(v, faces, spacing)])
-        to_surface = float(analytic.surface_distance(solid, points).max())
-        lap("analytic", start)
-        return distance, max(to_surface, from_surface) / solid.diagonal
+        return max(to_surface, from_surface) / solid.diagonal
 
 
 def in_wavelengths(relative: float, scale) -> float:

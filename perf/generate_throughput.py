@@ -46,7 +46,7 @@ def measure(objects_per_class: int, variants: int, ood: int) -> dict:
     plans = plan_objects(cfg)
     blender.object_meshes("cube", np.ones(3), 0, 0)  # Blender start-up: once per process
     blender.warm_up(cfg.classes)
-    out = {"classes": {}}
+    out, done = {"classes": {}}, {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in cfg.classes:
             blender.STAGE_SECONDS.clear()
@@ -71,8 +71,9 @@ def measure(objects_per_class: int, variants: int, ood: int) -> dict:
             out["classes"][name] = {"meshes": n, "ms_per_mesh": {k: 1e3 * v / n
                                                                  for k, v in row.items()},
                                     "attempts": dict(blender.ATTEMPTS)}
-            if ood:
-                out["classes"][name]["ood"] = _ood(objects, name, ood)
+            done[name] = objects
+    for name, objects in done.items() if ood else ():  # after: nothing of it leaks into the rest
+        out["classes"][name]["ood"] = _ood(objects, name, ood)
     return out
 
 
@@ -89,7 +90,10 @@ def _ood(objects, name: str, per_remesher: int) -> dict:
 
 
 def run_child(tree: Path, args, ood: int) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    # one thread per process, as on Dask workers (their nannies set these): idle BLAS threads
+    # would otherwise spin and charge CPU time to whatever stage runs next
+    env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1", MKL_NUM_THREADS="1",
+               OPENBLAS_NUM_THREADS="1")
     cmd = [sys.executable, __file__, "--child", "--objects-per-class",
            str(args.objects_per_class), "--variants", str(args.variants), "--ood", str(ood)]
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=tree)
