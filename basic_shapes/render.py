@@ -9,12 +9,24 @@ import numpy as np
 from basic_shapes.shards import find_object
 
 
+def draw_mesh(ax, v, f, half: float, rng) -> None:
+    """One mesh on a 3-D axis, faces in random colours so the topology shows, cube of +-half."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    ax.add_collection3d(Poly3DCollection(v[f], facecolors=rng.uniform(0.15, 1, (len(f), 3)),
+                                         edgecolors="k", linewidths=0.15))
+    for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
+        setter(-half, half)
+    ax.set_box_aspect((1, 1, 1), zoom=1.25)
+    ax.view_init(elev=22, azim=35)
+    ax.set_axis_off()
+
+
 def show_object(directory: str | Path, object_id: int, out: str | Path, count: int = 5) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     _, obj, meshes = find_object(directory, object_id)
     simple = [m for m in meshes if m[0] == 0]
@@ -32,13 +44,7 @@ def show_object(directory: str | Path, object_id: int, out: str | Path, count: i
     half = 0.5 * float(np.max(obj["scale"]))
     for k, (variant, v, f) in enumerate(shown):
         ax = fig.add_subplot(nrows, ncols, k + 1, projection="3d")
-        ax.add_collection3d(Poly3DCollection(v[f], facecolors=rng.uniform(0.15, 1, (len(f), 3)),
-                                             edgecolors="k", linewidths=0.15))
-        for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
-            setter(-half, half)
-        ax.set_box_aspect((1, 1, 1), zoom=1.25)
-        ax.view_init(elev=22, azim=35)
-        ax.set_axis_off()
+        draw_mesh(ax, v, f, half, rng)
         label = "simple" if variant == 0 else f"variant {variant}"
         ax.set_title(f"{label}\n{len(f)} faces", fontsize=10)
     sx, sy, sz = obj["scale"]

@@ -29,6 +29,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives, remesh, verify
+from basic_shapes.render import draw_mesh
 from basic_shapes.scales import SCALE_RANGE
 from basic_shapes.shards import OOD_REMESHERS
 
@@ -90,7 +91,6 @@ def figure(class_name: str, scale: np.ndarray, seed: int, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     records = blender.object_meshes(class_name, scale, seed, 1)
     ood = remesh.ood_meshes(class_name, scale, seed, records[0].vertices, records[0].faces, 2)
@@ -104,13 +104,7 @@ def figure(class_name: str, scale: np.ndarray, seed: int, path: Path) -> None:
     for k, (label, m) in enumerate(shown):
         ax = fig.add_subplot(nrows, ncols, k + 1, projection="3d")
         v, f = m.vertices, m.faces
-        ax.add_collection3d(Poly3DCollection(v[f], facecolors=rng.uniform(0.15, 1, (len(f), 3)),
-                                             edgecolors="k", linewidths=0.15))
-        for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
-            setter(-half, half)
-        ax.set_box_aspect((1, 1, 1), zoom=1.25)
-        ax.view_init(elev=22, azim=35)
-        ax.set_axis_off()
+        draw_mesh(ax, v, f, half, rng)
         ax.set_title(f"{label}\n{len(f)} faces", fontsize=9)
     sx, sy, sz = scale
     fig.suptitle(f"{class_name} {sx:.2f} x {sy:.2f} x {sz:.2f} m: simple mesh, a training "
