@@ -165,7 +165,7 @@ def _train_flags(cfg) -> list[str]:
 
 
 def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc: int,
-            progress: bool) -> dict:
+            progress: bool, log=None) -> dict:
     """Train (in-process or under torchrun) and evaluate one (row, seed); return its record."""
     from benchmark.models.checkpoint import save_checkpoint
     from benchmark.train import evaluate_checkpoint, train
@@ -187,7 +187,7 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
 
         with BenchmarkData(data_dir) as data:
             model, config = train(cfg, data, cache=shared["cache"], corpus=shared.get("corpus"),
-                                  device=shared["device"], progress=progress)
+                                  device=shared["device"], progress=progress, log=log)
         save_checkpoint(ckpt, model, config)
         train_seconds = config["train_seconds"]
     results_path, predictions_path = row_files(out, cfg.name, cfg.seed)
@@ -639,7 +639,8 @@ def _start_worker(threads: int, fingerprint: str, corpus_path: str | None,
 
 
 def _row_job(cfg, data_dir: Path, out: Path, preset: Preset) -> tuple[object, dict]:
-    record = run_row(cfg, data_dir, out, preset, _WORKER, 1, progress=False)
+    record = run_row(cfg, data_dir, out, preset, _WORKER, 1, progress=False,
+                     log=lambda line: print(line, flush=True))
     return cfg, record
 
 

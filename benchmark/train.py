@@ -267,14 +267,15 @@ def validation_mse(model: MeshSimulator, examples: list[Example], batch_size: in
 def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, epochs: int,
         batch_size: int, lr: float, weight_decay: float, seed: int, desc: str,
         device: torch.device, progress: bool = True,
-        val: list[Example] | None = None) -> list[dict]:
+        val: list[Example] | None = None, log=None) -> list[dict]:
     """AdamW with linear warm-up and cosine decay, gradient clipping at 1; returns the mean
     loss and statistics of every epoch.
 
     With ``val`` examples (a regression task), every epoch's model is scored on them
     (``val_mse``) and the weights of the best epoch are kept: the checkpoint is selected on
     the validation split, never on test, and its record is marked ``selected``. Without,
-    the last epoch is kept."""
+    the last epoch is kept. ``log`` (a callable taking one line) reports each finished epoch
+    where no progress bar can be shown (pool workers of ``benchmark reproduce``)."""
     distributed = torch.distributed.is_available() and torch.distributed.is_initialized()
     rank = torch.distributed.get_rank() if distributed else 0
     world = torch.distributed.get_world_size() if distributed else 1
@@ -298,6 +299,7 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
     history = []
     best = None
     bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
+    t0 = time.perf_counter()
     for epoch in bar:
         sums: dict[str, float] = {}
         batches = epoch_batches(examples, groups, batch_size, epoch, seed, rank, world)
@@ -319,6 +321,9 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
                                                    for k, v in task.state_dict().items()})
         history.append(record)
         bar.set_postfix({k: f"{v:.3g}" for k, v in record.items()})
+        if log is not None and rank == 0:
+            log(f"{desc}: epoch {epoch + 1}/{epochs}, {time.perf_counter() - t0:.0f} s, "
+                + ", ".join(f"{k} {v:.3g}" for k, v in record.items()))
     if best is not None:
         task.load_state_dict(best[2])
         history[best[1]]["selected"] = True
@@ -342,7 +347,8 @@ def seed_everything(seed: int) -> None:
 
 def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = ScaleBins(),
           cache: FeatureCache | None = None, corpus: tuple[list, list[str]] | None = None,
-          device: str | torch.device = "cpu", progress: bool = True) -> tuple[MeshSimulator, dict]:
+          device: str | torch.device = "cpu", progress: bool = True,
+          log=None) -> tuple[MeshSimulator, dict]:
     """Train one (embedding, regime); return the model (eval mode) and its checkpoint config.
 
     ``corpus`` = (meshes, class names) overrides the configured pretraining corpus (lets
@@ -366,8 +372,8 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
         history["pretrain"] = fit(PretrainTask(model, head), examples, groups,
                                   epochs=cfg.pretrain_epochs, batch_size=cfg.batch_size,
                                   lr=cfg.pretrain_lr, weight_decay=cfg.weight_decay,
-                                  seed=cfg.seed + 1, desc=f"{cfg.name} pretrain", device=device,
-                                  progress=progress)
+                                  seed=cfg.seed + 1, desc=f"{cfg.name}/seed-{cfg.seed} pretrain",
+                                  device=device, progress=progress, log=log)
     examples, groups = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes,
                                           scale_bins, cache, progress)
     val, _ = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins,
@@ -378,7 +384,8 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
     task = RegressionTask(model, cfg.loss, data.target_shape)
     history["train"] = fit(task, examples, groups, epochs=cfg.epochs, batch_size=cfg.batch_size,
                            lr=cfg.lr, weight_decay=cfg.weight_decay, seed=cfg.seed,
-                           desc=cfg.name, device=device, progress=progress, val=val)
+                           desc=f"{cfg.name}/seed-{cfg.seed}", device=device, progress=progress,
+                           val=val, log=log)
     model.to("cpu").eval()
     config = {"name": cfg.name, "embedding": cfg.embedding, "regime": cfg.regime,
               "model": kwargs, "target_shape": list(data.target_shape),
