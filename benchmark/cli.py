@@ -24,7 +24,7 @@ EPILOG = """examples:
   benchmark dataset cpu-v1 --data data/cpu-v1"""
 
 DELEGATED = {
-    "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
+    "train": ("benchmark.train_cli", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
     "reproduce": (
         "benchmark.reproduce",
         "run a preset (tiny|small|paper) and write the paper's table",
