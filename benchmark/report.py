@@ -39,11 +39,12 @@ def reference_rows(data) -> tuple[dict, dict]:
     return scorers, {n: references.summary(sc) for n, sc in scorers.items()}
 
 
-def load_records(out: Path, seeds: list[int], data) -> dict:
+def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
     """The (row, seed) records under ``out`` as ``benchmark reproduce`` keeps them in memory:
     every ``results/<row>/seed-<s>/results.json`` of the table's rows and ``seeds``, checked
     to be that row's and seed's, scored on ``data`` (its meshes and labels), with per-object
-    errors; ``train_seconds`` from the checkpoint's config.json where it was kept, else None."""
+    errors; ``train_seconds`` from the checkpoint's config.json where it was kept (checked to
+    be of the preset), else None."""
     from benchmark.protocol import load_results
 
     results_dir = out / "results"
@@ -68,19 +69,26 @@ def load_records(out: Path, seeds: list[int], data) -> dict:
             if "per_object" not in results:
                 raise ReportError(f"{path}: no per_object errors (made by an older harness)")
             records.setdefault(name, {})[seed] = {
-                "results": results, "train_seconds": _train_seconds(out, name, seed)}
+                "results": results, "train_seconds": _train_seconds(out, name, seed, preset_name)}
     if not records:
         raise ReportError(f"{results_dir}: no results.json of any row for seeds "
                           f"{','.join(map(str, seeds))}")
     return records
 
 
-def _train_seconds(out: Path, name: str, seed: int) -> float | None:
+def _train_seconds(out: Path, name: str, seed: int, preset_name: str) -> float | None:
     path = checkpoint_dir(out, name, seed) / "config.json"
     if not path.is_file():
         return None
     config = load_json(path, max_bytes=CONFIG_MAX_BYTES, error=ReportError)
-    value = config.get("train_seconds") if isinstance(config, dict) else None
+    config = config if isinstance(config, dict) else {}
+    trained = config.get("train") if isinstance(config.get("train"), dict) else {}
+    wrong = [(k, v) for k, v in PRESETS[preset_name].train.items() if trained.get(k) != v]
+    if wrong:  # results of another preset would be tabled (and decided) as this one's
+        key, want = wrong[0]
+        raise ReportError(f"{path}: trained with {key}={trained.get(key)!r}, not the "
+                          f"{preset_name} preset's {want!r}; is --preset right?")
+    value = config.get("train_seconds")
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0:
         raise ReportError(f"{path}: train_seconds must be a number >= 0, got {value!r}")
     return value

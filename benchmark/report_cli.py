@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> None:
     seeds = seeds_of(args.seeds, PRESETS[args.preset])
     out = Path(args.out)
     with BenchmarkData(args.data) as data:
-        records = report.load_records(out, seeds, data)
+        records = report.load_records(out, args.preset, seeds, data)
         dataset = {"fingerprint": data.fingerprint, "description": data.describe()}
         ref_scorers, ref_rows = report.reference_rows(data)
     if not args.quiet:

@@ -287,6 +287,12 @@ def test_report_refuses_missing_or_misplaced_results_in_one_line(tiny, tmp_path)
     assert info.value.code.endswith("seed-1/results.json: holds the results of graph-basic "
                                     "seed 0, not graph-basic seed 1")
     assert "\n" not in info.value.code and not (d / "table.json").exists()
+    d = _committed(tiny, tmp_path / "c", configs=True)
+    with pytest.raises(SystemExit) as info:  # the tiny run's results are not the small preset's
+        benchmark_main(["report", "--preset", "small", "--data", data, "--out", str(d)])
+    assert info.value.code.endswith("seed-0/config.json: trained with dim=16, not the small "
+                                    "preset's 32; is --preset right?")
+    assert not (d / "table.json").exists()
 
 
 def _paper_shaped_rows(n: int = 90, seed: int = 0) -> list[dict]:
