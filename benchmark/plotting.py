@@ -16,7 +16,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from matplotlib.ticker import FormatStrFormatter, SymmetricalLogLocator
+from matplotlib.ticker import FormatStrFormatter, LogFormatter, SymmetricalLogLocator
 
 FONT_PT = 8.0
 LINE = 1.35  # label pitch in font heights
@@ -95,9 +95,13 @@ def speed_vs_error(points: list[Point], references: dict[str, float] | None = No
         labels.append((*simulator, "physics simulator", "tab:orange"))
     ax.set_xscale("log")
     ax.set_yscale("symlog", linthresh=1.0)  # spans 0 (the physics) to no-skill hundreds
-    # ticks at 1..9 x each decade, so a range inside one decade is still labelled
-    ax.yaxis.set_major_locator(SymmetricalLogLocator(base=10, linthresh=1.0, subs=range(1, 10)))
+    # ticks at 1..9 x each decade (and halves below 3), so a range inside one decade is still
+    # labelled; plain numbers on both axes
+    subs = (1, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9)
+    ax.yaxis.set_major_locator(SymmetricalLogLocator(base=10, linthresh=1.0, subs=subs))
     ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(1, 0.5)))
     ax.margins(x=0.15, y=0.08)
     for name, y in references.items():
         ax.axhline(y, color="0.55", lw=0.8, ls="--", zorder=1)

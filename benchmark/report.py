@@ -382,41 +382,21 @@ def render_markdown(table: dict) -> str:
 
 
 def plot(rows: list[dict], path: Path, title: str, references: dict | None = None) -> None:
-    """Speed against error: ms per mesh (log) vs Complex MSE with its interval, one point per
-    row; the strongest reference as a horizontal line (it costs nothing to run)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """Speed against error (``benchmark.plotting``): one point per row, coloured by embedding,
+    shaped by regime, with its interval; the references as dashed lines."""
+    from benchmark import plotting
 
     markers = {"basic": "o", "classification": "s", "autoencoder": "^", "ideal": "*"}
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for r in rows:
-        if r["ms_per_mesh"] is None or r["complex_mse"] is None:
-            continue
-        ci = r.get("complex_mse_ci")
-        if ci:
-            ax.errorbar(r["ms_per_mesh"], r["complex_mse"], fmt="none", ecolor="0.6",
-                        yerr=[[r["complex_mse"] - ci[0]], [ci[1] - r["complex_mse"]]])
-        ax.scatter(r["ms_per_mesh"], r["complex_mse"], c=REGISTRY[r["embedding"]].colour,
-                   marker=markers[r["regime"]], s=80 if r["regime"] == "ideal" else 45,
-                   edgecolors="black" if r["no_skill"] else "none", zorder=3)
-        ax.annotate(r["name"], (r["ms_per_mesh"], r["complex_mse"]), fontsize=7,
-                    xytext=(4, 3), textcoords="offset points")
-    for name, ref in (references or {}).items():
-        if ref.get("complex_mse") is not None:
-            ax.axhline(ref["complex_mse"], color="0.5", lw=0.8, ls="--")
-            ax.annotate(f"reference: {name}", (0.01, ref["complex_mse"]), fontsize=6,
-                        xycoords=("axes fraction", "data"), color="0.4")
-    ax.set_xscale("log")
-    ax.set_xlabel("ms per mesh (inference, including featurization)")
-    ax.set_ylabel("Complex MSE (dB², 95% interval)")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
+    points = [plotting.Point(r["ms_per_mesh"], r["complex_mse"], r["name"],
+                             ci=r.get("complex_mse_ci"), colour=REGISTRY[r["embedding"]].colour,
+                             marker=markers[r["regime"]],
+                             size=80 if r["regime"] == "ideal" else 45, hollow=r["no_skill"])
+              for r in rows if r["ms_per_mesh"] is not None and r["complex_mse"] is not None]
+    fig = plotting.speed_vs_error(
+        points, {k: v.get("complex_mse") for k, v in (references or {}).items()}, title=title,
+        xlabel="ms per mesh (inference, including featurization; log scale)")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+        tmp.write_bytes(plotting.png(fig))
 
 
 def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
