@@ -290,7 +290,7 @@ def remesher_table(rows: list[dict], references: dict) -> list[str]:
     row (none when no row has OOD meshes)."""
     from basic_shapes.shards import OOD_REMESHERS
 
-    rows = [{**r, "embedding": f"reference: {n}", "pretraining": "-"}
+    rows = [{**r, "embedding": f"reference: {n}", "pretraining": "-", "training_meshes": "-"}
             for n, r in references.items()] + rows
     names = [n for n in OOD_REMESHERS if any(n in r.get("per_remesher", {}) for r in rows)]
     if not names:
@@ -298,14 +298,15 @@ def remesher_table(rows: list[dict], references: dict) -> list[str]:
     lines = ["", "### Out-of-distribution meshes per remesher", "",
              "OOD Complex / OOD Variation MSE (dB²) on each remesher's meshes, mean over seeds "
              "[95% interval of the seed-mean].", "",
-             "| Embedding | Pretraining | " + " | ".join(f"{n} Complex | {n} Variation"
-                                                    for n in names) + " |",
-             "|---|---|" + "---:|---:|" * len(names)]
+             "| Embedding | Pretraining | Training meshes | "
+             + " | ".join(f"{n} Complex | {n} Variation" for n in names) + " |",
+             "|---|---|---|" + "---:|---:|" * len(names)]
     for r in rows:
         pr = r.get("per_remesher", {})
         cells = [_cell(pr.get(n, {}).get(k), None, pr.get(n, {}).get(k + "_ci"), _digits(k))
                  for n in names for k in OOD_METRICS]
-        lines.append(f"| {r['embedding']} | {r['pretraining']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
+                     + " | ".join(cells) + " |")
     return lines
 
 
