@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> None:
     out = Path(args.out)
     with BenchmarkData(args.data) as data:
         records = report.load_records(out, args.preset, seeds, data)
-        dataset = {"fingerprint": data.fingerprint, "description": data.describe()}
+        dataset = report.dataset_info(data, args.data)
         ref_scorers, ref_rows = report.reference_rows(data)
     if not args.quiet:
         print(f"{sum(map(len, records.values()))} (row, seed) results of {len(records)} rows "

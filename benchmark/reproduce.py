@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> None:
         data_dir = out / "data"
         timing.update(make_dataset(preset, data_dir, args.quiet))
     with BenchmarkData(data_dir) as data:
-        dataset = {"fingerprint": data.fingerprint, "description": data.describe()}
+        dataset = report.dataset_info(data, data_dir)
         ref_scorers, ref_rows = report.reference_rows(data)
     fingerprint = dataset["fingerprint"]
     cfgs = [runner.row_config(preset, e, r, s, args.shapenet) for e, r in rows for s in seeds]
