@@ -237,13 +237,16 @@ def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads:
 def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
                progress: bool = True) -> None:
     """Re-time the first seed of rows that were evaluated while another job shared the CPU
-    (their ms per mesh measured contention, not the model): ``predict`` over the whole test
-    split, one row at a time, after a warm-up batch; I/O excluded, as in the harness."""
+    (their ms per mesh measured contention, not the model): ``predict`` over every scored
+    test mesh in the harness's batches, one row at a time, after a warm-up batch; I/O
+    excluded, as in the harness."""
     import torch
     from tqdm import tqdm
 
     from benchmark.data import BenchmarkData
+    from benchmark.evaluate import face_count_batches
     from benchmark.models.checkpoint import CheckpointModel
+    from benchmark.protocol import scored_mesh_rows
 
     todo = [(cfg, r) for cfg, r in jobs
             if TIMED_ALONE not in (r["results"]["speed"].get("hardware") or "")]
@@ -251,8 +254,8 @@ def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
         return
     device = "cuda" if torch.cuda.is_available() else "cpu"
     with BenchmarkData(data_dir) as data:
-        rows = data.mesh_rows("test")
-        batches = [data.batch(rows[s:s + 16]) for s in range(0, len(rows), 16)]
+        rows = scored_mesh_rows(data)
+        batches = [data.batch(chunk) for chunk in face_count_batches(data, rows, 16)]
     for cfg, record in tqdm(todo, desc="timing", unit="row", disable=not progress):
         model = CheckpointModel(checkpoint_dir(out, cfg.name, cfg.seed), device=device)
         model.predict(batches[0])
