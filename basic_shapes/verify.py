@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes import analytic, primitives
+from basic_shapes import analytic, meshlab_bounds, primitives
 
 PLANAR_TOLERANCE = 1e-6
 """Bound for planar-faced shapes: float32 vertex rounding is ~6e-8 of the diagonal."""
@@ -142,8 +142,7 @@ class Reference:
         self.solid = solid
         if solid is not None:
             samples = analytic.surface_samples(solid, solid.diagonal * SURFACE_SPACING)
-            self._ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=samples))
-            self._surface_id = self._ms.current_mesh_id()
+            self._surface = meshlab_bounds.SampleBounds(samples, solid.diagonal)
 
     def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
@@ -169,15 +168,21 @@ class Reference:
         spacing = solid.diagonal * SURFACE_SPACING * 4
         points = np.concatenate([v, face_samples(v, faces, spacing)])
         to_surface = float(analytic.surface_distance(solid, points).max())
+        # MeshLab measures only the surface samples that may hold the maximum: the same number
+        # as measuring all of them, at a fraction of the cost (meshlab_bounds)
+        picked = self._surface.samples[self._surface.candidates(v, faces)]
         ms = self._ms
         ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=v, face_matrix=np.asarray(faces, np.int32)))
         other = ms.current_mesh_id()
+        ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=picked))
+        sampled = ms.current_mesh_id()
         try:
-            from_surface = _one_sided(ms, sampled=self._surface_id, target=other,
+            from_surface = _one_sided(ms, sampled=sampled, target=other,
                                       radius=SEARCH_RADIUS * solid.diagonal)
         finally:
-            ms.set_current_mesh(other)
-            ms.delete_current_mesh()
+            for mesh in (sampled, other):
+                ms.set_current_mesh(mesh)
+                ms.delete_current_mesh()
         return max(to_surface, from_surface) / solid.diagonal
 
 
