@@ -12,6 +12,7 @@ numpy (and scipy's KD-tree) only: radar_sim imports this module to label objects
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -141,12 +142,18 @@ def _torus_implicit(s):
     return f
 
 
-def _nearest(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
-    """Index of the nearest sample to each point (a KD-tree: brute force cost 0.4 s per mesh
-    of a few thousand points against an ellipsoid's grid, perf/generate_throughput.py)."""
+@functools.lru_cache(maxsize=32)
+def _starts(axes: tuple) -> tuple:
+    """Newton's start candidates on the ellipse (two semi-axes) or ellipsoid (three) and their
+    KD-tree, built once per shape: every variant of an object asks for the same ones (building
+    them per call cost ~5 ms per sphere mesh; brute-force nearest search 0.4 s,
+    perf/generate_throughput.py)."""
     from scipy.spatial import cKDTree
 
-    return cKDTree(samples).query(points)[1]
+    samples = (_ellipse_points(*axes) if len(axes) == 2
+               else _ellipsoid_grid(np.array(axes), 24))
+    samples.flags.writeable = False
+    return samples, cKDTree(samples)
 
 
 NEWTON_STEPS = 100
@@ -199,9 +206,11 @@ def _closest_on_implicit(points, starts, implicit):
     return x, ok
 
 
-def _curve_distance(q: np.ndarray, implicit, samples: np.ndarray) -> np.ndarray:
-    """Distance from points to a smooth closed curve/surface {F = 0} (nearest sample + Newton)."""
-    start = samples[_nearest(q, samples)]
+def _curve_distance(q: np.ndarray, implicit, axes) -> np.ndarray:
+    """Distance from points to the ellipse or ellipsoid {F = 0} of these semi-axes (nearest
+    start sample + Newton)."""
+    samples, tree = _starts(tuple(float(a) for a in axes))
+    start = samples[tree.query(q)[1]]
     x, ok = _closest_on_implicit(q, start, implicit)
     d = np.linalg.norm(q - x, axis=1)
     return np.where(ok, np.minimum(d, np.linalg.norm(q - start, axis=1)),
@@ -250,7 +259,7 @@ def _ellipse_points(a, b, n=256):
 
 def _ellipse_distance(q2, a, b):
     """Distance from 2-D points to the ellipse curve (a, b) and whether they lie inside it."""
-    d = _curve_distance(q2, _ellipsoid_implicit((a, b)), _ellipse_points(a, b))
+    d = _curve_distance(q2, _ellipsoid_implicit((a, b)), (a, b))
     inside = (q2[:, 0] / a) ** 2 + (q2[:, 1] / b) ** 2 <= 1.0
     return d, inside
 
@@ -276,7 +285,7 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
         outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
         return np.where(np.all(q <= 0, axis=1), -q.max(axis=1), outside)
     if kind == "sphere":
-        return _curve_distance(p, _ellipsoid_implicit(h), _ellipsoid_grid(h, 24))
+        return _curve_distance(p, _ellipsoid_implicit(h), h)
     if kind == "cylinder":
         a, b, c = h
         rim = _ellipse_distance(p[:, :2], a, b)
