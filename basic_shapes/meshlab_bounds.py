@@ -216,6 +216,26 @@ def _lower(samples, vertices, faces, planes, tau, slack):
     return out
 
 
+@njit(cache=True)
+def _near_faces(samples, picked, reach, origin, cell, dims, start, items, n_faces):
+    """Faces listed in any cell within ``reach`` of a picked sample (its box of cells): every
+    face whose bbox comes that close, so every face that can give MeshLab's minimum."""
+    mark = np.zeros(n_faces, np.bool_)
+    lo, hi = np.empty(3, np.int64), np.empty(3, np.int64)
+    for i in range(len(picked)):
+        for k in range(3):
+            x = samples[picked[i], k] - origin[k]
+            lo[k] = min(max(int(np.floor((x - reach[i]) / cell)), 0), dims[k] - 1)
+            hi[k] = min(max(int(np.floor((x + reach[i]) / cell)), 0), dims[k] - 1)
+        for a in range(lo[0], hi[0] + 1):
+            for b in range(lo[1], hi[1] + 1):
+                for c in range(lo[2], hi[2] + 1):
+                    cell_id = (a * dims[1] + b) * dims[2] + c
+                    for t in range(start[cell_id], start[cell_id + 1]):
+                        mark[items[t]] = True
+    return np.flatnonzero(mark)
+
+
 PROBES = 16
 """Samples of largest upper bound whose lower bound is computed against every face, per round."""
 
@@ -236,11 +256,14 @@ class SampleBounds:
         self.dims = index.max(axis=0) + 1
         self.cells = np.ravel_multi_index(index.T, self.dims)
 
-    def candidates(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """Indices of the samples whose MeshLab distance to the mesh may be the largest.
+    def candidates(self, vertices: np.ndarray, faces: np.ndarray) -> tuple:
+        """Indices of the samples whose MeshLab distance to the mesh may be the largest, and of
+        the faces that can be closest to them.
 
         Every sample left out has an upper bound below a lower bound of some kept sample's
-        distance, so the maximum over the kept ones is the maximum over all.
+        distance, so the maximum over the kept ones is the maximum over all; every face left
+        out is farther from each kept sample than that sample's upper bound, so MeshLab's
+        minimum over the kept faces is its minimum over all.
         """
         v = np.ascontiguousarray(vertices, np.float64)
         f = np.ascontiguousarray(faces, np.int64)
@@ -253,7 +276,11 @@ class SampleBounds:
         picked = np.flatnonzero(first + rho >= bound)
         upper = _upper(self.samples, self.cells, picked, first, v, f, planes, start, items, tau)
         bound = self._raise(bound, picked, upper, v, f, planes)
-        return picked[upper + rho >= bound]
+        keep = upper + rho >= bound
+        reach = np.minimum(upper[keep] + 4 * rho, self.cell * self.dims.sum())  # inf: all
+        near = _near_faces(self.samples, picked[keep], reach, self.origin, self.cell, self.dims,
+                           start, items, len(f))
+        return picked[keep], near
 
     def _raise(self, bound, picked, upper, v, f, planes) -> float:
         """``bound`` raised to the largest lower bound of the picked samples of largest upper

@@ -113,15 +113,11 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.
     return np.concatenate(parts)
 
 
-def _sampled_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float):
-    """A pymeshlab mesh whose vertex list also holds its face samples, unreferenced.
-
-    MeshLab's vertex sampling visits every vertex, while its closest-point search only looks
-    at faces: one mesh serves as the sample set in one direction and the target in the other.
-    """
+def _samples(vertices: np.ndarray, faces: np.ndarray, spacing: float, diagonal: float):
+    """A mesh's Hausdorff samples: every vertex and its face samples."""
     v = np.asarray(vertices, np.float64)
-    return _pymeshlab().Mesh(vertex_matrix=np.concatenate([v, face_samples(v, faces, spacing)]),
-                             face_matrix=np.asarray(faces, np.int32))
+    return meshlab_bounds.SampleBounds(np.concatenate([v, face_samples(v, faces, spacing)]),
+                                       diagonal)
 
 
 class Reference:
@@ -141,10 +137,7 @@ class Reference:
         self.spacing = self.diagonal * SAMPLE_SPACING
         self._mesh = (np.asarray(vertices, np.float64), np.asarray(faces))
         self._ms = _pymeshlab().MeshSet()
-        self._ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
-        self._id = self._ms.current_mesh_id()
-        self._samples = meshlab_bounds.SampleBounds(self._ms.current_mesh().vertex_matrix(),
-                                                    self.diagonal)
+        self._samples = _samples(*self._mesh, self.spacing, self.diagonal)
         self.solid = solid
         if solid is not None:
             samples = analytic.surface_samples(solid, solid.diagonal * SURFACE_SPACING)
@@ -153,12 +146,10 @@ class Reference:
     def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
         v = np.asarray(vertices, np.float64)
-        samples = meshlab_bounds.SampleBounds(
-            np.concatenate([v, face_samples(v, faces, self.spacing)]), self.diagonal)
         radius = SEARCH_RADIUS * self.diagonal
-        with _loaded(self._ms, v, faces) as other:
-            to_ref = _one_sided_subset(self._ms, samples, self._id, self._mesh, radius)
-            from_ref = _one_sided_subset(self._ms, self._samples, other, (v, faces), radius)
+        to_ref = _one_sided_subset(self._ms, _samples(v, faces, self.spacing, self.diagonal),
+                                   self._mesh, radius)
+        from_ref = _one_sided_subset(self._ms, self._samples, (v, faces), radius)
         return max(to_ref, from_ref) / self.diagonal
 
     def primitive_distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -171,9 +162,8 @@ class Reference:
         spacing = solid.diagonal * SURFACE_SPACING * 4
         points = np.concatenate([v, face_samples(v, faces, spacing)])
         to_surface = float(analytic.surface_distance(solid, points).max())
-        with _loaded(self._ms, v, faces) as other:
-            from_surface = _one_sided_subset(self._ms, self._surface, other, (v, faces),
-                                             SEARCH_RADIUS * solid.diagonal)
+        from_surface = _one_sided_subset(self._ms, self._surface, (v, faces),
+                                         SEARCH_RADIUS * solid.diagonal)
         return max(to_surface, from_surface) / solid.diagonal
 
 
@@ -190,13 +180,13 @@ def _loaded(ms, vertices: np.ndarray, faces: np.ndarray):
         ms.delete_current_mesh()
 
 
-def _one_sided_subset(ms, samples: meshlab_bounds.SampleBounds, target: int, mesh,
-                      radius: float) -> float:
-    """``_one_sided`` from every sample to mesh ``target`` (also given as arrays, ``mesh``),
-    asking MeshLab about the samples that may hold the maximum only."""
-    picked = samples.samples[samples.candidates(*mesh)]
-    with _loaded(ms, picked, np.zeros((0, 3))) as sampled:
-        return _one_sided(ms, sampled=sampled, target=target, radius=radius)
+def _one_sided_subset(ms, samples: meshlab_bounds.SampleBounds, mesh, radius: float) -> float:
+    """``_one_sided`` from every sample to ``mesh`` (vertices, faces), asking MeshLab about the
+    samples that may hold the maximum only, against the faces that may be closest to them."""
+    picked, near = samples.candidates(*mesh)
+    with _loaded(ms, mesh[0], np.asarray(mesh[1])[near]) as target:
+        with _loaded(ms, samples.samples[picked], np.zeros((0, 3))) as sampled:
+            return _one_sided(ms, sampled=sampled, target=target, radius=radius)
 
 
 def in_wavelengths(relative: float, scale) -> float:
