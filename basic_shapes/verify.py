@@ -16,7 +16,6 @@ and centroid lie on the polytope's surface lies in one of its faces (docs/GENERA
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import functools
 import importlib.util
@@ -123,10 +122,10 @@ def _samples(vertices: np.ndarray, faces: np.ndarray, spacing: float, diagonal: 
 class Reference:
     """A mesh that many others are compared with (the simple mesh of one object).
 
-    It is sampled and loaded into pymeshlab once; ``distance`` and ``primitive_distance`` then
-    load each compared mesh next to it and remove it again. MeshLab measures only the samples
-    that may hold a direction's maximum (``meshlab_bounds``): the same numbers as measuring all
-    of them, at a fraction of the cost.
+    Its samples (and the analytic surface's) are set up once for all its variants. MeshLab
+    measures only the samples that may hold a direction's maximum, against the faces that may
+    be closest to them (``meshlab_bounds``): the same numbers as measuring all of them, at a
+    fraction of the cost.
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray,
@@ -136,7 +135,6 @@ class Reference:
             raise ValueError("reference mesh has an empty bounding box")
         self.spacing = self.diagonal * SAMPLE_SPACING
         self._mesh = (np.asarray(vertices, np.float64), np.asarray(faces))
-        self._ms = _pymeshlab().MeshSet()
         self._samples = _samples(*self._mesh, self.spacing, self.diagonal)
         self.solid = solid
         if solid is not None:
@@ -147,9 +145,9 @@ class Reference:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
         v = np.asarray(vertices, np.float64)
         radius = SEARCH_RADIUS * self.diagonal
-        to_ref = _one_sided_subset(self._ms, _samples(v, faces, self.spacing, self.diagonal),
+        to_ref = _one_sided_subset(_samples(v, faces, self.spacing, self.diagonal),
                                    self._mesh, radius)
-        from_ref = _one_sided_subset(self._ms, self._samples, (v, faces), radius)
+        from_ref = _one_sided_subset(self._samples, (v, faces), radius)
         return max(to_ref, from_ref) / self.diagonal
 
     def primitive_distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -162,31 +160,21 @@ class Reference:
         spacing = solid.diagonal * SURFACE_SPACING * 4
         points = np.concatenate([v, face_samples(v, faces, spacing)])
         to_surface = float(analytic.surface_distance(solid, points).max())
-        from_surface = _one_sided_subset(self._ms, self._surface, (v, faces),
+        from_surface = _one_sided_subset(self._surface, (v, faces),
                                          SEARCH_RADIUS * solid.diagonal)
         return max(to_surface, from_surface) / solid.diagonal
 
 
-@contextlib.contextmanager
-def _loaded(ms, vertices: np.ndarray, faces: np.ndarray):
-    """The id of the mesh loaded into ``ms`` for the duration (then removed)."""
-    ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=vertices,
-                                  face_matrix=np.asarray(faces, np.int32)))
-    mesh = ms.current_mesh_id()
-    try:
-        yield mesh
-    finally:
-        ms.set_current_mesh(mesh)
-        ms.delete_current_mesh()
-
-
-def _one_sided_subset(ms, samples: meshlab_bounds.SampleBounds, mesh, radius: float) -> float:
+def _one_sided_subset(samples: meshlab_bounds.SampleBounds, mesh, radius: float) -> float:
     """``_one_sided`` from every sample to ``mesh`` (vertices, faces), asking MeshLab about the
-    samples that may hold the maximum only, against the faces that may be closest to them."""
+    samples that may hold the maximum only, against the faces that may be closest to them (a
+    MeshSet of its own: cheaper than adding and deleting meshes in a kept one)."""
     picked, near = samples.candidates(*mesh)
-    with _loaded(ms, mesh[0], np.asarray(mesh[1])[near]) as target:
-        with _loaded(ms, samples.samples[picked], np.zeros((0, 3))) as sampled:
-            return _one_sided(ms, sampled=sampled, target=target, radius=radius)
+    ms = _pymeshlab().MeshSet()
+    ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=mesh[0],
+                                  face_matrix=np.asarray(mesh[1], np.int32)[near]))
+    ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=samples.samples[picked]))
+    return _one_sided(ms, sampled=1, target=0, radius=radius)
 
 
 def in_wavelengths(relative: float, scale) -> float:
