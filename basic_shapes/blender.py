@@ -20,7 +20,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from basic_shapes import analytic, primitives, verify
+from basic_shapes import analytic, meshcheck, primitives, verify
 from basic_shapes.shards import MeshRecord
 
 MAX_ATTEMPTS = 64
@@ -94,7 +94,7 @@ def _object_meshes(spec, class_name, scale, seed, n_variants, solid) -> list[Mes
                      "decimate": {"kind": "none"}, "triangulate": {"quad": "BEAUTY",
                                                                    "ngon": "BEAUTY"}}
     v0, f0 = blender.build(class_name, scale, simple_params, rng=None)
-    error = verify.defect(v0, f0, spec.euler)
+    error = meshcheck.defect(v0, f0, spec.euler)
     if error:
         raise RuntimeError(f"{class_name}: simple mesh is broken: {error}")
     reference = verify.Reference(v0, f0, solid)
@@ -103,7 +103,7 @@ def _object_meshes(spec, class_name, scale, seed, n_variants, solid) -> list[Mes
         raise RuntimeError(f"{class_name}: simple mesh is {gap:.3g} diagonals from the primitive")
     _lap("simple", start)
     records = [MeshRecord(0, v0, f0, 0.0, simple_params, gap)]
-    seen = {verify.topology_key(f0, len(v0))}
+    seen = {meshcheck.topology_key(f0, len(v0))}
     for variant in range(1, n_variants + 1):
         records.append(_variant(blender, class_name, scale, seed, variant, reference, seen))
     return records
@@ -132,8 +132,8 @@ def _variant(blender, class_name, scale, seed, variant, reference, seen) -> Mesh
         params = _sample_params(spec, rng)
         v, f = blender.build(class_name, scale, params, rng)
         start = time.process_time()
-        key = verify.topology_key(f, len(v))
-        reason = "duplicate topology" if key in seen else verify.defect(v, f, spec.euler)
+        key = meshcheck.topology_key(f, len(v))
+        reason = "duplicate topology" if key in seen else meshcheck.defect(v, f, spec.euler)
         start = _lap("checks", start)
         if reason is None:
             params["tolerance"] = verify.tolerance(class_name, params)

@@ -175,7 +175,7 @@ def _with_ood(p: ObjectPlan, meshes: list, cfg_json: dict) -> list:
     per = cfg_json.get("ood_variants_per_remesher", 0)
     if p.split != "test" or not per or not any(supports(r, p.class_name) for r in OOD_REMESHERS):
         return meshes
-    from basic_shapes.verify import topology_key
+    from basic_shapes.meshcheck import topology_key
 
     seen = {topology_key(m.faces, len(m.vertices)) for m in meshes}
     return meshes + ood_meshes(p.class_name, np.array(p.scale), p.seed, meshes[0].vertices,

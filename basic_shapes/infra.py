@@ -1,5 +1,5 @@
 """Infrastructure the four packages share: atomic writes, one-line errors, the CLI error
-boundary, bounded JSON and the hardened HDF5 opener (docs/CLI.md).
+boundary, the machine's description, bounded JSON and the hardened HDF5 opener (docs/CLI.md).
 
 Every file a user hands the toolkit (shards, predictions, results, entries, configs) is
 untrusted: it is read through ``load_json`` or ``open_hdf5``, which refuse anything whose
@@ -14,6 +14,7 @@ import contextlib
 import json
 import math
 import os
+import platform
 import re
 import stat
 import sys
@@ -58,6 +59,46 @@ def utc_timestamp() -> str:
     import datetime
 
     return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def hardware(threads: int | None = None) -> dict:
+    """The one description of the machine a speed was measured on (models and physics alike).
+
+    CPU model, cores, the threads the timed code ran with (``threads``; by default torch's
+    when torch is loaded, else every core the process may use, as numpy's BLAS and Embree
+    do), the 1-minute load average when timing (other work on the CPU
+    slows everything), and the GPU when torch is loaded and sees one. ``text`` is the line
+    shown in tables and on the board.
+    """
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next(
+                line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")
+            )
+    except (OSError, StopIteration):
+        pass
+    torch = sys.modules.get("torch")
+    if threads is None:
+        threads = torch.get_num_threads() if torch is not None else _usable_cores()
+    gpu = torch.cuda.get_device_name(0) if torch is not None and torch.cuda.is_available() else None
+    try:
+        load = round(os.getloadavg()[0], 2)
+    except OSError:
+        load = None
+    text = f"cpu: {cpu} ({os.cpu_count()} cores)"
+    text += f", {threads} thread(s)"
+    text += f", load {load:.2f}" if load is not None else ""
+    text += f"; gpu: {gpu}" if gpu else ""
+    return {"cpu": cpu, "cores": os.cpu_count(), "threads": threads, "load_avg_1m": load,
+            "gpu": gpu, "text": text}
+
+
+def _usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
 
 
 # --- one-line errors and the CLI boundary ----------------------------------------------------

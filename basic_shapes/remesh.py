@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes import analytic, primitives, verify
+from basic_shapes import analytic, meshcheck, primitives, verify
 from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
 
 MAX_ATTEMPTS = 32
@@ -83,13 +83,13 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
     """``per_remesher`` verified meshes of one object from each remesher that supports its class.
 
     ``simple_*`` is the object's simple mesh (variant 0), the Hausdorff reference; ``seen``
-    holds the topology keys of the object's other meshes (``verify.topology_key``), which the
+    holds the topology keys of the object's other meshes (``meshcheck.topology_key``), which the
     OOD meshes must all differ from.
     """
     spec = primitives.get(class_name)
     scale = np.asarray(scale, np.float64)
     reference = verify.Reference(simple_vertices, simple_faces)
-    seen = set(seen or ()) | {verify.topology_key(simple_faces, len(simple_vertices))}
+    seen = set(seen or ()) | {meshcheck.topology_key(simple_faces, len(simple_vertices))}
     tol = verify.tolerance(class_name, {})
     solid = analytic.solid_for(class_name, scale)
     source = {"isotropic": (simple_vertices, simple_faces)}
@@ -113,8 +113,8 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                           "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi))))}
                 v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng)
                 v, f = v.astype(np.float32), f.astype(np.int32)
-                key = verify.topology_key(f, len(v))
-                reason = "duplicate topology" if key in seen else verify.defect(v, f, spec.euler)
+                key = meshcheck.topology_key(f, len(v))
+                reason = "duplicate topology" if key in seen else meshcheck.defect(v, f, spec.euler)
                 if reason is None and len(f) > FACE_RANGE[class_name][1]:
                     reason = "too many triangles"
                 if reason is None:
@@ -245,7 +245,7 @@ def _result(ms) -> tuple[np.ndarray, np.ndarray]:
 
 def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
     v = np.asarray(vertices, np.float64)
-    return 0.5 * float(np.sqrt(verify._twice_area_squared(*(v[faces[:, i]] for i in range(3))))
+    return 0.5 * float(np.sqrt(meshcheck.twice_area_squared(*(v[faces[:, i]] for i in range(3))))
                        .sum())
 
 

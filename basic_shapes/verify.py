@@ -1,4 +1,6 @@
-"""Shape checks for generated meshes: two-sided Hausdorff (pymeshlab), tolerances, topology.
+"""Shape checks for generated meshes: two-sided Hausdorff (pymeshlab) and tolerances.
+
+Topology and manifold checks (``defect``, ``topology_key``) live in basic_shapes/meshcheck.py.
 
 Every mesh is compared with two things: the object's simple mesh (Hausdorff, ``tolerance``)
 and the object itself, the analytic primitive (``Reference.primitive_distance``,
@@ -24,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import analytic, meshlab_bounds, primitives
+from basic_shapes.meshcheck import bbox_diagonal, twice_area_squared
 
 PLANAR_TOLERANCE = 1e-6
 """Bound for planar-faced shapes: float32 vertex rounding is ~6e-8 of the diagonal."""
@@ -65,12 +68,6 @@ def _pymeshlab():
     return pymeshlab
 
 
-def bbox_diagonal(vertices: np.ndarray) -> float:
-    """Length of the axis-aligned bounding box's diagonal: the unit of relative distances."""
-    v = np.asarray(vertices, np.float64)
-    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-
-
 def _stratified_weights(k: int) -> np.ndarray:
     """Barycentric centroids of the k*k sub-triangles of a k-subdivided triangle, (k*k, 3)."""
     up = [(i + 1 / 3, j + 1 / 3) for i in range(k) for j in range(k - i)]
@@ -82,14 +79,6 @@ def _stratified_weights(k: int) -> np.ndarray:
 _WEIGHTS = [None] + [_stratified_weights(k) for k in range(1, MAX_FACE_SUBDIVISION + 1)]
 
 
-def _twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """|(b - a) x (c - a)|^2 per triangle (np.cross is several times slower)."""
-    u, w = b - a, c - a
-    return ((u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2
-            + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
-            + (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) ** 2)
-
-
 def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
     """k*k stratified points per face, k = ceil(sqrt(2 * area) / spacing) capped (k = 1: the
     centroid). Area, not edge length, sets k: collapsed flat regions are full of long slivers."""
@@ -97,12 +86,12 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.
     f = np.asarray(faces, np.int64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     limit = (spacing ** 2) ** 2  # k = 1 exactly when 2 * area <= spacing^2
-    large = np.flatnonzero(_twice_area_squared(a, b, c) > limit)
+    large = np.flatnonzero(twice_area_squared(a, b, c) > limit)
     parts = [(a + b + c) / 3.0]
     if len(large):
         parts[0] = np.delete(parts[0], large, axis=0)
         a, b, c = a[large], b[large], c[large]
-        twice_area = np.sqrt(_twice_area_squared(a, b, c))
+        twice_area = np.sqrt(twice_area_squared(a, b, c))
         k = np.minimum(np.ceil(np.sqrt(twice_area) / spacing), MAX_FACE_SUBDIVISION).astype(int)
         for level in np.unique(k):
             sel = k == level
@@ -242,44 +231,3 @@ def primitive_tolerance(class_name: str, params: dict) -> float:
     if (params or {}).get("decimate", {}).get("kind", "none") == "none":
         return spec.gap(resolution) / min(spec.extents) + PLANAR_TOLERANCE
     return bound + spec.gap(spec.default_resolution()) / min(spec.extents)
-
-
-def topology_key(faces: np.ndarray, n_vertices: int) -> tuple:
-    """Vertex count and vertex-degree histogram: meshes with different keys are not isomorphic."""
-    degree = np.bincount(np.asarray(faces).ravel(), minlength=n_vertices)
-    return (int(n_vertices), len(faces), tuple(np.bincount(degree).tolist()))
-
-
-MIN_RELATIVE_AREA = 1e-12
-"""Triangles smaller than this times the squared bbox diagonal count as degenerate."""
-
-
-def defect(vertices: np.ndarray, faces: np.ndarray, euler: int) -> str | None:
-    """Why a triangle mesh is not a closed, consistently oriented manifold of Euler
-    characteristic ``euler`` without degenerate triangles (None when it is)."""
-    v = np.asarray(vertices, np.float64)
-    if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
-        return "vertices are not a finite (V, 3) array"
-    f = np.asarray(faces, np.int64)
-    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
-        return "not a non-empty (F, 3) triangle array"
-    n_vertices = len(v)
-    if f.min() < 0 or f.max() >= n_vertices:
-        return "face index out of range"
-    if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
-        return "degenerate face (repeated vertex)"
-    if np.bincount(f.ravel(), minlength=n_vertices).min() == 0:
-        return "unreferenced vertex"
-    a, b = f.ravel(), f[:, [1, 2, 0]].ravel()
-    half = np.sort(a * n_vertices + b)
-    if np.any(half[1:] == half[:-1]):
-        return "edge used twice in the same direction (non-manifold or flipped face)"
-    if not np.array_equal(np.sort(b * n_vertices + a), half):  # every edge has its twin
-        return "open boundary edge"
-    chi = n_vertices - len(half) // 2 + len(f)
-    if chi != euler:
-        return f"Euler characteristic {chi}, expected {euler}"
-    twice_area_sq = _twice_area_squared(v[f[:, 0]], v[f[:, 1]], v[f[:, 2]])
-    if twice_area_sq.min() <= (2 * MIN_RELATIVE_AREA * bbox_diagonal(v) ** 2) ** 2:
-        return "degenerate (zero-area) triangle"
-    return None

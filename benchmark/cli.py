@@ -1,7 +1,7 @@
 """`benchmark`: evaluate a model or a predictions file, train baselines, reproduce the paper.
 
-`evaluate` never imports torch (unless the model does); `train` and `reproduce` import
-their modules only when chosen.
+`evaluate` never imports torch (unless the model does); the other commands import their
+modules only when chosen.
 """
 
 from __future__ import annotations
@@ -20,14 +20,19 @@ EPILOG = """examples:
   benchmark evaluate --data data/bs --model my_model.py:MyModel --out results.json
   benchmark train --help
   benchmark reproduce --preset tiny --out out/tiny
+  benchmark report --preset tiny --data out/tiny/data --out out/tiny
   benchmark dataset --list
   benchmark dataset cpu-v1 --data data/cpu-v1"""
 
 DELEGATED = {
-    "train": ("benchmark.train", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
+    "train": ("benchmark.train_cli", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
     "reproduce": (
         "benchmark.reproduce",
-        "run a preset (tiny|small|paper) and write the paper's table",
+        "run a preset (tiny|small|cpu|paper) and write the paper's table",
+    ),
+    "report": (
+        "benchmark.report_cli",
+        "rebuild a reproduce folder's table from its per-seed results and the dataset",
     ),
     "dataset": (
         "benchmark.versions",

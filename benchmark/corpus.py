@@ -21,6 +21,15 @@ import numpy as np
 from tqdm import tqdm
 
 from basic_shapes.infra import atomic_path, open_hdf5
+from basic_shapes.meshcheck import (
+    MeshError,
+    as_arrays,
+    drop_unreferenced,
+    face_repeats,
+    is_closed,
+    repeated_vertex,
+    weld,
+)
 from benchmark.data import normalize_mesh  # one normalization for corpus and benchmark
 
 Mesh = tuple[np.ndarray, np.ndarray, int]
@@ -38,24 +47,6 @@ class CorpusError(ValueError):
 # --------------------------------------------------------------------------- mesh helpers
 
 
-def is_watertight(faces: np.ndarray) -> bool:
-    """True when every edge is shared by exactly two faces with opposite orientation."""
-    f = np.asarray(faces, dtype=np.int64)
-    if (
-        len(f) < MIN_FACES
-        or (f[:, 0] == f[:, 1]).any()
-        or (f[:, 1] == f[:, 2]).any()
-        or (f[:, 0] == f[:, 2]).any()
-    ):
-        return False
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    n = int(f.max()) + 1
-    key = directed[:, 0] * n + directed[:, 1]
-    if len(np.unique(key)) != len(key):  # a directed edge used twice: non-manifold or flipped
-        return False
-    return bool(np.isin(directed[:, 1] * n + directed[:, 0], key).all())
-
-
 def _compact(
     vertices: np.ndarray, faces: np.ndarray, drop_fins: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -65,17 +56,13 @@ def _compact(
     keep one) or the back-to-back fin an edge collapse leaves on a closed surface
     (``drop_fins``: remove both, which closes the surface again).
     """
-    f = faces[
-        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    ]
-    _, first, inverse, counts = np.unique(np.sort(f, axis=1), axis=0, return_index=True,
-                                          return_inverse=True, return_counts=True)
-    f = f[counts[inverse.reshape(-1)] == 1] if drop_fins else f[np.sort(first)]
-    used, inverse = np.unique(f, return_inverse=True)
-    return vertices[used], inverse.reshape(-1, 3).astype(np.int32)
+    f = faces[~repeated_vertex(faces)]
+    first, count = face_repeats(f)
+    v, f = drop_unreferenced(vertices, f[count == 1] if drop_fins else f[first])
+    return v, f.astype(np.int32)
 
 
-class SimplifyError(ValueError):
+class SimplifyError(MeshError):
     """Quadric decimation could not meet the face budget (or keep the surface closed)."""
 
 
@@ -103,7 +90,7 @@ def simplify_to(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
         raise SimplifyError(
             f"cannot simplify a {len(faces)}-face mesh to {MIN_FACES}..{max_faces} faces"
         )
-    if keep_watertight and not is_watertight(f):
+    if keep_watertight and not is_closed(f):
         raise SimplifyError(
             f"simplifying a {len(faces)}-face mesh to {len(f)} faces left it not watertight"
         )
@@ -398,12 +385,12 @@ def write_corpus_file(
     """
     path = Path(path)
     for i, (v, f, c) in enumerate(meshes):
-        v, f = np.asarray(v), np.asarray(f)
-        if (v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0
-                or f.min() < 0 or f.max() >= len(v) or not 0 <= c < len(class_names)):
-            raise ValueError(
-                f"{path}: mesh {i} is not (V,3) vertices, (F,3) in-range faces and a valid class"
-            )
+        try:
+            as_arrays(v, f)
+        except MeshError as exc:
+            raise ValueError(f"{path}: mesh {i}: {exc}") from None
+        if not 0 <= c < len(class_names):
+            raise ValueError(f"{path}: mesh {i} has class {c}, not in 0..{len(class_names) - 1}")
     n_v = np.cumsum([0] + [len(v) for v, _, _ in meshes], dtype=np.int64)
     n_f = np.cumsum([0] + [len(f) for _, f, _ in meshes], dtype=np.int64)
     vertices = np.concatenate(
@@ -495,6 +482,8 @@ def load_corpus_file(path: str | Path) -> list[Mesh]:
 # --------------------------------------------------------------------------- ShapeNetCore v2
 
 SHAPENET_MODEL = Path("models") / "model_normalized.obj"
+WELD_DECIMALS = 6
+"""ShapeNet duplicates vertices per UV seam: coordinates equal to 6 decimals are welded."""
 _SYNSET = re.compile(r"^\d{8}$")
 
 
@@ -557,15 +546,6 @@ def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return v, f.astype(np.int32)
 
 
-def merge_vertices(
-    vertices: np.ndarray, faces: np.ndarray, decimals: int = 6
-) -> tuple[np.ndarray, np.ndarray]:
-    """Weld vertices that coincide after rounding (ShapeNet duplicates them per UV seam)."""
-    key = np.round(vertices, decimals)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    return vertices[first], inverse.reshape(-1)[faces].astype(np.int32)
-
-
 def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = None, seed: int = 0,
                   progress: bool = False) -> list[Mesh]:
     """Meshes ``(vertices, faces, class_index)`` of a local ShapeNetCore v2 directory.
@@ -597,7 +577,7 @@ def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = No
             break
         cls, obj = models[k]
         try:
-            v, f = merge_vertices(*read_obj(obj))
+            v, f = weld(*read_obj(obj), decimals=WELD_DECIMALS)
         except (OSError, ValueError):
             unreadable += 1
             continue

@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import contextlib
 import os
-import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 from tqdm import tqdm
 
+from basic_shapes.infra import hardware
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES, OOD_METRIC_NAMES
 from benchmark.protocol import (
@@ -32,46 +31,6 @@ from benchmark.protocol import (
 )
 
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
-
-
-def hardware(threads: int | None = None) -> dict:
-    """The one description of the machine a speed was measured on (models and physics alike).
-
-    CPU model, cores, the threads the timed code ran with (``threads``; by default torch's
-    when torch is loaded, else every core the process may use, as numpy's BLAS and Embree
-    do), the 1-minute load average when timing (other work on the CPU
-    slows everything), and the GPU when torch is loaded and sees one. ``text`` is the line
-    shown in tables and on the board.
-    """
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next(
-                line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")
-            )
-    except (OSError, StopIteration):
-        pass
-    torch = sys.modules.get("torch")
-    if threads is None:
-        threads = torch.get_num_threads() if torch is not None else _usable_cores()
-    gpu = torch.cuda.get_device_name(0) if torch is not None and torch.cuda.is_available() else None
-    try:
-        load = round(os.getloadavg()[0], 2)
-    except OSError:
-        load = None
-    text = f"cpu: {cpu} ({os.cpu_count()} cores)"
-    text += f", {threads} thread(s)"
-    text += f", load {load:.2f}" if load is not None else ""
-    text += f"; gpu: {gpu}" if gpu else ""
-    return {"cpu": cpu, "cores": os.cpu_count(), "threads": threads, "load_avg_1m": load,
-            "gpu": gpu, "text": text}
-
-
-def _usable_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
 
 
 def speed_block(ms_per_mesh: float | None, threads: int | None = None,

@@ -15,18 +15,17 @@ plus the token embedding's commitment loss. The decoder predicts in units standa
 the training responses (``Decoder.set_output_statistics``). The checkpoint is the epoch
 with the lowest Simple MSE on the validation split (``fit``; the last epoch when the dataset
 has no val objects); the test split is never looked at. Runs are deterministic for a
-seed and a thread count on one machine. Under ``torchrun``
-(``WORLD_SIZE`` > 1) the loss module is wrapped in DistributedDataParallel and every epoch's
-objects are sharded with a DistributedSampler; rank 0 writes the checkpoint.
+seed and a thread count on one machine. Under ``torchrun`` (``WORLD_SIZE`` > 1, joined by
+``benchmark.train_cli``) the loss module is wrapped in DistributedDataParallel and every
+epoch's objects are sharded with a DistributedSampler; rank 0 writes the checkpoint.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,6 @@ from torch import nn
 from torch.utils.data import DistributedSampler
 from tqdm import tqdm
 
-from basic_shapes.infra import add_quiet_flag
 from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
 from benchmark.models import (
     EMBEDDINGS,
@@ -396,58 +394,7 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
     return model, config
 
 
-# --- CLI --------------------------------------------------------------------------------------
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of ``benchmark train``: one per ``TrainConfig`` field, plus I/O."""
-    parser.add_argument("--data", required=True, help="directory of labelled shards")
-    parser.add_argument(
-        "--out", required=True, help="checkpoint directory to write (model.pt + config.json)"
-    )
-    parser.add_argument(
-        "--results", help="also evaluate on the test split and write this results JSON"
-    )
-    parser.add_argument(
-        "--device", default=None, help="torch device (default: cuda if available, else cpu)"
-    )
-    add_quiet_flag(parser)
-    defaults = TrainConfig()
-    choices = {"embedding": EMBEDDINGS, "regime": REGIMES, "loss": LOSSES}
-    helps = {
-        "embedding": "face embedding, or the topology-invariant model",
-        "regime": "basic (simple meshes), ideal (all meshes), or pretraining by "
-        "classification / autoencoder then fine-tuning on simple meshes",
-        "loss": "mse, or intensity (intensity-weighted MSE + MSE)",
-        "shapenet": "pretrain on a local ShapeNetCore v2 directory, not the procedural corpus",
-        "pretrain_meshes": "corpus size (procedural), or a cap on ShapeNet models (0: all)",
-    }
-    for f in fields(TrainConfig):
-        default = getattr(defaults, f.name)
-        kind = str if f.name == "shapenet" else type(default)
-        parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default,
-                            choices=choices.get(f.name),
-                            help=helps.get(f.name, "") + f" (default: {default})")
-
-
-def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    try:
-        return TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
-    except ValueError as exc:
-        raise SystemExit(f"benchmark train: {exc}") from None
-
-
-def init_distributed() -> tuple[torch.device, int]:
-    """Join the torchrun process group when launched by it; returns (device, rank)."""
-    if int(os.environ.get("WORLD_SIZE", "1")) <= 1:
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu"), 0
-    backend = "nccl" if torch.cuda.is_available() else "gloo"
-    torch.distributed.init_process_group(backend)
-    local = int(os.environ.get("LOCAL_RANK", "0"))
-    if torch.cuda.is_available():
-        torch.cuda.set_device(local)
-        return torch.device("cuda", local), torch.distributed.get_rank()
-    return torch.device("cpu"), torch.distributed.get_rank()
-
-
+# --- evaluation -----------------------------------------------------------------------------
 def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLike,
                         results: str | os.PathLike | None = None, progress: bool = True,
                         device: str | torch.device = "cpu",
@@ -467,32 +414,3 @@ def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLi
         Path(results).parent.mkdir(parents=True, exist_ok=True)
         write_results(results, record)
     return record
-
-
-def run(args: argparse.Namespace) -> None:
-    """``benchmark train``: train, save the checkpoint, optionally evaluate."""
-    from basic_shapes.shards import ShardError
-    from benchmark.models.checkpoint import save_checkpoint
-
-    cfg = config_from_args(args)
-    device, rank = init_distributed()
-    if args.device:
-        device = torch.device(args.device)
-    try:
-        with BenchmarkData(args.data) as data:
-            model, config = train(cfg, data, device=device, progress=not args.quiet)
-    except ShardError as exc:
-        raise SystemExit(f"benchmark train: {exc}") from None
-    if rank == 0:
-        save_checkpoint(args.out, model, config)
-        print(f"{cfg.name}: checkpoint in {args.out} "
-              f"({config['train_seconds']:.1f} s, final train loss "
-              f"{config['history']['train'][-1]['loss']:.3f})")
-        if args.results:
-            from benchmark.evaluate import format_metrics
-
-            record = evaluate_checkpoint(args.out, args.data, args.results, not args.quiet, device)
-            print(format_metrics(record))
-            print(f"results in {args.results}")
-    if torch.distributed.is_initialized():
-        torch.distributed.destroy_process_group()

@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.infra import hardware
 from benchmark import corpus
 
 GOAL_SECONDS = 90.0
@@ -106,8 +106,7 @@ def main() -> None:
                 "seconds": round(total, 3),
                 "meshes_per_second": round(rate, 1),
                 "goal_seconds": GOAL_SECONDS,
-                "cores": 1,
-                "machine": platform.processor() or platform.machine(),
+                "hardware": hardware(threads=1),
                 "families": rows,
                 "cache": cache,
             },

@@ -81,11 +81,11 @@ def measure(objects_per_class: int, variants: int, ood: int) -> dict:
 
 def _ood(objects, name: str, per_remesher: int) -> dict:
     """CPU ms per OOD mesh (remesh + verify) of the class's objects, new code only."""
-    from basic_shapes import remesh, verify
+    from basic_shapes import meshcheck, remesh
 
     start, n = time.process_time(), 0
     for o in objects:
-        seen = {verify.topology_key(m.faces, len(m.vertices)) for m in o.meshes}
+        seen = {meshcheck.topology_key(m.faces, len(m.vertices)) for m in o.meshes}
         n += len(remesh.ood_meshes(name, o.scale, o.seed, o.meshes[0].vertices,
                                    o.meshes[0].faces, per_remesher, seen))
     return {"meshes": n, "ms_per_mesh": 1e3 * (time.process_time() - start) / max(n, 1)}

@@ -23,7 +23,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -32,6 +31,7 @@ import trimesh  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes import analytic  # noqa: E402
+from basic_shapes.infra import hardware  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 FLOOR = 1e-4
@@ -129,7 +129,7 @@ def main(argv=None) -> None:
               f"max {s['max_faces']}")
     out = {"grid": config.name, "config": json.loads(config.to_json()),
            "rule": analytic.SIMULATION_RULE, "rows": rows, "faces_sample": sample,
-           "machine": platform.processor() or platform.machine()}
+           "hardware": hardware()}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")
     tmp.write_text(json.dumps(out, indent=1) + "\n")

@@ -25,6 +25,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives
+from basic_shapes.infra import hardware
 
 STAGES = ("simple", "primitive", "loop_cuts", "decimate", "extract", "checks", "hausdorff",
           "analytic")
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"once per process: Blender start-up {startup:.2f} s CPU; primitive cache "
           + ", ".join(f"{c} {warm[c]:.2f} s" for c in classes))
     report = {"benchmark": "mesh_core", "platform": platform.platform(),
-              "processor": platform.processor(), "python": platform.python_version(),
+              "hardware": hardware(), "python": platform.python_version(),
               "command": " ".join(sys.argv), "startup_cpu_s": startup, "results": results}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(args.out.name + ".tmp")

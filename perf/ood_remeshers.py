@@ -29,6 +29,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives, remesh, verify
+from basic_shapes.infra import hardware
 from basic_shapes.render import draw_mesh
 from basic_shapes.scales import SCALE_RANGE
 from basic_shapes.shards import OOD_REMESHERS
@@ -136,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
     wall = time.perf_counter() - wall
     print(table(rows))
     report = {"benchmark": "ood_remeshers", "platform": platform.platform(),
-              "processor": platform.processor(), "python": platform.python_version(),
+              "hardware": hardware(), "python": platform.python_version(),
               "command": " ".join(sys.argv), "wall_s": wall, "objects_per_class": args.objects,
               "per_remesher": args.per_remesher, "results": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -33,6 +32,7 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
 import radar_sim  # noqa: E402
+from basic_shapes.infra import hardware  # noqa: E402
 
 C = 299792458.0
 RESULTS = Path(__file__).parent / "results"
@@ -244,7 +244,7 @@ def main() -> None:
     plot(results, png)
     Path(args.out).write_text(json.dumps({
         "frequencies_hz": [frequencies[0], frequencies[-1], len(frequencies)],
-        "machine": platform.processor() or platform.machine(), "threads": 1,
+        "hardware": hardware(threads=1),
         "load_average_at_start": load,
         "error": "max over directions and frequencies of ||A| - |A_ref|| / max |A_ref|",
         "cases": results}, indent=2))

@@ -30,7 +30,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import argparse  # noqa: E402 - thread limits are set before numpy loads
 import importlib  # noqa: E402 - thread limits are set before numpy loads
 import json  # noqa: E402 - thread limits are set before numpy loads
-import platform  # noqa: E402 - thread limits are set before numpy loads
 import re  # noqa: E402 - thread limits are set before numpy loads
 import subprocess  # noqa: E402 - thread limits are set before numpy loads
 import sys  # noqa: E402 - thread limits are set before numpy loads
@@ -41,6 +40,7 @@ from pathlib import Path  # noqa: E402 - thread limits are set before numpy load
 import numpy as np  # noqa: E402 - thread limits are set before numpy loads
 
 import radar_sim  # noqa: E402 - thread limits are set before numpy loads
+from basic_shapes.infra import hardware  # noqa: E402 - thread limits are set before numpy loads
 from radar_sim import facet, field, geometry  # noqa: E402 - thread limits are set before numpy loads
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
             rows.append(row)
             print(f"  {row['faces']} faces done", flush=True)
         del old
-    result = {"machine": platform.processor() or platform.machine(), "threads": 1,
+    result = {"hardware": hardware(threads=1),
               "grid": {"config": config.name, "directions": len(dirs), "frequencies": len(k)},
               "old_commit": OLD_COMMIT, "dgemm_fma_per_s": rate, "numba_first_call": compiled,
               "goal_130k_s": GOAL_130K_S, "meshes": rows}

@@ -31,7 +31,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -41,6 +40,7 @@ from radar_accuracy import C, line_of_sight, quadrature_points  # noqa: E402
 from radar_throughput import blender_uv_sphere  # noqa: E402
 
 import radar_sim  # noqa: E402
+from basic_shapes.infra import hardware  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 TARGET = 1e-2
@@ -177,7 +177,7 @@ def main() -> None:
           f"{MAX_M}; its speed-up is then a lower bound)")
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps({
-        "machine": platform.processor() or platform.machine(), "threads": 1,
+        "hardware": hardware(threads=1),
         "load_average_at_start": load,
         "orientations": len(directions), "frequencies": len(frequencies),
         "full_grid_factor": scale, "target_peak_relative_error": TARGET, "cases": results},

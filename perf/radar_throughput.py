@@ -27,7 +27,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -37,6 +36,7 @@ import trimesh  # noqa: E402
 from radar_accuracy import best_time  # noqa: E402
 
 import radar_sim  # noqa: E402
+from basic_shapes.infra import hardware  # noqa: E402
 from basic_shapes.shards import (  # noqa: E402
     MeshRecord,
     ObjectRecord,
@@ -167,7 +167,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(RESULTS / "radar_throughput.json"))
     args = ap.parse_args()
     config = radar_sim.RadarConfig.named("xband-v1")
-    out = {"machine": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
+    out = {"hardware": hardware(), "cpu_count": os.cpu_count(),
            "load_average_at_start": os.getloadavg()[0],
            "grid": [len(config.aspect_deg), len(config.roll_deg), len(config.frequency_hz)]}
 

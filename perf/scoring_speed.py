@@ -23,7 +23,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from benchmark.evaluate import evaluate, hardware
+from basic_shapes.infra import hardware
+from benchmark.evaluate import evaluate
 from benchmark.protocol import load_model, score_predictions
 from benchmark_fixture import make_dataset
 

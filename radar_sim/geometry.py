@@ -1,9 +1,11 @@
-"""Mesh checks and the physics a mesh needs: validation, welding, closed/convex tests, rays.
+"""The mesh the physics needs: clean-up policy, the convex test, mode detection, rays.
 
 ``prepare`` turns user arrays into a clean ``Mesh`` or raises ``MeshError`` with one line
-saying what is wrong. ``detect_mode`` picks the cheapest exact model for the mesh
-(docs/RADAR.md, "Modes"). ``RayCaster`` wraps Embree (embreex, called directly with float32
-contiguous arrays) for shadow rays and ray tracing.
+saying what is wrong; validation, welding and the closed/oriented test are the toolkit's
+shared ones (basic_shapes/meshcheck.py), the zero-area rule is the simulator's own.
+``detect_mode`` picks the cheapest exact model for the mesh (docs/RADAR.md, "Modes").
+``RayCaster`` wraps Embree (embreex, called directly with float32 contiguous arrays) for
+shadow rays and ray tracing.
 """
 
 from __future__ import annotations
@@ -13,16 +15,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from basic_shapes.meshcheck import (  # MeshError is raised here too and re-exported
+    MeshError,
+    as_arrays,
+    directed_edges,
+    drop_unreferenced,
+    edge_partner,
+    face_repeats,
+    signed_volume,
+    weld,
+)
+
 EPS = np.finfo(np.float64).eps
 CONVEX_TOL = 1e-4          # relative to the bounding radius: flat within float32 noise
 SEE_EACH_OTHER = 0.01      # probe fraction of reflected power that hits the mesh again -> bounce2
 SEE_DISTANCE = 0.1         # ...after crossing at least this x the bounding radius (a cavity)
 MILLIMETRE_RADIUS = 100.0  # metres; larger meshes are probably in millimetres (warning)
 RAY_OFFSET = 2.0 ** -17    # shadow/bounce ray origins leave the surface by this x scene radius
-
-
-class MeshError(ValueError):
-    """The vertices/faces cannot be simulated (one-line message says why)."""
 
 
 class UnitsWarning(UserWarning):
@@ -59,35 +68,6 @@ class Mesh:
         return self.vertices[self.faces].mean(axis=1)
 
 
-def _as_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        v = np.asarray(vertices)
-        f = np.asarray(faces)
-    except (ValueError, TypeError) as exc:
-        raise MeshError(f"vertices/faces are not arrays: {exc}") from None
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise MeshError(f"vertices must have shape (V, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise MeshError(f"faces must have shape (F, 3) (triangles), got {f.shape}")
-    if v.dtype.kind not in "iuf":
-        raise MeshError(f"vertices must be real numbers, got dtype {v.dtype}")
-    if f.dtype.kind not in "iu":
-        raise MeshError(f"faces must be integer vertex indices, got dtype {f.dtype}")
-    if len(v) == 0 or len(f) == 0:
-        raise MeshError(f"mesh is empty ({len(v)} vertices, {len(f)} faces)")
-    v = v.astype(np.float64)
-    bad = np.flatnonzero(~np.isfinite(v).all(axis=1))
-    if len(bad):
-        raise MeshError(f"vertex {bad[0]} is not finite: {v[bad[0]].tolist()} "
-                        f"({len(bad)} non-finite vertices)")
-    f = f.astype(np.int64)
-    out = np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))
-    if len(out):
-        raise MeshError(f"face {out[0]} refers to vertex {f[out[0]].tolist()}, but the mesh has "
-                        f"{len(v)} vertices (indices are 0-based)")
-    return v, f
-
-
 def prepare(vertices, faces) -> Mesh:
     """Validate, weld identical vertices, drop zero-area and duplicate faces, analyse topology.
 
@@ -95,8 +75,8 @@ def prepare(vertices, faces) -> Mesh:
     less than k·16·eps·R·L to the field, below round-off. Duplicate faces (same three
     vertices, either orientation) are kept once.
     """
-    v, f = _as_arrays(vertices, faces)
-    v, f = _weld(v, f)
+    v, f = as_arrays(vertices, faces)
+    v, f = weld(v, f)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v))))
     from radar_sim.facet import area_vectors
 
@@ -106,68 +86,18 @@ def prepare(vertices, faces) -> Mesh:
     twice_area = 2.0 * np.linalg.norm(area_vectors(v[f]), axis=1)
     longest = np.sqrt(np.max([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)], axis=0))
     keep = twice_area > 16.0 * EPS * max(radius, np.finfo(float).tiny) * longest
-    keep &= _first_occurrence(np.sort(f, axis=1))
+    keep &= face_repeats(f)[0]
     if not keep.any():
         raise MeshError(f"mesh has no face with non-zero area ({len(f)} degenerate faces)")
     dropped = int(len(f) - keep.sum())
-    f = f[keep]
-    used, f = np.unique(f, return_inverse=True)
-    v = v[used]
-    f = f.reshape(-1, 3)
-    partner = _partner(f)
+    v, f = drop_unreferenced(v, f[keep])
+    partner = edge_partner(f)
     closed = partner is not None
-    if closed and _signed_volume(v, f) < 0:
+    if closed and signed_volume(v, f) < 0:
         f = f[:, ::-1].copy()
-        partner = _partner(f)
+        partner = edge_partner(f)
     convex = closed and _is_convex(v, f, partner, radius)
     return Mesh(v, np.ascontiguousarray(f), closed, convex, radius, dropped)
-
-
-def _weld(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Merge vertices with identical coordinates (exactly equal floats)."""
-    order = np.lexsort(v.T[::-1])
-    sv = v[order]
-    new = np.r_[True, np.any(sv[1:] != sv[:-1], axis=1)]
-    group = np.cumsum(new) - 1
-    remap = np.empty(len(v), dtype=np.int64)
-    remap[order] = group
-    return sv[new], remap[f]
-
-
-def _first_occurrence(rows: np.ndarray) -> np.ndarray:
-    """True for the first occurrence of each distinct integer row."""
-    order = np.lexsort(rows.T[::-1])
-    sr = rows[order]
-    new = np.r_[True, np.any(sr[1:] != sr[:-1], axis=1)]
-    out = np.zeros(len(rows), dtype=bool)
-    out[order[new]] = True            # lexsort is stable: the first of each group comes first
-    return out
-
-
-def _edges(f: np.ndarray) -> np.ndarray:
-    return np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-
-
-def _partner(f: np.ndarray) -> np.ndarray | None:
-    """For each directed edge (a, b) the index of the directed edge (b, a); None unless every
-    directed edge occurs once and has its reverse (watertight, consistently wound)."""
-    directed = _edges(f)
-    n = int(f.max()) + 1
-    key = directed[:, 0] * n + directed[:, 1]
-    order = np.argsort(key, kind="stable")
-    sk = key[order]
-    if np.any(sk[1:] == sk[:-1]):
-        return None
-    reverse = directed[:, 1] * n + directed[:, 0]
-    pos = np.minimum(np.searchsorted(sk, reverse), len(sk) - 1)
-    if np.any(sk[pos] != reverse):
-        return None
-    return order[pos]
-
-
-def _signed_volume(v: np.ndarray, f: np.ndarray) -> float:
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
 def _is_convex(v: np.ndarray, f: np.ndarray, partner: np.ndarray, radius: float) -> bool:
@@ -178,7 +108,7 @@ def _is_convex(v: np.ndarray, f: np.ndarray, partner: np.ndarray, radius: float)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    directed = _edges(f)
+    directed = directed_edges(f)
     n = len(v)
     adjacency = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])),
                            shape=(n, n))

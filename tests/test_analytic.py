@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from basic_shapes import analytic, primitives, verify
+from basic_shapes import analytic, meshcheck, primitives, verify
 
 SCALES = [(1.0, 1.4, 1.8), (0.2, 2.0, 2.0), (2.0, 2.0, 0.2)]
 
@@ -89,7 +89,7 @@ def test_simulation_mesh_is_closed_outward_and_on_the_surface(kind, scale):
     solid = analytic.solid_for(kind, scale)
     v, f = analytic.simulation_mesh(solid, 12e9)
     assert v.dtype == np.float64 and f.dtype == np.int32
-    assert verify.defect(v, f, primitives.get(kind).euler) is None
+    assert meshcheck.defect(v, f, primitives.get(kind).euler) is None
     assert trimesh.Trimesh(v, f, process=False).volume > 0  # outward
     np.testing.assert_allclose(v.max(axis=0) - v.min(axis=0), scale, rtol=1e-12)
     assert analytic.surface_distance(solid, v[::max(1, len(v) // 3000)]).max() < 1e-12

@@ -130,17 +130,6 @@ TETRA_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float6
 TETRA_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], dtype=np.int32)
 
 
-def test_is_watertight_against_hand_made_cases():
-    assert C.is_watertight(TETRA_F)
-    assert not C.is_watertight(TETRA_F[:3])  # open
-    flipped = TETRA_F.copy()
-    flipped[0] = flipped[0, ::-1]
-    assert not C.is_watertight(flipped)  # inconsistent orientation
-    fin = np.vstack([TETRA_F, [[0, 1, 2], [0, 2, 1]]])
-    assert not C.is_watertight(fin)  # an edge shared by four faces
-    assert not C.is_watertight(np.vstack([TETRA_F[:3], [[1, 1, 3]]]))  # degenerate face
-
-
 def test_simplify_keeps_a_closed_sphere_closed_and_round():
     mesh = trimesh.creation.icosphere(subdivisions=4)  # 5120 faces, radius 1
     v, f = C.simplify_to(mesh.vertices, mesh.faces, 300, keep_watertight=True)

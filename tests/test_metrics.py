@@ -219,7 +219,7 @@ def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():
     """table_rows averages the OOD per-object errors over seeds (overall and per remesher,
     intervals of the seed-mean) and render_markdown shows the columns and the sub-table."""
     from benchmark.metrics import ood_keys
-    from benchmark.reproduce import remesher_table, render_markdown, table_rows
+    from benchmark.report import remesher_table, render_markdown, table_rows
 
     rng = np.random.default_rng(5)
     n, cls = 12, np.arange(12) % 3

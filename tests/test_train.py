@@ -20,8 +20,9 @@ from benchmark.models.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from benchmark.presets import ROWS
 from benchmark.protocol import load_results, score_predictions
-from benchmark.reproduce import ROWS, findings
+from benchmark.report import findings
 from benchmark.train import (
     PretrainTask,
     TrainConfig,
@@ -162,11 +163,18 @@ def test_train_cli_bad_input(data_dir, tmp_path, argv, message):
     assert not (tmp_path / "ck").exists()
 
 
-def test_tiny_preset_end_to_end(tmp_path):
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A `benchmark reproduce --preset tiny` output folder (made once for this module)."""
+    out = tmp_path_factory.mktemp("tiny") / "tiny"
+    benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
+    return out
+
+
+def test_tiny_preset_end_to_end(tiny, tmp_path):
     """The whole pipeline: `basic-shapes generate` + `radar-sim label` subprocesses, the
     corpus, all 13 rows trained and evaluated by the harness, table + JSON + plot."""
-    out = tmp_path / "tiny"
-    benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
+    out = tiny
     table = json.loads((out / "table.json").read_text())
     names = [r["name"] for r in table["rows"]]
     assert names == [f"{e}-{r}" for e, r in ROWS] and len(names) == 13
@@ -220,6 +228,71 @@ def test_tiny_preset_end_to_end(tmp_path):
         == {"tiny-v1"}  # reproduce built the registered version, and submit identified it
     assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None
     assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])
+
+
+def _committed(out, to, configs: bool):
+    """What a run commits: the per-seed results JSONs and (``configs``) checkpoint configs."""
+    for path in out.glob("results/*/seed-*/results.json"):
+        dst = to / path.relative_to(out)
+        dst.parent.mkdir(parents=True)
+        dst.write_bytes(path.read_bytes())
+    for path in out.glob("checkpoints/*/seed-*/config.json") if configs else ():
+        dst = to / path.relative_to(out)
+        dst.parent.mkdir(parents=True)
+        dst.write_bytes(path.read_bytes())
+    return to
+
+
+def test_report_rebuilds_the_table_from_results_alone(tiny, tmp_path, capsys):
+    """`benchmark report` on the results JSONs (no models, no predictions) and the dataset
+    gives reproduce's table: the same rows, references and findings; training time from the
+    checkpoint configs where they were kept, else "-"."""
+    table = json.loads((tiny / "table.json").read_text())
+    data = str(tiny / "data")
+    for configs in (True, False):
+        d = _committed(tiny, tmp_path / f"configs-{configs}", configs)
+        benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(d),
+                        "--quiet"])
+        again = json.loads((d / "table.json").read_text())
+        for key in ("preset", "preset_config", "dataset", "seeds", "references",
+                    "strongest_reference", "findings", "no_findings"):
+            assert again[key] == table[key], key
+        assert again["command"].startswith("benchmark report --preset tiny")
+        assert again["timing"] is None and again["hardware"] is None
+        if configs:
+            assert again["rows"] == table["rows"]
+        else:
+            assert [{**r, "train_seconds": None} for r in table["rows"]] == again["rows"]
+        md = (d / "table.md").read_text()
+        assert "Rebuilt by `benchmark report`" in md and md in capsys.readouterr().out
+        rows = [line for line in md.splitlines() if line.startswith("| direct | none | simple")]
+        assert rows[0].endswith(" | - |") != configs
+        assert (d / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_report_refuses_missing_or_misplaced_results_in_one_line(tiny, tmp_path):
+    data = str(tiny / "data")
+    with pytest.raises(SystemExit) as info:
+        benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(tmp_path)])
+    assert info.value.code == (f"benchmark report: error: {tmp_path / 'results'}: no such "
+                               f"directory (expected the results/ folder of a `benchmark "
+                               f"reproduce --out`)")
+    d = _committed(tiny, tmp_path / "d", configs=False)
+    seed0 = d / "results" / "graph-basic" / "seed-0" / "results.json"
+    (seed0.parent.parent / "seed-1").mkdir()
+    seed0.rename(seed0.parent.parent / "seed-1" / "results.json")  # a file in the wrong place
+    with pytest.raises(SystemExit) as info:
+        benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(d),
+                        "--seeds", "0,1"])
+    assert info.value.code.endswith("seed-1/results.json: holds the results of graph-basic "
+                                    "seed 0, not graph-basic seed 1")
+    assert "\n" not in info.value.code and not (d / "table.json").exists()
+    d = _committed(tiny, tmp_path / "c", configs=True)
+    with pytest.raises(SystemExit) as info:  # the tiny run's results are not the small preset's
+        benchmark_main(["report", "--preset", "small", "--data", data, "--out", str(d)])
+    assert info.value.code.endswith("seed-0/config.json: trained with dim=16, not the small "
+                                    "preset's 32; is --preset right?")
+    assert not (d / "table.json").exists()
 
 
 def _paper_shaped_rows(n: int = 90, seed: int = 0) -> list[dict]:
@@ -280,7 +353,7 @@ def test_findings_are_decided_by_paired_intervals():
 
 
 def test_rows_average_seeds_per_object_with_std_and_interval():
-    from benchmark.reproduce import table_rows
+    from benchmark.report import table_rows
     from benchmark.uncertainty import interval
 
     rng = np.random.default_rng(3)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from basic_shapes import analytic, primitives, verify
+from basic_shapes import analytic, meshcheck, primitives, verify
 
 
 def box(extents, center=(0.0, 0.0, 0.0)):
@@ -51,7 +51,7 @@ def test_face_interiors_are_sampled():
     fb = fa.copy()
     top = [i for i, tri in enumerate(fa) if set(tri) <= {1, 3, 5, 7}]
     fb[top] = [[1, 5, 3], [5, 7, 3]]
-    assert verify.defect(va, fa, euler=2) is None and verify.defect(va, fb, euler=2) is None
+    assert meshcheck.defect(va, fa, euler=2) is None and meshcheck.defect(va, fb, euler=2) is None
     assert verify.hausdorff(va, fa, va, fb) > 0.01
 
 
@@ -61,7 +61,7 @@ def test_polygon_sagitta_is_measured_exactly():
     n = 12
     va, fa = prism(2 * n)
     vb, fb = prism(n)
-    expected = (1 - math.cos(math.pi / n)) / verify.bbox_diagonal(va)
+    expected = (1 - math.cos(math.pi / n)) / meshcheck.bbox_diagonal(va)
     assert verify.hausdorff(va, fa, vb, fb) == pytest.approx(expected, rel=1e-6)
 
 
@@ -112,38 +112,6 @@ def test_tolerance_rejects_tessellations_outside_the_bound():
         verify.tolerance("cube", {"resolution": {"segments": 8}})
     with pytest.raises(ValueError, match="unknown primitive class 'dodecahedron'"):
         verify.tolerance("dodecahedron", {})
-
-
-def test_defect_accepts_closed_meshes_and_names_each_problem():
-    v, f = box((1, 2, 3))
-    assert verify.defect(v, f, euler=2) is None
-    assert verify.defect(*prism(9), euler=2) is None
-    assert "open boundary" in verify.defect(v, f[1:], euler=2)
-    flipped = f.copy()
-    flipped[0] = flipped[0, ::-1]
-    assert "same direction" in verify.defect(v, flipped, euler=2)
-    assert "Euler characteristic 2" in verify.defect(v, f, euler=0)
-    two = np.vstack([f, f + 8])
-    assert "Euler characteristic 4" in verify.defect(np.vstack([v, v + 5]), two, euler=2)
-    flat = v.copy()
-    flat[:, 0] = 0.0  # every face parallel to x collapses
-    assert "zero-area" in verify.defect(flat, f, euler=2)
-    assert "unreferenced" in verify.defect(np.vstack([v, [[9, 9, 9]]]), f, euler=2)
-    assert "out of range" in verify.defect(v, f + 1, euler=2)
-    assert "finite" in verify.defect(np.where(v > 0, np.nan, v), f, euler=2)
-
-
-def test_topology_key_ignores_labels_but_sees_connectivity():
-    v, f = box((1, 1, 1))
-    perm = np.random.default_rng(0).permutation(8)
-    relabelled = np.argsort(perm)[f]
-    assert verify.topology_key(relabelled, 8) == verify.topology_key(f, 8)
-    # the same cube with the diagonals of two faces flipped: other vertex degrees
-    g = f.copy()
-    g[0:2] = [[0, 1, 2], [1, 3, 2]]
-    g[2:4] = [[4, 6, 5], [6, 7, 5]]
-    assert verify.defect(v, g, euler=2) is None
-    assert verify.topology_key(g, 8) != verify.topology_key(f, 8)
 
 
 @pytest.mark.parametrize("name", sorted(primitives.PRIMITIVES))

@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from basic_shapes.meshcheck import directed_edges
 from benchmark.models.probes import ray_probes
 
 N_BINS = 128  # discretization levels per quantity, as in MeshGPT
@@ -32,9 +33,9 @@ def face_adjacency(faces: np.ndarray) -> np.ndarray:
     n_faces = len(faces)
     if n_faces == 0:
         return np.zeros((2, 0), np.int64)
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges = np.sort(directed_edges(faces), axis=1)  # undirected: either winding meets
     keys = edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]
-    owner = np.repeat(np.arange(n_faces), 3)
+    owner = np.tile(np.arange(n_faces), 3)  # row k * F + i of directed_edges is face i's
     order = np.argsort(keys, kind="stable")
     keys, owner = keys[order], owner[order]
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])

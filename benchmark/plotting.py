@@ -1,0 +1,138 @@
+"""The speed-against-error chart, drawn one way for the reproduction table and the board.
+
+Labels never overlap: every point's name sits in one column right of the axes, at the height
+of its point where there is room and pushed apart by one line height where there is not, with
+a thin leader line back to the point. The figure grows taller when the column needs it, so
+the rule holds for any number of rows (an annotation next to each point smears as soon as two
+models have similar errors, which is the usual case).
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+from matplotlib.ticker import FormatStrFormatter, LogFormatter, SymmetricalLogLocator
+
+FONT_PT = 8.0
+LINE = 1.35  # label pitch in font heights
+AXES_IN = (5.0, 3.6)  # axes width and minimal height, inches
+MARGIN_IN = dict(left=0.9, right=3.0, bottom=0.65, top=0.45)  # right: the label column
+
+
+@dataclass(frozen=True)
+class Point:
+    """One model on the chart: ms per mesh, Complex MSE with its 95% interval."""
+
+    x: float
+    y: float
+    label: str
+    ci: tuple[float, float] | None = None
+    colour: str = "tab:blue"
+    marker: str = "o"
+    size: float = 46.0
+    hollow: bool = False  # no skill: drawn hollow with a red edge
+
+
+def literal(label: str) -> str:
+    """Shown literally: matplotlib would parse $...$ as math (and fail on some)."""
+    return label.replace("$", r"\$")
+
+
+def spread(wanted: list[float], gap: float, lo: float, hi: float) -> list[float]:
+    """Positions, bottom to top in the given order, as close as possible to ``wanted`` with
+    neighbours at least ``gap`` apart, inside [lo, hi] when ``len(wanted) * gap <= hi - lo``:
+    push up from the bottom, then back down from the top."""
+    pos = [min(max(w, lo), hi) for w in wanted]
+    for k in range(1, len(pos)):
+        pos[k] = max(pos[k], pos[k - 1] + gap)
+    if pos and pos[-1] > hi:
+        pos[-1] = hi
+        for k in range(len(pos) - 2, -1, -1):
+            pos[k] = min(pos[k], pos[k + 1] - gap)
+    return pos
+
+
+def png(fig) -> bytes:
+    """The figure as PNG bytes (no software tag: same input, same bytes); closes it."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def speed_vs_error(points: list[Point], references: dict[str, float] | None = None,
+                   simulator: tuple[float, float] | None = None, title: str | None = None,
+                   xlabel: str = "ms per mesh (log scale; lower is faster)"):
+    """The figure of ms per mesh (log) against Complex MSE (symlog, from 0 = the physics):
+    ``references`` name -> Complex MSE as dashed lines (they cost nothing to run: a model
+    must be below them), ``simulator`` (ms, MSE) as a star."""
+    references = {k: v for k, v in (references or {}).items() if v is not None}
+    n_labels = len(points) + len(references) + (simulator is not None)
+    line_in = LINE * FONT_PT / 72
+    axes_h = max(AXES_IN[1], n_labels * line_in + 0.1)
+    width = MARGIN_IN["left"] + AXES_IN[0] + MARGIN_IN["right"]
+    height = MARGIN_IN["bottom"] + axes_h + MARGIN_IN["top"]
+    fig = plt.figure(figsize=(width, height))
+    ax = fig.add_axes((MARGIN_IN["left"] / width, MARGIN_IN["bottom"] / height,
+                       AXES_IN[0] / width, axes_h / height))
+    labels = []  # (x, y, text, colour) in data coordinates
+    for p in points:
+        if p.ci:
+            ax.errorbar([p.x], [p.y], yerr=[[p.y - p.ci[0]], [p.ci[1] - p.y]], fmt="none",
+                        ecolor="0.65", zorder=2)
+        ax.scatter([p.x], [p.y], s=p.size, marker=p.marker, zorder=3,
+                   facecolors="none" if p.hollow else p.colour,
+                   edgecolors="tab:red" if p.hollow else p.colour)
+        labels.append((p.x, p.y, literal(p.label) + (" (no skill)" if p.hollow else ""), "0.1"))
+    if simulator is not None:
+        ax.scatter([simulator[0]], [simulator[1]], s=140, marker="*", color="tab:orange",
+                   zorder=4)
+        labels.append((*simulator, "physics simulator", "tab:orange"))
+    ax.set_xscale("log")
+    ax.set_yscale("symlog", linthresh=1.0)  # spans 0 (the physics) to no-skill hundreds
+    # ticks at 1..9 x each decade (and halves below 3), so a range inside one decade is still
+    # labelled; plain numbers on both axes
+    subs = (1, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9)
+    ax.yaxis.set_major_locator(SymmetricalLogLocator(base=10, linthresh=1.0, subs=subs))
+    ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(1, 0.5)))
+    ax.margins(x=0.15, y=0.08)
+    for name, y in references.items():
+        ax.axhline(y, color="0.55", lw=0.8, ls="--", zorder=1)
+        labels.append((None, y, f"reference: {literal(name)}", "0.4"))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("Complex MSE (dB², 95% interval; symlog)")
+    if title:
+        ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    _label_column(ax, labels, line_in / axes_h)
+    return fig
+
+
+def _label_column(ax, labels: list[tuple], gap: float) -> None:
+    """Each label right of the axes at its point's height, spread apart by ``gap`` (axes
+    fraction), with a leader line; reference lines' labels lead to the right axis edge."""
+    ax.figure.canvas.draw()  # final limits and transforms
+    to_axes = ax.transAxes.inverted()
+    xmax = ax.get_xlim()[1]
+    wanted = [float(to_axes.transform(ax.transData.transform((xmax if x is None else x, y)))[1])
+              for x, y, _, _ in labels]
+    # bottom to top; points within a line height of each other left to right, so their
+    # leader lines do not cross
+    order = sorted(range(len(labels)),
+                   key=lambda i: (round(wanted[i] / gap), labels[i][0] or float("inf"), wanted[i]))
+    labels, wanted = [labels[i] for i in order], [wanted[i] for i in order]
+    for (x, y, text, colour), want, pos in zip(labels, wanted, spread(wanted, gap, 0.0, 1.0)):
+        on_edge = x is None  # a reference line: lead to where it meets the right edge
+        ax.annotate(text, xy=(1.0, want) if on_edge else (x, y),
+                    xycoords="axes fraction" if on_edge else "data",
+                    xytext=(1.04, pos), textcoords="axes fraction", va="center",
+                    fontsize=FONT_PT - on_edge, color=colour, annotation_clip=False,
+                    arrowprops=dict(arrowstyle="-", color="0.75", lw=0.5, shrinkA=0,
+                                    shrinkB=2))

@@ -1,0 +1,94 @@
+"""The presets of ``benchmark reproduce`` and the rows of the paper's table.
+
+A preset names a dataset version and a model/training size that fit a time budget; the rows
+derive from the embedding registry (``benchmark.models.REGISTRY``), so adding an embedding adds
+its rows. Why the presets are sized as they are: ``PRESETS`` and docs/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from benchmark.models import FACE_EMBEDDINGS, REGISTRY
+
+EMBEDDINGS = FACE_EMBEDDINGS  # the paper's encoders: pretrained, with an Ideal row
+ROWS: tuple[tuple[str, str], ...] = (
+    *[(e, r) for e in EMBEDDINGS for r in ("basic", "classification", "autoencoder")],
+    *[(e, "ideal") for e in EMBEDDINGS],
+    *[(e, "basic") for e in REGISTRY if e not in EMBEDDINGS],
+)
+PRETRAINING = {"basic": "none", "classification": "classification", "autoencoder": "autoencoder",
+               "ideal": "none"}
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A dataset version and a model/training size that fit a time budget."""
+
+    dataset: str  # a registered version (benchmark.versions), built unless --data is given
+    train: dict  # TrainConfig fields
+    workers: int | None  # Dask workers for generate/label (0: in-process, None: per core)
+    jobs: int = 1  # rows trained at once, in separate single-threaded processes (CPU)
+    launcher: str = "inprocess"  # or "torchrun" (one process per GPU, DDP)
+    expected: str = ""
+    seeds: tuple[int, ...] = (0, 1, 2)  # training seeds per row (mean ± std across them)
+    findings: bool = True  # False: too small to decide any claim (the table says why)
+
+
+SMALL_MODEL = dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
+                   codebook_size=64, pretrain_meshes=1500, pretrain_epochs=8,
+                   pretrain_max_faces=400)
+"""CPU-sized models: complex meshes reach ~4000 faces, so self-attention over faces dominates;
+one aggregator layer, two heads, one thread per job with two jobs at once."""
+
+PRESETS = {
+    # For the test suite: every row on a few objects, with models too small to learn much.
+    "tiny": Preset(
+        dataset="tiny-v1", workers=0,
+        train=dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32,
+                   codebook_size=16, epochs=2, batch_size=8, pretrain_meshes=20,
+                   pretrain_epochs=1, pretrain_max_faces=100),
+        expected="about a minute on 2 CPU cores", seeds=(0,), findings=False),
+    # The demo's dataset with the CPU models: a quick look, too few test objects for findings.
+    "small": Preset(
+        dataset="demo-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, epochs=30, batch_size=8),
+        expected="about 10 minutes on 2 CPU cores", seeds=(0,), findings=False),
+    # The CPU benchmark (docs/RESULTS.md): 150 test objects, 3 seeds, paired intervals.
+    "cpu": Preset(
+        dataset="cpu-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, epochs=8, batch_size=16),
+        expected="estimated 4-6 hours on 2 CPU cores (resumable: rerun to continue)"),
+    # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
+    "paper": Preset(
+        dataset="paper-v1", workers=None,
+        train=dict(dim=256, embed_layers=5, agg_layers=6, n_heads=8, decoder_hidden=1024,
+                   codebook_size=512, epochs=100, batch_size=32, pretrain_meshes=20000,
+                   pretrain_epochs=30, pretrain_max_faces=800, lr=3e-4, pretrain_lr=3e-4),
+        launcher="torchrun",
+        expected="estimated (not measured) 3-4 hours of training and evaluation on one "
+                 "H100-class GPU, divided roughly by N with torchrun on N GPUs; generating and "
+                 "labelling the 300,000 meshes is about 30 CPU-minutes (a Dask cluster)"),
+}
+
+
+def rows_of(spec: str | None) -> list[tuple[str, str]]:
+    """``--rows``: a comma-separated subset of the rows by name (default: all)."""
+    if not spec:
+        return list(ROWS)
+    known = {f"{e}-{r}": (e, r) for e, r in ROWS}
+    bad = [s for s in spec.split(",") if s not in known]
+    if bad:
+        raise SystemExit(f"unknown row(s) {', '.join(bad)}; known: {', '.join(known)}")
+    return [known[s] for s in spec.split(",")]
+
+
+def seeds_of(spec: str | None, preset: Preset) -> list[int]:
+    """``--seeds``: comma-separated distinct training seeds (default: the preset's)."""
+    if not spec:
+        return list(preset.seeds)
+    try:
+        seeds = [int(x) for x in spec.split(",")]
+    except ValueError:
+        raise SystemExit(f"--seeds must be comma-separated integers, got {spec!r}") from None
+    if len(set(seeds)) != len(seeds) or any(x < 0 for x in seeds):
+        raise SystemExit(f"--seeds must be distinct and >= 0, got {spec!r}")
+    return seeds
