@@ -1,10 +1,12 @@
 """Bounds on MeshLab's point-to-mesh distance, to find the few samples that can be the maximum.
 
-``verify.Reference.primitive_distance`` stores the largest MeshLab distance from ~30,000 surface
-samples to a mesh. MeshLab's value for one sample does not depend on the other samples of the
-query (checked), so it is enough to ask MeshLab about every sample that may hold the maximum:
-the stored number stays bit for bit what a query of all samples gives, at a fraction of the
-cost (perf/generate_throughput.py).
+``verify.Reference`` stores the largest MeshLab distance from a set of samples to a mesh: from
+~30,000 surface samples to each variant (``primitive_distance``) and, both ways, between a
+variant's and the simple mesh's samples and meshes (``distance``). MeshLab's value for one
+sample does not depend on the other samples of the query (checked), so it is enough to ask
+MeshLab about every sample that may hold the maximum, against every face that may be closest
+to one of them: the stored number stays bit for bit what a query of all samples against the
+whole mesh gives, at a fraction of the cost (perf/generate_throughput.py).
 
 MeshLab (vcglib ``face::PointDistanceBase``, double precision) returns for a sample q the
 minimum over faces of: the plane distance |d| when q projects inside the face, else the
