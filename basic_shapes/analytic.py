@@ -7,15 +7,19 @@ equal ``scale``. Every stored mesh is a *representation* of it (verify.py measur
 its radar label is the physics of the smooth surface, computed on a *simulation mesh* that is
 refined until the label has converged (docs/RADAR.md, "Object labels: simulation meshes").
 
-numpy (and scipy's KD-tree) only: radar_sim imports this module to label objects.
+numpy, scipy's KD-tree and one compiled Newton loop (ellipsoid_closest): radar_sim imports this
+module to label objects.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from basic_shapes import ellipsoid_closest
 
 C0 = 299_792_458.0
 
@@ -112,15 +116,6 @@ def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
 # nearest of a coarse set of surface samples
 
 
-def _ellipsoid_implicit(axes):
-    axes = np.asarray(axes, np.float64)
-    inv = 1.0 / axes ** 2
-
-    def f(x):
-        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(2.0 * inv, x.shape)
-    return f
-
-
 def _torus_implicit(s):
     """(rho - R)^2 + q_z^2 - r^2 in the default torus' coordinates q = x / s."""
     s = np.asarray(s, np.float64)
@@ -141,12 +136,18 @@ def _torus_implicit(s):
     return f
 
 
-def _nearest(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
-    """Index of the nearest sample to each point (a KD-tree: brute force cost 0.4 s per mesh
-    of a few thousand points against an ellipsoid's grid, perf/generate_throughput.py)."""
+@functools.lru_cache(maxsize=32)
+def _starts(axes: tuple) -> tuple:
+    """Newton's start candidates on the ellipse (two semi-axes) or ellipsoid (three) and their
+    KD-tree, built once per shape: every variant of an object asks for the same ones (building
+    them per call cost ~5 ms per sphere mesh; brute-force nearest search 0.4 s,
+    perf/generate_throughput.py)."""
     from scipy.spatial import cKDTree
 
-    return cKDTree(samples).query(points)[1]
+    samples = (_ellipse_points(*axes) if len(axes) == 2
+               else _ellipsoid_grid(np.array(axes), 24))
+    samples.flags.writeable = False
+    return samples, cKDTree(samples)
 
 
 NEWTON_STEPS = 100
@@ -199,10 +200,15 @@ def _closest_on_implicit(points, starts, implicit):
     return x, ok
 
 
-def _curve_distance(q: np.ndarray, implicit, samples: np.ndarray) -> np.ndarray:
-    """Distance from points to a smooth closed curve/surface {F = 0} (nearest sample + Newton)."""
-    start = samples[_nearest(q, samples)]
-    x, ok = _closest_on_implicit(q, start, implicit)
+def _curve_distance(q: np.ndarray, axes) -> np.ndarray:
+    """Distance from points to the ellipse or ellipsoid of these semi-axes: Newton on the
+    Lagrange system (compiled, ellipsoid_closest) from the nearest start sample."""
+    samples, tree = _starts(tuple(float(a) for a in axes))
+    start = samples[tree.query(q)[1]]
+    scale = np.abs(q).max() + np.abs(start).max() + 1e-300
+    x, value = ellipsoid_closest.closest(q, start, 1.0 / np.asarray(axes, np.float64) ** 2,
+                                         1e-14 * scale, NEWTON_STEPS)
+    ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
     d = np.linalg.norm(q - x, axis=1)
     return np.where(ok, np.minimum(d, np.linalg.norm(q - start, axis=1)),
                     np.linalg.norm(q - start, axis=1))
@@ -250,7 +256,7 @@ def _ellipse_points(a, b, n=256):
 
 def _ellipse_distance(q2, a, b):
     """Distance from 2-D points to the ellipse curve (a, b) and whether they lie inside it."""
-    d = _curve_distance(q2, _ellipsoid_implicit((a, b)), _ellipse_points(a, b))
+    d = _curve_distance(q2, (a, b))
     inside = (q2[:, 0] / a) ** 2 + (q2[:, 1] / b) ** 2 <= 1.0
     return d, inside
 
@@ -276,7 +282,7 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
         outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
         return np.where(np.all(q <= 0, axis=1), -q.max(axis=1), outside)
     if kind == "sphere":
-        return _curve_distance(p, _ellipsoid_implicit(h), _ellipsoid_grid(h, 24))
+        return _curve_distance(p, h)
     if kind == "cylinder":
         a, b, c = h
         rim = _ellipse_distance(p[:, :2], a, b)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes import analytic, primitives
+from basic_shapes import analytic, meshlab_bounds, primitives
 from basic_shapes.meshcheck import bbox_diagonal, twice_area_squared
 
 PLANAR_TOLERANCE = 1e-6
@@ -101,22 +101,20 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.
     return np.concatenate(parts)
 
 
-def _sampled_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float):
-    """A pymeshlab mesh whose vertex list also holds its face samples, unreferenced.
-
-    MeshLab's vertex sampling visits every vertex, while its closest-point search only looks
-    at faces: one mesh serves as the sample set in one direction and the target in the other.
-    """
+def _samples(vertices: np.ndarray, faces: np.ndarray, spacing: float, diagonal: float):
+    """A mesh's Hausdorff samples: every vertex and its face samples."""
     v = np.asarray(vertices, np.float64)
-    return _pymeshlab().Mesh(vertex_matrix=np.concatenate([v, face_samples(v, faces, spacing)]),
-                             face_matrix=np.asarray(faces, np.int32))
+    return meshlab_bounds.SampleBounds(np.concatenate([v, face_samples(v, faces, spacing)]),
+                                       diagonal)
 
 
 class Reference:
     """A mesh that many others are compared with (the simple mesh of one object).
 
-    It is sampled and loaded into pymeshlab once; ``distance`` then loads each compared
-    mesh next to it and removes it again.
+    Its samples (and the analytic surface's) are set up once for all its variants. MeshLab
+    measures only the samples that may hold a direction's maximum, against the faces that may
+    be closest to them (``meshlab_bounds``): the same numbers as measuring all of them, at a
+    fraction of the cost.
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray,
@@ -125,27 +123,20 @@ class Reference:
         if not self.diagonal > 0:
             raise ValueError("reference mesh has an empty bounding box")
         self.spacing = self.diagonal * SAMPLE_SPACING
-        self._ms = _pymeshlab().MeshSet()
-        self._ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
-        self._id = self._ms.current_mesh_id()
+        self._mesh = (np.asarray(vertices, np.float64), np.asarray(faces))
+        self._samples = _samples(*self._mesh, self.spacing, self.diagonal)
         self.solid = solid
         if solid is not None:
             samples = analytic.surface_samples(solid, solid.diagonal * SURFACE_SPACING)
-            self._ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=samples))
-            self._surface_id = self._ms.current_mesh_id()
+            self._surface = meshlab_bounds.SampleBounds(samples, solid.diagonal)
 
     def distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
-        ms = self._ms
-        ms.add_mesh(_sampled_mesh(vertices, faces, self.spacing))
-        other = ms.current_mesh_id()
-        try:
-            radius = SEARCH_RADIUS * self.diagonal
-            to_ref = _one_sided(ms, sampled=other, target=self._id, radius=radius)
-            from_ref = _one_sided(ms, sampled=self._id, target=other, radius=radius)
-        finally:
-            ms.set_current_mesh(other)
-            ms.delete_current_mesh()
+        v = np.asarray(vertices, np.float64)
+        radius = SEARCH_RADIUS * self.diagonal
+        to_ref = _one_sided_subset(_samples(v, faces, self.spacing, self.diagonal),
+                                   self._mesh, radius)
+        from_ref = _one_sided_subset(self._samples, (v, faces), radius)
         return max(to_ref, from_ref) / self.diagonal
 
     def primitive_distance(self, vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -158,16 +149,21 @@ class Reference:
         spacing = solid.diagonal * SURFACE_SPACING * 4
         points = np.concatenate([v, face_samples(v, faces, spacing)])
         to_surface = float(analytic.surface_distance(solid, points).max())
-        ms = self._ms
-        ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=v, face_matrix=np.asarray(faces, np.int32)))
-        other = ms.current_mesh_id()
-        try:
-            from_surface = _one_sided(ms, sampled=self._surface_id, target=other,
-                                      radius=SEARCH_RADIUS * solid.diagonal)
-        finally:
-            ms.set_current_mesh(other)
-            ms.delete_current_mesh()
+        from_surface = _one_sided_subset(self._surface, (v, faces),
+                                         SEARCH_RADIUS * solid.diagonal)
         return max(to_surface, from_surface) / solid.diagonal
+
+
+def _one_sided_subset(samples: meshlab_bounds.SampleBounds, mesh, radius: float) -> float:
+    """``_one_sided`` from every sample to ``mesh`` (vertices, faces), asking MeshLab about the
+    samples that may hold the maximum only, against the faces that may be closest to them (a
+    MeshSet of its own: cheaper than adding and deleting meshes in a kept one)."""
+    picked, near = samples.candidates(*mesh)
+    ms = _pymeshlab().MeshSet()
+    ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=mesh[0],
+                                  face_matrix=np.asarray(mesh[1], np.int32)[near]))
+    ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=samples.samples[picked]))
+    return _one_sided(ms, sampled=1, target=0, radius=radius)
 
 
 def in_wavelengths(relative: float, scale) -> float:

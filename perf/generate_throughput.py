@@ -10,7 +10,9 @@ Out-of-distribution test meshes (basic_shapes/remesh.py) are timed apart, new co
 
     python perf/generate_throughput.py --compare old=/tmp/old [--objects-per-class 3]
 
-``--compare``: a checkout of other code, e.g. ``git worktree add /tmp/old 8e35ef8``. ``--wall``
+``--compare``: a checkout of other code, e.g. ``git worktree add /tmp/old 8e35ef8``; naming
+this tree first too (``--compare new_first=.``) measures it before and after the others, so
+that load drifting during the run shows in the stages no version changed. ``--wall``
 also times `generate` on 1 and 2 Dask workers (only meaningful on a quiet machine, load < 1).
 Writes perf/results/generate_throughput.json and prints a table. The paper-scale goal is
 300,000 meshes in 15 minutes on this 2-core machine (333 meshes/s); issue 10 asks for 450.

@@ -177,3 +177,36 @@ def test_unit_shapes_match_the_primitive_registry():
     assert set(analytic.ALL_KINDS) == set(primitives.PRIMITIVES)
     assert analytic.TORUS_EXTENTS == primitives.get("torus").extents
     assert all(primitives.get(k).extents == (2.0, 2.0, 2.0) for k in analytic.KINDS if k != "torus")
+
+
+def _ellipsoid_implicit(axes):
+    """F = sum(x^2 / axes^2) - 1 with its gradient and (diagonal) Hessian, numpy."""
+    inv = 1.0 / np.asarray(axes, np.float64) ** 2
+
+    def f(x):
+        return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(2.0 * inv, x.shape)
+    return f
+
+
+@pytest.mark.parametrize("axes", [(0.5, 0.7, 0.9), (0.05, 1.0, 1.0), (1.0, 1.0, 0.1),
+                                  (0.3, 1.2), (1.0, 0.02)])
+def test_compiled_newton_is_bit_identical_to_the_numpy_iteration(axes):
+    """ellipsoid_closest.closest repeats analytic._closest_on_implicit's arithmetic exactly:
+    the stored distances depend on every last bit (dataset fingerprints)."""
+    from basic_shapes import ellipsoid_closest
+
+    rng = np.random.default_rng(3)
+    a = np.asarray(axes)
+    u = rng.standard_normal((4000, len(a)))
+    on = u / np.linalg.norm(u / a, axis=1, keepdims=True)  # on the surface
+    p = on * rng.uniform(0.0, 2.0, (4000, 1)) ** rng.choice([1, 3], (4000, 1))
+    starts = on[rng.permutation(4000)]
+    starts[: 3000] = on[: 3000] + 0.02 * rng.standard_normal((3000, len(a)))  # near, off it
+    x_ref, ok_ref = analytic._closest_on_implicit(p, starts, _ellipsoid_implicit(a))
+    scale = np.abs(p).max() + np.abs(starts).max() + 1e-300
+    x, value = ellipsoid_closest.closest(p, starts, 1.0 / a ** 2, 1e-14 * scale,
+                                         analytic.NEWTON_STEPS)
+    ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
+    assert np.array_equal(x, x_ref, equal_nan=True)
+    assert np.array_equal(ok, ok_ref)
+    assert ok.mean() > 0.9

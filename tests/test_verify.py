@@ -176,3 +176,75 @@ def test_the_writer_stores_primitive_distances_and_object_params(tmp_path):
     with h5py.File(path) as h5:
         assert h5["meshes/primitive_distance"][()].tolist() == [1e-9, 3e-8]
         assert h5["objects/params"].asstr()[()].tolist() == ["{}"]
+
+
+def _meshlab_per_sample(samples, v, f):
+    """MeshLab's distance from every sample to the mesh (its saved per-sample quality) and the
+    maximum it reports."""
+    pm = verify._pymeshlab()
+    ms = pm.MeshSet()
+    ms.add_mesh(pm.Mesh(vertex_matrix=np.asarray(v, float), face_matrix=np.asarray(f, np.int32)))
+    ms.add_mesh(pm.Mesh(vertex_matrix=samples))
+    r = ms.get_hausdorff_distance(sampledmesh=1, targetmesh=0, samplevert=True, sampleedge=False,
+                                  sampleface=False, samplenum=len(samples), savesample=True,
+                                  maxdist=pm.PureValue(1e30))
+    return ms.mesh(2).vertex_scalar_array(), r["max"]
+
+
+def _test_meshes():
+    """Coarse inscribed meshes of each class (sagittas on curved ones, rounding on the box), the
+    same meshes with their vertices moved off the surface (non-convex), and a box cut into
+    slivers whose edges run through the surface samples (MeshLab's near-edge rule); float32
+    vertices, as generated meshes have."""
+    rng = np.random.default_rng(7)
+    for kind, scale in [("cube", (0.3, 1.1, 0.7)), ("cylinder", (1.0, 0.4, 1.6)),
+                        ("sphere", (0.5, 1.2, 0.9))]:
+        solid = analytic.solid_for(kind, scale)
+        v, f = analytic.simulation_mesh(solid, 3e8)
+        yield solid, v.astype(np.float32), f
+        yield solid, (v * (1 + 0.01 * rng.standard_normal((len(v), 1)))).astype(np.float32), f
+    solid = analytic.solid_for("cube", (0.3, 1.1, 0.7))
+    yield solid, *strip_box((0.3, 1.1, 0.7), np.linspace(-0.15, 0.15, 9))  # cuts through samples
+
+
+def strip_box(extents, xs):
+    """A box cut into strips at x = xs (float32 vertices): rings of 4 vertices, 2 caps."""
+    _, b, c = np.asarray(extents, float) / 2
+    v = np.array([[x, y, z] for x in xs for y, z in ((-b, -c), (b, -c), (b, c), (-b, c))])
+    f = []
+    for i in range(len(xs) - 1):
+        for k in range(4):
+            a0, a1, b0, b1 = 4 * i + k, 4 * i + (k + 1) % 4, 4 * i + 4 + k, 4 * i + 4 + (k + 1) % 4
+            f += [[a0, a1, b1], [a0, b1, b0]]
+    last = 4 * (len(xs) - 1)
+    f += [[0, 3, 2], [0, 2, 1], [last, last + 1, last + 2], [last, last + 2, last + 3]]
+    return v.astype(np.float32), np.array(f)
+
+
+def test_meshlab_bounds_bracket_meshlab_and_keep_its_maximum():
+    """Per sample, MeshLab's value lies within the float64 bounds, and MeshLab's maximum over
+    the candidate samples, measured to the candidate faces only, is its maximum over all
+    samples to the whole mesh, bit for bit."""
+    from basic_shapes import meshlab_bounds
+
+    for solid, v, f in _test_meshes():
+        samples = analytic.surface_samples(solid, solid.diagonal * verify.SURFACE_SPACING)
+        bounds = meshlab_bounds.SampleBounds(samples, solid.diagonal)
+        per_sample, top = _meshlab_per_sample(samples, v, f)
+        ff = np.asarray(f, np.int64)
+        vv = np.asarray(v, float)
+        planes = meshlab_bounds._planes(vv, ff)
+        tau = meshlab_bounds.TAU * solid.diagonal ** 2
+        rho = meshlab_bounds.RHO * solid.diagonal
+        lower = meshlab_bounds._lower(samples, vv, ff, planes, tau, rho)
+        assert np.all(lower - rho <= per_sample)
+        cells = bounds.cells
+        start, items = meshlab_bounds._face_cells(vv, ff, bounds.origin, bounds.cell, bounds.dims)
+        first = meshlab_bounds._first_inside(samples, cells, planes, start, items, tau)
+        every = np.arange(len(samples))
+        upper = meshlab_bounds._upper(samples, cells, every, first, vv, ff, planes, start, items,
+                                      tau)
+        assert np.all(per_sample <= upper + rho)
+        picked, near = bounds.candidates(v, f)
+        assert len(picked) < len(samples) / 4
+        assert _meshlab_per_sample(samples[picked], v, np.asarray(f)[near])[1] == top
