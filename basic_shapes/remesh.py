@@ -17,9 +17,10 @@ per axis), so each mesh is inscribed in the object like Blender's tessellations;
 checked like every variant (closed, oriented, manifold, distinct topology, within
 ``verify.tolerance`` of the simple mesh) and against the smooth primitive (``analytic``,
 within the same bound). All randomness comes from ``(seed, variant, attempt)``; MeshLab's
-filters used here draw no random numbers and run on one OpenMP thread; their smoothing and
-adaptive modes are not used (not repeatable). Repeatability across processes, histories and
-thread counts is tested.
+filters used here draw no random numbers and run on one OpenMP thread, in a child process with
+a fixed memory layout (``meshlab_child``: the isotropic remesh depends on memory addresses);
+their smoothing and adaptive modes are not used (not repeatable). Repeatability across
+processes, histories, memory layouts and thread counts is tested.
 """
 
 from __future__ import annotations
