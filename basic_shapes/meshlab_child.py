@@ -12,7 +12,8 @@ differently).
 
 from __future__ import annotations
 
-import pickle
+import io
+import json
 import subprocess
 import sys
 
@@ -27,7 +28,7 @@ persona = libc.personality(0xffffffff)
 if not persona & 0x0040000:  # re-exec once without address randomization
     if libc.personality(persona | 0x0040000) != -1:
         os.execv(sys.executable, [sys.executable, "-s", "-c", sys.argv[-1], sys.argv[-1]])
-import pickle
+import io, json
 from pathlib import Path
 import numpy as np
 import pymeshlab as pm
@@ -35,23 +36,43 @@ gomp = Path(pm.__file__).parent / "lib" / "libgomp.so.1"
 if gomp.exists():
     ctypes.CDLL(str(gomp)).omp_set_num_threads(1)
 inp, out = sys.stdin.buffer, sys.stdout.buffer
+def send(arr):
+    b = io.BytesIO()
+    np.save(b, arr, allow_pickle=False)
+    out.write(len(b.getvalue()).to_bytes(8, "little") + b.getvalue())
+def recv():
+    return np.load(io.BytesIO(inp.read(int.from_bytes(inp.read(8), "little"))),
+                   allow_pickle=False)
 while True:
-    try:
-        name, v, f, kw = pickle.load(inp)
-    except EOFError:
+    line = inp.readline()
+    if not line:
         break
+    name, kw = json.loads(line)
+    v, f = recv(), recv()
     ms = pm.MeshSet()
     ms.add_mesh(pm.Mesh(vertex_matrix=v, face_matrix=f))
     if "targetlen" in kw:
         kw["targetlen"] = pm.PureValue(kw["targetlen"])
     getattr(ms, name)(**kw)
     m = ms.current_mesh()
-    pickle.dump((m.vertex_matrix(), m.face_matrix()), out)
+    send(m.vertex_matrix())
+    send(m.face_matrix())
     out.flush()
 """
 
 ENV = {"PATH": "/usr/bin:/bin", "PYTHONHASHSEED": "0", "OMP_NUM_THREADS": "1", "LC_ALL": "C"}
 """The child's whole environment: nothing of the caller's (its size moves the stack)."""
+
+
+def _send(pipe, arr: np.ndarray) -> None:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    pipe.write(len(buf.getvalue()).to_bytes(8, "little") + buf.getvalue())
+
+
+def _recv(pipe) -> np.ndarray:
+    return np.load(io.BytesIO(pipe.read(int.from_bytes(pipe.read(8), "little"))),
+                   allow_pickle=False)
 
 
 class MeshLabChild:
@@ -71,11 +92,13 @@ class MeshLabChild:
               **kwargs) -> tuple[np.ndarray, np.ndarray]:
         """``MeshSet.<filter_name>(**kwargs)`` on one mesh; its result (vertices, faces).
         ``targetlen`` is an absolute length (MeshLab's PureValue)."""
-        pickle.dump((filter_name, np.asarray(vertices, np.float64),
-                     np.asarray(faces, np.int32), kwargs), self._proc.stdin)
-        self._proc.stdin.flush()
-        try:
-            return pickle.load(self._proc.stdout)
-        except EOFError:
+        pipe = self._proc.stdin
+        pipe.write(json.dumps([filter_name, kwargs]).encode() + b"\n")
+        _send(pipe, np.asarray(vertices, np.float64))
+        _send(pipe, np.asarray(faces, np.int32))
+        pipe.flush()
+        try:  # numpy's own array format both ways, length-prefixed: nothing is unpickled
+            return _recv(self._proc.stdout), _recv(self._proc.stdout)
+        except (ValueError, EOFError):
             raise RuntimeError(f"MeshLab child died during {filter_name} "
                                f"(exit code {self._proc.wait()})") from None
