@@ -17,9 +17,10 @@ per axis), so each mesh is inscribed in the object like Blender's tessellations;
 checked like every variant (closed, oriented, manifold, distinct topology, within
 ``verify.tolerance`` of the simple mesh) and against the smooth primitive (``analytic``,
 within the same bound). All randomness comes from ``(seed, variant, attempt)``; MeshLab's
-filters used here draw no random numbers and run on one OpenMP thread; their smoothing and
-adaptive modes are not used (not repeatable). Repeatability across processes, histories and
-thread counts is tested.
+filters used here draw no random numbers and run on one OpenMP thread, in a child process with
+a fixed memory layout (``meshlab_child``: the isotropic remesh depends on memory addresses);
+their smoothing and adaptive modes are not used (not repeatable). Repeatability across
+processes, histories, memory layouts and thread counts is tested.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import analytic, meshcheck, primitives, verify
+from basic_shapes.meshlab_child import MeshLabChild
 from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
 
 MAX_ATTEMPTS = 32
@@ -93,13 +95,20 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
     tol = verify.tolerance(class_name, {})
     solid = analytic.solid_for(class_name, scale)
     source = {"isotropic": (simple_vertices, simple_faces)}
+    with MeshLabChild() as child:  # one per object: its calls come in a fixed order
+        return _ood_meshes(class_name, scale, seed, per_remesher, spec, reference, seen, tol,
+                           solid, source, child)
+
+
+def _ood_meshes(class_name, scale, seed, per_remesher, spec, reference, seen, tol, solid,
+                source, child) -> list[MeshRecord]:
     out = []
     for name in OOD_REMESHERS:
         if not supports(name, class_name):
             continue
         if name == "qem" and per_remesher:
             start = time.process_time()
-            source["qem"] = _dense(class_name, scale, simple_vertices, simple_faces)
+            source["qem"] = _dense(class_name, scale, *source["isotropic"], child)
             SECONDS[name] += time.process_time() - start
         for k in range(per_remesher):
             start = time.process_time()
@@ -111,7 +120,7 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
                 lo = min(hi, lo * 1.5 ** attempt)  # a rejected try was most likely too coarse
                 params = {"remesher": name, "attempt": attempt, "tolerance": tol,
                           "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi))))}
-                v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng)
+                v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng, child)
                 v, f = v.astype(np.float32), f.astype(np.int32)
                 key = meshcheck.topology_key(f, len(v))
                 reason = "duplicate topology" if key in seen else meshcheck.defect(v, f, spec.euler)
@@ -238,11 +247,6 @@ def _meshlab(vertices: np.ndarray, faces: np.ndarray):
     return pm, ms
 
 
-def _result(ms) -> tuple[np.ndarray, np.ndarray]:
-    m = ms.current_mesh()
-    return m.vertex_matrix(), m.face_matrix()
-
-
 def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
     v = np.asarray(vertices, np.float64)
     return 0.5 * float(np.sqrt(meshcheck.twice_area_squared(*(v[faces[:, i]] for i in range(3))))
@@ -254,20 +258,20 @@ def _edge_for(area: float, n_faces: float) -> float:
     return math.sqrt(4 * area / (math.sqrt(3) * n_faces))
 
 
-def _remesh(class_name, scale, vertices, faces, edge, iterations, flips):
-    """MeshLab's isotropic remeshing (split, collapse, flip, reprojection), then projection onto
-    the primitive. Neither its curvature-adaptive mode nor its tangential smoothing is used: with
-    either, the vertices depended on what had run before in the process and on the OpenMP thread
-    count (measured)."""
-    pm, ms = _meshlab(vertices, faces)
-    ms.meshing_isotropic_explicit_remeshing(
-        iterations=iterations, adaptive=False, targetlen=pm.PureValue(edge),
-        featuredeg=FEATURE_DEG, swapflag=flips, smoothflag=False, reprojectflag=True)
-    v, f = _result(ms)
+def _remesh(class_name, scale, vertices, faces, edge, iterations, flips, child):
+    """MeshLab's isotropic remeshing (split, collapse, flip, reprojection) in ``child``
+    (basic_shapes/meshlab_child.py: its result depends on the process's memory layout), then
+    projection onto the primitive. Neither its curvature-adaptive mode nor its tangential
+    smoothing is used: with either, the vertices depended on what had run before in the process
+    and on the OpenMP thread count (measured)."""
+    v, f = child.apply("meshing_isotropic_explicit_remeshing", vertices, faces,
+                       iterations=iterations, adaptive=False, targetlen=edge,
+                       featuredeg=FEATURE_DEG, swapflag=flips, smoothflag=False,
+                       reprojectflag=True)
     return project(class_name, scale, v, f), f
 
 
-def _isotropic(class_name, scale, source, params, rng):
+def _isotropic(class_name, scale, source, params, rng, child):
     """Isotropic explicit remeshing (split, collapse, flip, tangential smoothing, reprojection
     onto the simple mesh), then projection onto the primitive."""
     vertices, faces = source
@@ -276,29 +280,28 @@ def _isotropic(class_name, scale, source, params, rng):
     params["edge_flips"] = bool(rng.uniform() < 0.75)
     params["feature_deg"] = FEATURE_DEG
     return _remesh(class_name, scale, vertices, faces, params["edge_length"],
-                   params["iterations"], params["edge_flips"])
+                   params["iterations"], params["edge_flips"], child)
 
 
-def _dense(class_name, scale, vertices, faces):
+def _dense(class_name, scale, vertices, faces, child):
     """The dense isotropic remesh ``qem`` decimates (one per object)."""
     return _remesh(class_name, scale, vertices, faces,
-                   _edge_for(_area(vertices, faces), DENSE_FACES), 6, True)
+                   _edge_for(_area(vertices, faces), DENSE_FACES), 6, True, child)
 
 
-def _qem(class_name, scale, dense, params, rng):
+def _qem(class_name, scale, dense, params, rng, child):
     """Quadric edge-collapse decimation (Garland-Heckbert) of the dense remesh to the target
     count, normals and topology preserved, then projection onto the primitive."""
     params["dense_faces"] = DENSE_FACES
     params["quality_threshold"] = round(float(rng.uniform(0.1, 0.5)), 4)
     params["optimal_placement"] = bool(rng.integers(2))
     params["planar_quadric"] = bool(rng.integers(2))
-    _, ms = _meshlab(*dense)
-    ms.meshing_decimation_quadric_edge_collapse(
+    v, f = child.apply(
+        "meshing_decimation_quadric_edge_collapse", *dense,
         targetfacenum=params["target_faces"], qualitythr=params["quality_threshold"],
         preservenormal=True, preservetopology=True, preserveboundary=True,
         optimalplacement=params["optimal_placement"], planarquadric=params["planar_quadric"],
         autoclean=True)
-    v, f = _result(ms)
     return project(class_name, scale, v, f), f
 
 
@@ -315,7 +318,7 @@ BULGE = 0.125
 spacing, so that collinear edge points become hull vertices of the face (no zero-area ears)."""
 
 
-def _delaunay(class_name, scale, _source, params, rng):
+def _delaunay(class_name, scale, _source, params, rng, _child):
     """Random points on the surface (features first, then thinned to a minimum spacing), their
     convex hull for the curved part, and a 2D Delaunay triangulation of each flat face."""
     from scipy.spatial import ConvexHull, Delaunay
@@ -422,4 +425,5 @@ def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
 
 
 REMESHERS = {"isotropic": _isotropic, "qem": _qem, "delaunay": _delaunay}
-"""name -> f(class_name, scale, source mesh, params (filled in), rng) -> (vertices, faces)."""
+"""name -> f(class_name, scale, source mesh, params (filled in), rng, MeshLabChild)
+-> (vertices, faces)."""
