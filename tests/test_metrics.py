@@ -245,8 +245,8 @@ def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():
     assert set(row["per_remesher"]) == {"isotropic", "qem"}
     assert row["per_class"]["b"]["ood_complex_mse"] == pytest.approx(mean[cls == 1].mean())
     sub = remesher_table([row], {})
-    assert sub[-1].startswith("| graph | none |") and "qem Variation" in sub[-3]
-    assert sub[-1].count("|") == 2 + 4 + 1
+    assert sub[-1].startswith("| graph | none | simple |") and "qem Variation" in sub[-3]
+    assert sub[-1].count("|") == 3 + 4 + 1  # embedding, pretraining, training meshes; 2 x 2
     table = {"preset": "t", "command": "c", "dataset": {"description": "d", "fingerprint": "f"},
              "hardware": "h", "seeds": [0, 1], "references": {}, "rows": [row], "findings": [],
              "timing": {"total_s": 60, "rows_trained": 2, "rows_reused": 0, "rows_s": 1,
