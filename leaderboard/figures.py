@@ -38,8 +38,9 @@ def speed_vs_error(models: list[dict], simulator: dict | None,
                             e["name"] + (" (self-reported speed)" if own else ""),
                             ci=m.get("complex_mse_ci"), marker="D" if own else "o",
                             hollow=bool(m.get("no_skill", m.get("mode_collapse")))))
-    sim = None if simulator is None else (simulator["speed"]["ms_per_mesh"],
-                                          simulator["metrics"]["complex_mse"])
+    sim = None  # a simulator entry without a Complex MSE (no complex mesh labelled) is not drawn
+    if simulator is not None and simulator["metrics"]["complex_mse"] is not None:
+        sim = (simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"])
     return plotting.png(plotting.speed_vs_error(
         points, {k: r.get("complex_mse") for k, r in (references or {}).items()}, sim))
 

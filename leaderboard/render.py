@@ -113,8 +113,16 @@ def datasets(entries: list[dict]) -> list[dict]:
 
 
 def describe(dataset: dict) -> str:
-    return (f"{', '.join(dataset['classes'])}; {dataset['test_objects']} test objects, "
-            f"{dataset['test_meshes']} test meshes")
+    """The dataset's line: its registered version (grid, radar config, the command that builds
+    it) or that it is none, then classes and test split."""
+    from benchmark.versions import VERSIONS
+
+    v = VERSIONS.get(dataset.get("version") or "")
+    head = (f"version {v.name}: {v.summary}; grid {v.grid()}, radar config "
+            f"{v.radar_config().name}; built by: benchmark dataset {v.name} --data DIR. "
+            if v else "not a registered dataset version. ")
+    return (head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
+            f"test objects, {dataset['test_meshes']} test meshes")
 
 
 def simulator_note(sim: dict | None) -> str:
@@ -236,7 +244,8 @@ def _img(name: str, size: tuple[int, int], alt: str) -> str:
 def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
     short = g["short"]
     parts = [f'<section id="dataset-{short}">',
-             f"<h2>Dataset <code>{short}</code></h2>",
+             f"<h2>Dataset {_e(g['dataset'].get('version') or 'unregistered')} "
+             f"<code>{short}</code></h2>",
              f'<p class="note">{_e(describe(g["dataset"]))}</p>']
     if g["models"]:
         parts += [html_table(g), f'<p class="note">{_e(skill_note(g))}</p>']
@@ -276,7 +285,8 @@ def markdown(groups: list[dict]) -> str:
         out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
         short = g["short"]
-        out += [f"## Dataset `{short}`", "", _md(describe(g["dataset"])), ""]
+        out += [f"## Dataset {g['dataset'].get('version') or 'unregistered'} `{short}`", "",
+                _md(describe(g["dataset"])), ""]
         if g["models"]:
             out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | OOD Complex MSE "
                     "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware "

@@ -559,3 +559,13 @@ def test_unregistered_dataset_is_refused_unless_asked(data, tmp_path):
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     (entry,) = entries.glob("*.json")
     assert json.loads(entry.read_text())["dataset"]["version"] is None
+
+
+def test_board_names_the_dataset_version_with_its_grid_and_config():
+    from leaderboard.render import describe
+
+    split = {"classes": ["cube"], "test_objects": 3, "test_meshes": 9}
+    text = describe({**split, "version": "cpu-v1"})
+    assert "version cpu-v1" in text and "31 aspects x 7 rolls x 107 range bins" in text
+    assert "xband-v1-31x7x107" in text and "benchmark dataset cpu-v1" in text
+    assert describe({**split, "version": None}).startswith("not a registered dataset version")
