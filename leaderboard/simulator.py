@@ -30,7 +30,11 @@ MEASURED = "simulator on the representation meshes vs the object's label (its an
 
 
 def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
-    """(metrics of the simulator on representation meshes, number of test objects scored)."""
+    """(metrics of the simulator on representation meshes, number of test objects scored).
+
+    Every test object with a stored complex-mesh physics (``--mesh-labels``) is scored; where
+    its simple mesh's physics was not stored (``sample:K`` draws among all meshes), it is
+    simulated here with the labels' config and mode, as ``radar-sim label`` would have."""
     scorer = Scorer(data.class_names)
     test = set(data.object_rows("test").tolist())
     for k, path in enumerate(data.paths):
@@ -46,18 +50,30 @@ def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
                 if obj in test and not is_ood_variant(variant):  # OOD meshes: scored apart
                     physics.setdefault(obj, {})[variant] = j
             for obj, variants in sorted(physics.items()):
-                if 0 not in variants:
-                    continue
-                simple = db_target(radar.mesh_response(variants.pop(0)))
+                if 0 in variants:
+                    simple = db_target(radar.mesh_response(variants.pop(0)))
+                else:
+                    simple = db_target(_simple_physics(data, obj))
                 complex_ = np.array([db_target(radar.mesh_response(j))
                                      for _, j in sorted(variants.items())])
                 scorer.add(int(data.objects["class_index"][obj]), data.target(obj), simple,
                            complex_.reshape(len(variants), *simple.shape))
     if not scorer.rows:
-        raise ValueError(f"{data.directory}: no test object has the physics of its simple mesh "
-                         f"stored (/radar/mesh_response): label with `radar-sim label "
-                         f"--mesh-labels all`")
+        raise ValueError(f"{data.directory}: no test object has the physics of a stored mesh "
+                         f"(/radar/mesh_response): label with `radar-sim label "
+                         f"--mesh-labels all` (or sample:K)")
     return scorer.result(), len(scorer.rows)
+
+
+def _simple_physics(data: BenchmarkData, obj: int) -> np.ndarray:
+    """The physics of object row ``obj``'s simple mesh (complex64 range profiles), with the
+    labels' config and mode, as ``radar-sim label --mesh-labels`` would have stored it."""
+    from radar_sim import RadarConfig, simulate
+
+    config = RadarConfig(**radar_config(data))
+    mode = radar_config(data, options=True).get("mode", "auto")
+    simple_row = int(data.meshes_of(obj)[0])  # variant 0 comes first
+    return simulate(*data.mesh(simple_row), config, mode=mode).range_profiles.astype(np.complex64)
 
 
 def radar_config(data: BenchmarkData, options: bool = False) -> dict:

@@ -569,3 +569,28 @@ def test_board_names_the_dataset_version_with_its_grid_and_config():
     assert "version cpu-v1" in text and "31 aspects x 7 rolls x 107 range bins" in text
     assert "xband-v1-31x7x107" in text and "benchmark dataset cpu-v1" in text
     assert describe({**split, "version": None}).startswith("not a registered dataset version")
+
+
+def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path):
+    """Objects whose simple mesh's physics was not stored (``--mesh-labels sample:K``) get it
+    simulated by the board's physics point: the same numbers ``radar-sim label`` stores."""
+    from benchmark.data import BenchmarkData
+    from leaderboard.simulator import _simple_physics
+    from radar_sim.cli import main as radar_sim_main
+
+    real = tmp_path / "real"
+    shutil.copytree(data, real)
+    for shard in sorted(real.glob("shard-*.h5")):
+        rewrite_atomically(shard, lambda f: f.__delitem__("radar"))
+    config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
+    (tmp_path / "coarse.json").write_text(json.dumps(config))
+    radar_sim_main(["label", "--data", str(real), "--config", str(tmp_path / "coarse.json"),
+                    "--mesh-labels", "all", "--workers", "0", "--quiet"])
+    with BenchmarkData(real) as d, h5py.File(d.paths[0]) as f:
+        simple_row = int(f["meshes/variant"][()].tolist().index(0))  # object 0's simple mesh
+        j = f["radar/mesh"][()].tolist().index(simple_row)
+        stored = f["radar/mesh_response"][j]
+        obj = int(d.meshes["object"][np.flatnonzero((d.meshes["shard"] == 0)
+                                                     & (d.meshes["row"] == simple_row))[0]])
+        np.testing.assert_allclose(_simple_physics(d, obj), stored, rtol=0, atol=1e-6 * abs(
+            stored).max())
