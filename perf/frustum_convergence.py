@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from label_convergence import F_MAX, GRIDS, RESULTS, SCALES, label, mse
 
 from basic_shapes import analytic
+from basic_shapes.infra import atomic_path
 
 
 def independent_frustum(scale, ratio: float):
@@ -66,9 +67,8 @@ def main(argv=None) -> None:
     out = {"grid": config.name, "config": json.loads(config.to_json()),
            "rule": analytic.SIMULATION_RULE, "rows": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1) + "\n")
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":

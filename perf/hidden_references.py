@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.infra import atomic_path
 from benchmark.data import BenchmarkData, db_target
 from benchmark.references import REFERENCES, OracleReference, References, compare, summary
 
@@ -56,11 +57,10 @@ def main(argv=None) -> None:
               f"{floor['mse']:.2f} dB^2 over {floor['n_objects']} test objects "
               f"(relabel at the true ratio: {floor['relabel_mse']:.2g})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"data": str(args.data), "hidden": oracle.keys, "rows": rows,
-                               "oracle_vs_class_scale_nn": paired,
-                               "ratio_blind_floor": floor}, indent=1) + "\n")
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps({"data": str(args.data), "hidden": oracle.keys, "rows": rows,
+                                   "oracle_vs_class_scale_nn": paired,
+                                   "ratio_blind_floor": floor}, indent=1) + "\n")
 
 
 def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:

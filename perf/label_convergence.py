@@ -31,7 +31,7 @@ import trimesh  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes import analytic  # noqa: E402
-from basic_shapes.infra import hardware  # noqa: E402
+from basic_shapes.infra import atomic_path, hardware  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 FLOOR = 1e-4
@@ -131,9 +131,8 @@ def main(argv=None) -> None:
            "rule": analytic.SIMULATION_RULE, "rows": rows, "faces_sample": sample,
            "hardware": hardware()}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1) + "\n")
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":
