@@ -338,8 +338,9 @@ def _provenance(table: dict) -> str:
             f"(generate {_num(t.get('generate_s'))} s, label "
             f"{_num(t.get('label_s'))} s, rows + timing "
             f"{_num(t['rows_s'])} s, {t['jobs']} job(s) x "
-            f"{t['threads_per_job']} thread(s)). ms / mesh: `predict` over the "
-            f"test split (first seed), timed with no other job of this run on the CPU.")
+            f"{t['threads_per_job']} thread(s)). ms / mesh: `predict` (first seed) timed with no "
+            f"other job of this run on the CPU, on a sample of the test meshes stratified by "
+            f"face count (its size is in each row's `speed.hardware` in table.json).")
 
 
 def render_markdown(table: dict) -> str:

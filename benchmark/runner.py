@@ -22,6 +22,8 @@ from benchmark.presets import Preset
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
 """Relative training time per regime (times the embedding's ``cost``): costly runs go first."""
 TIMED_ALONE = "timed alone"
+TIMING_MESHES = 480
+"""Test meshes (about) that ``time_alone`` times per row."""
 _WORKER: dict = {}
 
 
@@ -223,13 +225,15 @@ def run_jobs(cfgs: list, todo: list, records: dict, *, data_dir: Path, out: Path
         _WORKER.clear()
 
 
-def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads: int) -> None:
-    """Store a speed measured with no other job of this run on the CPU, and say so."""
+def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads: int,
+                      sample: int | None = None) -> None:
+    """Store a speed measured with no other job of this run on the CPU, and say so (and on
+    how many meshes, where it was a sample)."""
     from benchmark.evaluate import speed_block
     from benchmark.protocol import write_results
 
     speed = speed_block(ms_per_mesh, threads)
-    speed["hardware"] += f"; {TIMED_ALONE}"
+    speed["hardware"] += f"; {TIMED_ALONE}" + (f" on {sample} test meshes" if sample else "")
     record["results"]["speed"] = speed
     write_results(row_files(out, cfg.name, cfg.seed)[0], record["results"])
 
@@ -237,9 +241,12 @@ def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads:
 def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
                progress: bool = True) -> None:
     """Re-time the first seed of rows that were evaluated while another job shared the CPU
-    (their ms per mesh measured contention, not the model): ``predict`` over every scored
-    test mesh in the harness's batches, one row at a time, after a warm-up batch; I/O
-    excluded, as in the harness."""
+    (their ms per mesh measured contention, not the model): ``predict`` in the harness's
+    batches, one row at a time, after a warm-up batch; I/O excluded, as in the harness.
+
+    Timed on TIMING_MESHES meshes, every k-th batch of the face-count order (cost grows with
+    the faces, so this is a sample stratified by cost): all 2,850 test meshes of cpu-v1 would
+    take 13 rows x 2-5 min of a machine that must stay otherwise idle."""
     import torch
     from tqdm import tqdm
 
@@ -254,16 +261,18 @@ def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
         return
     device = "cuda" if torch.cuda.is_available() else "cpu"
     with BenchmarkData(data_dir) as data:
-        rows = scored_mesh_rows(data)
-        batches = [data.batch(chunk) for chunk in face_count_batches(data, rows, 16)]
+        chunks = face_count_batches(data, scored_mesh_rows(data), 16)
+        step = max(1, len(chunks) * 16 // TIMING_MESHES)
+        batches = [data.batch(chunk) for chunk in chunks[step // 2::step]]
+    n = sum(len(b["faces"]) for b in batches)
     for cfg, record in tqdm(todo, desc="timing", unit="row", disable=not progress):
         model = CheckpointModel(checkpoint_dir(out, cfg.name, cfg.seed), device=device)
         model.predict(batches[0])
         t0 = time.perf_counter()
         for batch in batches:
             model.predict(batch)
-        ms = 1000.0 * (time.perf_counter() - t0) / len(rows)
-        _mark_timed_alone(out, cfg, record, ms, threads)
+        _mark_timed_alone(out, cfg, record, 1000.0 * (time.perf_counter() - t0) / n, threads,
+                          sample=n)
 
 
 def publish_row(out: Path, name: str, seeds: list[int]) -> None:
