@@ -65,9 +65,11 @@ def build_parser() -> ArgumentParser:
     add_quiet_flag(d)
 
     m = sub.add_parser("simulator", help="record the physics simulator's point for a dataset",
-                       description="Write the dataset's simulator entry: Complex MSE = variation "
-                       "between per-mesh physics labels of one object (0 without them), speed = "
-                       "timing radar_sim on the example object's meshes, or --ms-per-mesh.")
+                       description="Write the dataset's simulator entry: the physics simulator run on "
+                       "each stored representation mesh (radar-sim label --mesh-labels), scored "
+                       "against the object's label like a model (test objects with mesh "
+                       "physics only); speed = timing radar_sim on the example object's "
+                       "meshes, or --ms-per-mesh.")
     m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     m.add_argument("--entries", **new_entries)
     m.add_argument("--ms-per-mesh", type=number(minimum=0),
