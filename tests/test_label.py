@@ -428,3 +428,17 @@ def test_sidecars_of_another_request_are_dropped_only_once_all_shards_are_valid(
     main(["label", "--data", str(work), "--workers", "1", *options(lband)])
     assert "finished before an interruption" not in capsys.readouterr().out
     assert digests(work) == digests(labelled) and not (work / SIDECAR).exists()
+
+
+def test_objects_are_computed_largest_first(dataset):
+    """The first object calibrates the time estimate, so the most work goes first (a cube
+    first made a 2-hour job read 74 h); ties keep the shards' order."""
+    from radar_sim.label import _tasks, plan_shard
+
+    request = LabelRequest(radar_sim.RadarConfig(**LBAND))
+    plans = [plan_shard(p, request, overwrite=True) for p in sorted(dataset.glob("shard-*.h5"))]
+    order = [(obj.object_id, obj.work) for _plan, obj, _meshes in _tasks(plans)]
+    works = [w for _oid, w in order]
+    assert len(order) == 6 and len(set(works)) > 1
+    assert works == sorted(works, reverse=True)
+    assert order[0][0] != 0  # object 0 is a cube, the least work
