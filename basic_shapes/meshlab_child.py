@@ -7,7 +7,8 @@ before. So the remeshers run here: one child per object, started with address ra
 off, a fixed environment, working directory and command line, importing only numpy and
 pymeshlab, and given that object's calls in their deterministic order. Its results then depend
 only on those calls (on one installation: another Python or pymeshlab build lays memory out
-differently).
+differently). The likely cause, an uninitialized default of ``checksurfdist``, is pinned by
+the caller too (remesh._remesh); this child guards against others.
 """
 
 from __future__ import annotations

@@ -263,11 +263,13 @@ def _remesh(class_name, scale, vertices, faces, edge, iterations, flips, child):
     (basic_shapes/meshlab_child.py: its result depends on the process's memory layout), then
     projection onto the primitive. Neither its curvature-adaptive mode nor its tangential
     smoothing is used: with either, the vertices depended on what had run before in the process
-    and on the OpenMP thread count (measured)."""
+    and on the OpenMP thread count (measured). ``checksurfdist`` is passed because MeshLab never
+    initializes its default (the likely cause of the layout dependence; True is the value the
+    recorded builds' child read: a rebuild with it gives their bytes, docs/GENERATOR.md)."""
     v, f = child.apply("meshing_isotropic_explicit_remeshing", vertices, faces,
                        iterations=iterations, adaptive=False, targetlen=edge,
                        featuredeg=FEATURE_DEG, swapflag=flips, smoothflag=False,
-                       reprojectflag=True)
+                       reprojectflag=True, checksurfdist=True)
     return project(class_name, scale, v, f), f
 
 
