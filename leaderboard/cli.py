@@ -65,8 +65,9 @@ def build_parser() -> ArgumentParser:
     add_quiet_flag(d)
 
     m = sub.add_parser("simulator", help="record the physics simulator's point for a dataset",
-                       description="Write the dataset's simulator entry: the physics simulator run on "
-                       "each stored representation mesh (radar-sim label --mesh-labels), scored "
+                       description="Write the dataset's simulator entry: the physics "
+                       "simulator run on each stored representation mesh (radar-sim label "
+                       "--mesh-labels), scored "
                        "against the object's label like a model (test objects with mesh "
                        "physics only); speed = timing radar_sim on the example object's "
                        "meshes, or --ms-per-mesh.")
