@@ -233,6 +233,18 @@ def skill(model_po: dict, scorers: dict[str, Scorer], rows: dict[str, dict]) -> 
             "explained_by_class": vs_class[key]["verdict"] != "holds"}
 
 
+def hidden_parameters(data: BenchmarkData) -> tuple[list[str], np.ndarray]:
+    """(names, values (n_objects, n_names)) of the objects' hidden shape parameters, from each
+    shard's ``/objects/params`` (0 where an object lacks one; no names on Basic Shapes)."""
+    params = []
+    for s, r in zip(data.objects["shard"], data.objects["row"]):
+        f = data._shard(int(s)).file
+        params.append(json.loads(f["objects/params"][int(r)] if "objects/params" in f else b"{}"))
+    keys = sorted({k for p in params for k in p})
+    values = np.array([[p.get(k, 0.0) for k in keys] for p in params], np.float64)
+    return keys, values.reshape(len(params), len(keys))
+
+
 class OracleReference:
     """The hidden-parameter track's upper bar: the mean target of the ``K_NEAREST`` training
     objects of the same class nearest in (log scale, hidden shape parameters), each feature
@@ -241,16 +253,9 @@ class OracleReference:
     (no hidden parameters) it is ``class-scale-nn`` with the true class."""
 
     def __init__(self, refs: References):
-        self.refs, data = refs, refs.data
-        objects = data.objects
-        params = [data._shard(int(s)).file["objects/params"][int(r)]
-                  if "objects/params" in data._shard(int(s)).file else b"{}"
-                  for s, r in zip(objects["shard"], objects["row"])]
-        params = [json.loads(p) for p in params]
-        keys = sorted({k for p in params for k in p})
-        hidden = np.array([[p.get(k, 0.0) for k in keys] for p in params], np.float64)
-        features = np.concatenate([np.log(objects["scale"].astype(np.float64)),
-                                   hidden.reshape(len(params), len(keys))], axis=1)
+        self.refs, objects = refs, refs.data.objects
+        keys, hidden = hidden_parameters(refs.data)
+        features = np.concatenate([np.log(objects["scale"].astype(np.float64)), hidden], axis=1)
         spread = features[refs.train].std(axis=0)
         self.features = features / np.where(spread > 0, spread, 1.0)
         self.keys = keys
@@ -262,13 +267,31 @@ class OracleReference:
         return pool[np.argsort(d, kind="stable")[:K_NEAREST]]
 
     def score(self) -> Scorer:
-        """A filled ``Scorer`` over the test split (one prediction for every mesh)."""
+        """A filled ``Scorer`` over the test split (one prediction for every mesh, the OOD
+        meshes included)."""
         data, refs = self.refs.data, self.refs
         scorer = Scorer(data.class_names, refs.mean)
         for obj in data.test_objects():
             pred = refs._mean_target(self.nearest(int(obj)))
             n = len(data.meshes_of(int(obj)))
+            ood = data.ood_meshes_of(int(obj))
             c, oid = int(data.objects["class_index"][obj]), int(data.objects["id"][obj])
             scorer.add(c, data.target(int(obj)), pred, np.broadcast_to(pred, (n - 1, *pred.shape)),
-                       oid)
+                       oid, ood=np.broadcast_to(pred, (len(ood), *pred.shape)),
+                       ood_remeshers=[ood_remesher(v) for v in data.meshes["variant"][ood]])
         return scorer
+
+
+def oracle_row(data: BenchmarkData, scorers: dict[str, Scorer]) -> dict | None:
+    """The table's ``oracle`` block on a dataset with hidden shape parameters (None on one
+    without): its row, the parameters it knows, and the paired oracle - ``class-scale-nn``
+    difference, which is what reading the mesh can win over class + scale. Kept apart from the
+    references: it is not a model (it is told what the mesh must reveal), so skill is never
+    measured against it."""
+    if not hidden_parameters(data)[0]:
+        return None
+    oracle = OracleReference(References(data))
+    scorer = oracle.score()
+    return {**summary(scorer), "hidden": oracle.keys,
+            "vs_class_scale_nn": compare(scorer.per_object(),
+                                         scorers["class-scale-nn"].per_object())}

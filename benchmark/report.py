@@ -30,13 +30,15 @@ class ReportError(ValueError):
 
 
 # --- records ----------------------------------------------------------------------------------
-def reference_rows(data) -> tuple[dict, dict]:
-    """(scorers, summary rows) of the reference models on ``data``: recomputed from the
-    dataset, never stored with the results."""
+def reference_rows(data) -> tuple[dict, dict, dict | None]:
+    """(scorers, summary rows, oracle block or None) of the reference models on ``data``:
+    recomputed from the dataset, never stored with the results. The oracle
+    (``references.oracle_row``) exists on datasets with hidden shape parameters only."""
     from benchmark import references
 
     _, scorers = references.reference_scores(data)
-    return scorers, {n: references.summary(sc) for n, sc in scorers.items()}
+    return (scorers, {n: references.summary(sc) for n, sc in scorers.items()},
+            references.oracle_row(data, scorers))
 
 
 def dataset_info(data, directory) -> dict:
@@ -108,11 +110,13 @@ def _train_seconds(out: Path, name: str, seed: int, preset_name: str) -> float |
 
 
 def build_table(preset_name: str, seeds: list[int], records: dict, dataset: dict,
-                ref_scorers: dict, ref_rows: dict, provenance: dict) -> dict:
-    """table.json: the rows of ``records``, the references and (presets large enough to
-    decide them) the findings. ``dataset``: fingerprint and description; ``provenance``:
-    command, hardware, python and timing of the invocation that trained the rows (hardware
-    and timing None in a table rebuilt by ``benchmark report``)."""
+                ref_scorers: dict, ref_rows: dict, provenance: dict,
+                oracle: dict | None = None) -> dict:
+    """table.json: the rows of ``records``, the references (and the oracle of a dataset with
+    hidden shape parameters, ``reference_rows``) and (presets large enough to decide them) the
+    findings. ``dataset``: fingerprint and description; ``provenance``: command, hardware,
+    python and timing of the invocation that trained the rows (hardware and timing None in a
+    table rebuilt by ``benchmark report``)."""
     from benchmark import references
 
     preset = PRESETS[preset_name]
@@ -121,6 +125,8 @@ def build_table(preset_name: str, seeds: list[int], records: dict, dataset: dict
              "dataset": dataset, "seeds": seeds,
              "references": ref_rows, "strongest_reference": references.strongest(ref_rows),
              "rows": rows, "findings": findings(rows) if preset.findings else []}
+    if oracle is not None:
+        table["oracle"] = oracle
     if not preset.findings:
         table["no_findings"] = NO_FINDINGS
     return table
@@ -323,6 +329,27 @@ def remesher_table(rows: list[dict], references: dict) -> list[str]:
     return lines
 
 
+def oracle_lines(oracle: dict | None) -> list[str]:
+    """Markdown lines for a dataset with hidden shape parameters: the oracle's metrics and its
+    paired difference to ``class-scale-nn`` (none on Basic Shapes)."""
+    if oracle is None:
+        return []
+    from benchmark.references import K_NEAREST
+
+    known = ", ".join(f"`{k}`" for k in oracle["hidden"])
+    lines = ["", f"Oracle (not a model: told the hidden shape parameters {known}): the mean "
+             f"target of the {K_NEAREST} training objects of the class nearest in (log scale, "
+             f"{known}), each divided by its training spread. What reading the mesh can win "
+             f"over class + scale is the gap between it and `class-scale-nn`.", "",
+             "| | Simple MSE | Complex MSE | Variation MSE | OOD Complex | OOD Variation |",
+             "|---|---:|---:|---:|---:|---:|",
+             "| oracle | " + _metric_cells(oracle, "", seeds=False) + " |"]
+    for m, p in oracle["vs_class_scale_nn"].items():
+        lines.append(f"| oracle - class-scale-nn, {m.replace('_', ' ')} | Δ {p['diff']:+.1f} "
+                     f"[{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]: {p['verdict']} | | | | |")
+    return lines
+
+
 def _provenance(table: dict) -> str:
     """Where the rows come from: the invocation that trained them, or ``benchmark report``."""
     t = table["timing"]
@@ -380,6 +407,7 @@ def render_markdown(table: dict) -> str:
     strongest = table.get("strongest_reference")
     if strongest:
         lines += ["", f"Strongest reference: `{strongest}` (lowest Complex MSE)."]
+    lines += oracle_lines(table.get("oracle"))
     lines += remesher_table(table["rows"], table["references"])
     lines += ["", "## The paper's findings on this table", ""]
     if not table["findings"]:

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> None:
     with BenchmarkData(args.data) as data:
         records = report.load_records(out, args.preset, seeds, data)
         dataset = report.dataset_info(data, args.data)
-        ref_scorers, ref_rows = report.reference_rows(data)
+        ref_scorers, ref_rows, oracle = report.reference_rows(data)
     if not args.quiet:
         print(f"{sum(map(len, records.values()))} (row, seed) results of {len(records)} rows "
               f"in {out / 'results'}")
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> None:
         command += f" --seeds {args.seeds}"
     table = report.build_table(args.preset, seeds, records, dataset, ref_scorers, ref_rows,
                                {"command": command, "hardware": None,
-                                "python": platform.python_version(), "timing": None})
+                                "python": platform.python_version(), "timing": None}, oracle)
     report.write_outputs(out, table)
     print(report.render_markdown(table))
     print(f"table, JSON and plot in {out}")

@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> None:
         timing.update(make_dataset(preset, data_dir, args.quiet))
     with BenchmarkData(data_dir) as data:
         dataset = report.dataset_info(data, data_dir)
-        ref_scorers, ref_rows = report.reference_rows(data)
+        ref_scorers, ref_rows, oracle = report.reference_rows(data)
     fingerprint = dataset["fingerprint"]
     cfgs = [runner.row_config(preset, e, r, s, args.shapenet) for e, r in rows for s in seeds]
     t0 = time.perf_counter()
@@ -108,7 +108,8 @@ def run(args: argparse.Namespace) -> None:
                                  "threads_per_job": threads, "rows_trained": len(todo),
                                  "rows_reused": len(cfgs) - len(todo)}}
         report.write_outputs(out, report.build_table(args.preset, seeds, records, dataset,
-                                                     ref_scorers, ref_rows, provenance),
+                                                     ref_scorers, ref_rows, provenance,
+                                                     oracle),
                              with_plot)
 
     def done(cfg, result) -> None:

@@ -4,9 +4,10 @@
 
 DATA_DIR is a labelled dataset (for example ``benchmark dataset hidden-cpu-v1``). Prints the
 four reference rows of benchmark.references (what ``benchmark evaluate`` shows) and the
-``oracle`` (benchmark.references.OracleReference: nearest training objects in log scale and
-the hidden shape parameters), each with Simple / Complex MSE and 95% intervals over the test
-objects, and the paired oracle - class-scale-nn difference. ``--floor N`` (frustum datasets)
+``oracle`` (benchmark.references.oracle_row, also in ``benchmark report``'s table: nearest
+training objects in log scale and the hidden shape parameters), each with Simple / Complex
+MSE and 95% intervals over the test objects, and the paired oracle - class-scale-nn
+difference. ``--floor N`` (frustum datasets)
 adds the error floor of any predictor blind to the ratio: each test object's label against
 the mean target over N ratios spread over [0, 0.9], simulated at the object's exact scale
 with the dataset's radar config (the best a class + scale model can do, up to the choice of
@@ -23,7 +24,7 @@ import numpy as np
 
 from basic_shapes.infra import atomic_path
 from benchmark.data import BenchmarkData, db_target
-from benchmark.references import REFERENCES, OracleReference, References, compare, summary
+from benchmark.references import REFERENCES, References, oracle_row, summary
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -35,15 +36,14 @@ def main(argv=None) -> None:
     parser.add_argument("--floor", type=int, default=0, help="ratios per test object")
     args = parser.parse_args(argv)
     with BenchmarkData(args.data) as data:
-        refs = References(data)
-        scorers = refs.score()
-        oracle = OracleReference(refs)
-        scorers["oracle"] = oracle.score()
-        rows = {name: summary(scorers[name]) for name in (*REFERENCES, "oracle")}
-        paired = compare(scorers["oracle"].per_object(), scorers["class-scale-nn"].per_object())
+        scorers = References(data).score()
+        rows = {name: summary(scorers[name]) for name in REFERENCES}
+        rows["oracle"] = oracle_row(data, scorers)
+        paired = rows["oracle"].pop("vs_class_scale_nn")
+        hidden = rows["oracle"].pop("hidden")
         floor = ratio_blind_floor(data, args.floor) if args.floor else None
         print(data.describe())
-    print(f"hidden parameters: {', '.join(oracle.keys) or 'none'}")
+    print(f"hidden parameters: {', '.join(hidden)}")
     print(f"{'reference':15} {'Simple MSE':>24} {'Complex MSE':>24} {'objects':>8}")
     for name, r in rows.items():
         cells = [f"{r[m]:7.2f} [{r[m + '_ci'][0]:6.2f}, {r[m + '_ci'][1]:6.2f}]"
@@ -58,7 +58,7 @@ def main(argv=None) -> None:
               f"(relabel at the true ratio: {floor['relabel_mse']:.2g})")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps({"data": str(args.data), "hidden": oracle.keys, "rows": rows,
+        tmp.write_text(json.dumps({"data": str(args.data), "hidden": hidden, "rows": rows,
                                    "oracle_vs_class_scale_nn": paired,
                                    "ratio_blind_floor": floor}, indent=1) + "\n")
 

@@ -221,3 +221,39 @@ def test_oracle_picks_neighbours_by_scale_and_hidden_parameter(tmp_path):
             target = data.target(int(obj)).astype(np.float64)
             expected = np.mean((np.maximum(pred, -80.0) - target) ** 2)
             assert scorer.per_object()["simple_mse"][k] == pytest.approx(expected, rel=1e-5)
+
+
+def test_report_table_shows_the_oracle_only_with_hidden_parameters(tmp_path):
+    """The table's oracle block: absent on a dataset without hidden parameters; with them,
+    the OracleReference's own Simple MSE, its paired difference to class-scale-nn computed
+    here from the two per-object error arrays, a row in table.md, and never the reference
+    that skill is measured against."""
+    import h5py
+
+    from benchmark import report
+    from benchmark.data import BenchmarkData
+    from benchmark.references import OracleReference, References
+    from benchmark_fixture import make_dataset
+
+    directory = make_dataset(tmp_path / "d", objects_per_class=6)
+    with BenchmarkData(directory) as data:
+        assert report.reference_rows(data)[2] is None
+    rng = np.random.default_rng(7)
+    for path in list_shards(directory):
+        with h5py.File(path, "r+") as f:
+            f["objects/params"][...] = [json.dumps({"top_ratio": float(x)})
+                                        for x in rng.uniform(0, 0.9, len(f["objects/id"]))]
+    with BenchmarkData(directory) as data:
+        scorers, rows, oracle = report.reference_rows(data)
+        own = OracleReference(References(data)).score().per_object()
+    assert oracle["hidden"] == ["top_ratio"] and "oracle" not in rows
+    assert oracle["simple_mse"] == pytest.approx(float(np.mean(own["simple_mse"])))
+    diff = own["simple_mse"] - scorers["class-scale-nn"].per_object()["simple_mse"]
+    assert oracle["vs_class_scale_nn"]["simple_mse"]["diff"] == pytest.approx(diff.mean())
+    table = report.build_table("tiny", [0], {}, {"fingerprint": "f", "description": "d"},
+                               scorers, rows, {"command": "c", "hardware": None,
+                                               "python": "3", "timing": None}, oracle)
+    text = report.render_markdown(table)
+    assert "| oracle | " in text and "`top_ratio`" in text
+    assert table["strongest_reference"] != "oracle"
+
