@@ -501,18 +501,17 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
                 if split[k] == b"test" and variant[row] > 0:
                     d = target_db(f["radar/response"][k]) - target_db(f["radar/mesh_response"][j])
                     per_object.setdefault(int(ids[k]), []).append(np.mean(d ** 2))
-            if 1 in ids:  # the example object: time simulate on its complex meshes ourselves
-                k = int(np.flatnonzero(ids == 1)[0])
-                for row in np.flatnonzero(owner == k):
-                    v0, v1 = f["meshes/vertex_offset"][row:row + 2]
-                    f0, f1 = f["meshes/face_offset"][row:row + 2]
-                    t0 = time.perf_counter()
-                    radar_sim.simulate(f["meshes/vertices"][v0:v1], f["meshes/faces"][f0:f1], cfg)
-                    per_mesh_seconds.append(time.perf_counter() - t0)
+            # every test mesh, timed ourselves (the entry times a face-count sample of them)
+            for row in np.flatnonzero(split[owner] == b"test"):
+                v0, v1 = f["meshes/vertex_offset"][row:row + 2]
+                f0, f1 = f["meshes/face_offset"][row:row + 2]
+                t0 = time.perf_counter()
+                radar_sim.simulate(f["meshes/vertices"][v0:v1], f["meshes/faces"][f0:f1], cfg)
+                per_mesh_seconds.append(time.perf_counter() - t0)
     expected = np.mean([np.mean(v) for v in per_object.values()])
     assert len(per_object) == 6 and expected > 0
     assert close(e["metrics"]["complex_mse"], expected, rel=1e-6)
-    ours = 1000 * np.median(per_mesh_seconds)
+    ours = 1000 * np.mean(per_mesh_seconds)
     assert ours / 10 < e["speed"]["ms_per_mesh"] < ours * 10, (e["speed"]["ms_per_mesh"], ours)
 
 

@@ -200,5 +200,20 @@ def test_every_registered_embedding_keeps_the_one_forward_contract():
         model = build_model(name, N_OUT, 8, dim=16, embed_layers=1, agg_layers=1, n_heads=2)
         emb, mask, aux = model.embedding(batch)
         assert emb.shape[:2] == mask.shape and emb.shape[2] == 16 and aux.ndim == 0, name
-        expected = [N_RAYS] * 3 if name == "invariant" else n_faces
+        expected = {"invariant": [N_RAYS] * 3, "blind": [1] * 3}.get(name, n_faces)
         assert mask.sum(1).tolist() == expected, name
+
+
+def test_blind_model_sees_the_scale_and_not_the_mesh():
+    """The learned scale reference: a box and a sphere of the same scale bins get the same
+    prediction; another scale changes it."""
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    m = model("blind")
+    bins = np.array([[1, 2, 3]])
+    with torch.no_grad():
+        a, b, c = (m(collate([featurize(mesh.vertices, mesh.faces)], scale_bin=sb))[0][0]
+                   for mesh, sb in [(box, bins), (sphere, bins), (box, bins + 2)])
+    torch.testing.assert_close(a, b, atol=0, rtol=0)
+    assert (a - c).abs().max() > 1e-3
+

@@ -173,11 +173,11 @@ def tiny(tmp_path_factory):
 
 def test_tiny_preset_end_to_end(tiny, tmp_path):
     """The whole pipeline: `basic-shapes generate` + `radar-sim label` subprocesses, the
-    corpus, all 13 rows trained and evaluated by the harness, table + JSON + plot."""
+    corpus, all 14 rows trained and evaluated by the harness, table + JSON + plot."""
     out = tiny
     table = json.loads((out / "table.json").read_text())
     names = [r["name"] for r in table["rows"]]
-    assert names == [f"{e}-{r}" for e, r in ROWS] and len(names) == 13
+    assert names == [f"{e}-{r}" for e, r in ROWS] and len(names) == 14
     with BenchmarkData(out / "data") as data:
         assert data.target_shape == (7, 3, 107)
         assert table["dataset"]["fingerprint"] == data.fingerprint
@@ -191,13 +191,13 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         rescored = score_predictions(out / "data", out / "results" / row["name"] / "predictions.h5")
         assert rescored["complex_mse"] == results["metrics"]["complex_mse"]
         assert row["speed"]["threads"] >= 1 and "timed alone" in row["speed"]["hardware"]
-    invariant = table["rows"][-1]
-    assert invariant["name"] == "invariant-basic"
+    assert [r["name"] for r in table["rows"][-2:]] == ["invariant-basic", "blind-basic"]
+    assert table["rows"][-1]["variation_mse"] == 0.0  # blind to the mesh
     assert set(table["references"]) == {"train-mean", "class-mean", "nearest-scale",
                                         "class-scale-nn"}
     md = (out / "table.md").read_text()
-    # the main table, and the per-remesher sub-table of the OOD meshes: header, 4 refs, 13 rows
-    assert md.count("\n| ") == 14 + 4 + 18 and table["command"] in md
+    # the main table, and the per-remesher sub-table of the OOD meshes: header, 4 refs, 14 rows
+    assert md.count("\n| ") == 15 + 4 + 19 and table["command"] in md
     assert "reference: train-mean" in md and "### Out-of-distribution meshes per remesher" in md
     assert all(row["ood_complex_mse"] is not None for row in table["rows"])
     assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -223,7 +223,7 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         )
         is None
     )
-    assert len(list(entries.glob("*.json"))) == 13
+    assert len(list(entries.glob("*.json"))) == 14
     assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} \
         == {"tiny-v1"}  # reproduce built the registered version, and submit identified it
     assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None

@@ -1,4 +1,5 @@
-"""The paper's neural simulators g = d(a(f(V, F))) and one topology-invariant model.
+"""The paper's neural simulators g = d(a(f(V, F))), one topology-invariant model and one blind
+to the mesh (the learned scale reference).
 
 ``build_model(name, ...)`` makes any of them from a JSON-able config; ``MeshSimulator``
 is the full model, ``ClassificationHead`` / ``ReconstructionHead`` are the pretraining heads.
@@ -14,6 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from benchmark.models.aggregator import Aggregator
+from benchmark.models.blind import BlindEmbedding
 from benchmark.models.decoder import Decoder
 from benchmark.models.direct import DirectEmbedding
 from benchmark.models.features import N_BINS, MeshBatch, collate, featurize
@@ -48,6 +50,8 @@ REGISTRY: dict[str, Embedding] = {
                        face=True, colour="tab:green"),
     "invariant": Embedding(lambda dim, **_: ProbeEmbedding(dim), face=False, colour="tab:red",
                            probes=True, cost=0.5),
+    "blind": Embedding(lambda dim, **_: BlindEmbedding(dim), face=False, colour="tab:gray",
+                       cost=0.3),
 }
 """Adding an embedding is one entry here: the CLI choices, the table's rows and the plot's
 colours all derive from it."""
