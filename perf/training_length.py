@@ -8,7 +8,8 @@ Trains each (row, epochs, seed) with the cpu preset's model and every setting bu
 test split. Finished runs are kept under ``--work`` (``<row>-e<epochs>/seed-<s>/``) and reused,
 so an interrupted sweep resumes. The summary covers every run under ``--work``: per (row,
 epochs), Complex MSE averaged over seeds per test object, with its 95% interval, and its
-paired difference to ``class-scale-nn`` and to the same row's fewest epochs, the chosen
+paired difference to ``class-scale-nn``, to the same row's fewest epochs and to
+``blind-basic`` at the same epochs (what reading the mesh wins), the chosen
 (best validation) epoch and the training time. Writes perf/results/training_length.json and
 prints a table.
 """
@@ -69,7 +70,9 @@ def summarize(data: BenchmarkData, runs: dict) -> list[dict]:
     _, scorers = reference_scores(data)
     ref = scorers["class-scale-nn"].per_object()
     out, per_object = [], {}
-    for (row, epochs), seeds in sorted(runs.items()):
+    order = sorted(runs, key=lambda k: (k[0] != "blind-basic", k))  # blind first: others pair
+    for row, epochs in order:
+        seeds = runs[row, epochs]
         po = {k: np.array([[np.nan if x is None else x for x in r["per_object"][k]]
                            for r, _ in seeds], np.float64).mean(axis=0)
               for k in ("simple_mse", "complex_mse", "variation_mse")}
@@ -81,12 +84,17 @@ def summarize(data: BenchmarkData, runs: dict) -> list[dict]:
         vs_ref = paired(po["complex_mse"], ref["complex_mse"], po["class_index"])
         vs_first = paired(po["complex_mse"], per_object[row, first]["complex_mse"],
                           po["class_index"]) if epochs != first else None
+        blind = per_object.get(("blind-basic", epochs)) if row != "blind-basic" else None
+        vs_blind = None if blind is None else \
+            paired(po["complex_mse"], blind["complex_mse"], po["class_index"])
         block = metric_block(po, po["class_index"])
         out.append({"row": row, "epochs": epochs, "seeds": len(seeds),
                     **{k: block[k] for k in ("complex_mse", "complex_mse_ci", "variation_mse")},
                     "vs_class_scale_nn": {**vs_ref, "verdict": verdict(vs_ref["ci"])},
                     "vs_fewest_epochs": None if vs_first is None else
                     {"epochs": first, **vs_first, "verdict": verdict(vs_first["ci"])},
+                    "vs_blind": None if vs_blind is None else
+                    {**vs_blind, "verdict": verdict(vs_blind["ci"])},
                     "selected_epoch": [c["selection"]["epoch"] + 1 for _, c in seeds],
                     "train_seconds": float(np.mean([c["train_seconds"] for _, c in seeds]))})
     return out
@@ -112,15 +120,17 @@ def main(argv=None) -> None:
         description = data.describe()
     print(description)
     print("references, Complex MSE: " + ", ".join(f"{k} {v:.1f}" for k, v in refs.items()))
-    print(f"{'row':18} {'epochs':>6} {'seeds':>5} {'Complex MSE':>22} {'vs class-scale-nn':>26} "
-          f"{'vs fewest epochs':>24} {'best epoch':>12} {'train s':>8}")
+    print(f"{'row':18} {'epochs':>6} {'seeds':>5} {'Complex MSE':>22} {'vs class-scale-nn':>24} "
+          f"{'vs fewest epochs':>24} {'vs blind-basic':>24} {'best epoch':>12} {'train s':>8}")
+
+    def cell(p):
+        return "-" if p is None else f"{p['diff']:+.1f} [{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]"
     for r in rows:
-        v, f = r["vs_class_scale_nn"], r["vs_fewest_epochs"]
-        first = "-" if f is None else f"{f['diff']:+.1f} [{f['ci'][0]:+.1f}, {f['ci'][1]:+.1f}]"
         print(f"{r['row']:18} {r['epochs']:6d} {r['seeds']:5d} {r['complex_mse']:7.1f} "
               f"[{r['complex_mse_ci'][0]:5.1f}, {r['complex_mse_ci'][1]:5.1f}] "
-              f"{v['diff']:+8.1f} [{v['ci'][0]:+6.1f}, {v['ci'][1]:+6.1f}] {first:>24} "
-              f"{','.join(map(str, r['selected_epoch'])):>12} {r['train_seconds']:8.0f}")
+              f"{cell(r['vs_class_scale_nn']):>24} {cell(r['vs_fewest_epochs']):>24} "
+              f"{cell(r['vs_blind']):>24} {','.join(map(str, r['selected_epoch'])):>12} "
+              f"{r['train_seconds']:8.0f}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:
         tmp.write_text(json.dumps({"data": description, "references_complex_mse": refs,
