@@ -285,7 +285,7 @@ class OracleReference:
 def oracle_row(data: BenchmarkData, scorers: dict[str, Scorer]) -> dict | None:
     """The table's ``oracle`` block on a dataset with hidden shape parameters (None on one
     without): its row, the parameters it knows, and the paired oracle - ``class-scale-nn``
-    difference, which is what reading the mesh can win over class + scale. Kept apart from the
+    difference, what a neighbour search gains from knowing them. Kept apart from the
     references: it is not a model (it is told what the mesh must reveal), so skill is never
     measured against it."""
     if not hidden_parameters(data)[0]:

@@ -339,8 +339,9 @@ def oracle_lines(oracle: dict | None) -> list[str]:
     known = ", ".join(f"`{k}`" for k in oracle["hidden"])
     lines = ["", f"Oracle (not a model: told the hidden shape parameters {known}): the mean "
              f"target of the {K_NEAREST} training objects of the class nearest in (log scale, "
-             f"{known}), each divided by its training spread. What reading the mesh can win "
-             f"over class + scale is the gap between it and `class-scale-nn`.", "",
+             f"{known}), each divided by its training spread. Its gap to `class-scale-nn` is what "
+             f"a neighbour search gains from the hidden parameters; a model that reads the mesh "
+             f"can gain more (it interpolates the scale better).", "",
              "| | Simple MSE | Complex MSE | Variation MSE | OOD Complex | OOD Variation |",
              "|---|---:|---:|---:|---:|---:|",
              "| oracle | " + _metric_cells(oracle, "", seeds=False) + " |"]
