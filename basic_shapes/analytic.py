@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from basic_shapes import ellipsoid_closest
+from basic_shapes import ellipsoid_closest, portable
 
 C0 = 299_792_458.0
 
@@ -380,7 +380,7 @@ def _cube_sphere(n):
     _uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     cube = 2.0 * lattice[first] / n - 1.0
     edge = np.abs(cube) == 1.0
-    xi = np.where(edge, cube, np.tan(np.pi / 4 * cube))  # tan(pi/4) is not exactly 1
+    xi = np.where(edge, cube, portable.tan(np.pi / 4 * cube))  # tan(pi/4) is not exactly 1
     v = xi / np.linalg.norm(xi, axis=1, keepdims=True)
     q = inverse[np.concatenate(quads)]
     d02 = ((v[q[:, 0]] - v[q[:, 2]]) ** 2).sum(axis=1)
@@ -420,7 +420,7 @@ def _ellipse_angles(a, b, wavelength, refine, minimum=4, surface=False):
     _edge_length of the local radius of curvature: a multiple of 4, >= minimum * refine."""
     t = np.linspace(0.0, np.pi / 2, 4097)
     speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
-    radius = speed ** 3 / (a * b)
+    radius = speed * speed * speed / (a * b)   # not ** 3: numpy's power is CPU-dependent
     density = speed / _edge_length(radius, wavelength, refine, surface)
     cum = np.concatenate([[0.0], np.cumsum((density[1:] + density[:-1]) / 2 * np.diff(t))])
     m = max(math.ceil(cum[-1]), math.ceil(minimum * refine / 4))
@@ -495,7 +495,7 @@ def _ellipsoid_cells(axes, edge_length):
             if i != j:
                 a, b = axes[i], axes[j]
                 speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
-                dens = speed / edge_length(speed ** 3 / (a * b))
+                dens = speed / edge_length(speed * speed * speed / (a * b))
                 need[j] = max(need[j], float(dens.max()))
     # even counts: a vertex at each bbox extreme
     return tuple(2 * max(2, math.ceil(x * np.pi / 4)) for x in need)

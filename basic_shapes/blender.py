@@ -162,7 +162,7 @@ def _sample_params(spec: primitives.Primitive, rng: np.random.Generator) -> dict
     weights = np.array([spec.decimation[k] for k in kinds])
     decimate: dict = {"kind": kinds[rng.choice(len(kinds), p=weights / weights.sum())]}
     if decimate["kind"] == "collapse":
-        overshoot = np.exp(rng.uniform(0, math.log(COLLAPSE_OVERSHOOT)))
+        overshoot = math.exp(rng.uniform(0, math.log(COLLAPSE_OVERSHOOT)))
         decimate["overshoot"] = round(float(overshoot), 4)
         decimate["triangulate"] = bool(rng.integers(2))
     elif decimate["kind"] == "unsubdiv":

@@ -13,6 +13,7 @@ from basic_shapes.infra import (
     add_quiet_flag,
     cli_boundary,
     number,
+    separate_outputs,
 )
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE
 
@@ -124,11 +125,13 @@ def _main(argv: list[str]) -> int:
     elif args.command == "show":
         from basic_shapes.render import show_object
 
+        separate_outputs({"--out": args.out}, {"--data": args.data})
         show_object(args.data, args.object, args.out, args.count)
         print(f"wrote {args.out}")
     elif args.command == "export":
         from basic_shapes.export import export
 
+        separate_outputs({"--out": args.out}, {"--data": args.data})
         n = export(args.data, args.out, args.format, args.object)
         kind = "NetCDF (g2s)" if args.format == "g2s" else args.format.upper()
         print(f"wrote {n} {kind} files to {args.out}")

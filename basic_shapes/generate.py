@@ -217,8 +217,12 @@ def _is_done(path: Path, cfg: GenerateConfig) -> bool:
 
 
 def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
-             scheduler: str | None = None, progress: bool = True) -> dict:
+             scheduler: str | None = None, progress: bool = True,
+             shards: list[int] | None = None) -> dict:
     """Generate (or finish generating) the dataset in ``out``; returns run statistics.
+
+    ``shards``: build only these shard numbers of the plan (a slice of the dataset, each
+    shard byte-identical to the same shard of a whole build).
 
     ``workers=0`` builds in this process without Dask (debugging); otherwise a LocalCluster
     with ``workers`` single-threaded processes (default: one per core), or the cluster at
@@ -236,6 +240,11 @@ def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
     if progress:
         print(plan_text(cfg, workers, scheduler), file=sys.stderr)
     tasks = [(str(out / shard_name(i)), plans) for i, plans in enumerate(shard_plans(cfg))]
+    if shards is not None:
+        if max(shards, default=0) >= len(tasks):
+            raise ValueError(f"shard {max(shards)} does not exist: the dataset has {len(tasks)} "
+                             f"shards (0..{len(tasks) - 1})")
+        tasks = [tasks[i] for i in sorted(set(shards))]
     for path, _ in tasks:  # only our own leftovers: never other files in the directory
         Path(path + ".tmp").unlink(missing_ok=True)
     todo = [t for t in tasks if not _is_done(Path(t[0]), cfg)]

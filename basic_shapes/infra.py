@@ -25,6 +25,11 @@ import numpy as np
 DEBUG_ENV = "BASIC_SHAPES_DEBUG"
 
 
+class FlagError(ValueError):
+    """Flags that contradict each other (an output that is an input): exit status 2, before
+    any work, like the parser's own refusals."""
+
+
 class InputError(ValueError):
     """An input file is unreadable, malformed or hostile (one line naming the file)."""
 
@@ -103,6 +108,11 @@ def _usable_cores() -> int:
 
 # --- one-line errors and the CLI boundary ----------------------------------------------------
 
+def warn(text: str) -> None:
+    """One ``warning:`` line on stderr (stdout is kept for results)."""
+    print(f"warning: {text}", file=sys.stderr, flush=True)
+
+
 def one_line(exc: BaseException) -> str:
     """An exception as one line: ``file: problem`` for OS errors, else its first message line."""
     if isinstance(exc, OSError) and exc.strerror:
@@ -157,6 +167,11 @@ def cli_boundary(tool: str, body, argv: list[str] | None = None):
             raise
         msg = _unprefixed(one_line(Exception(str(exc.code))), tool)
         raise SystemExit(f"{prefix}: error: {msg}") from None
+    except FlagError as exc:
+        if debug:
+            raise
+        print(f"{prefix}: error: {one_line(exc)}", file=sys.stderr)
+        raise SystemExit(2) from None
     except KeyboardInterrupt:
         if debug:
             raise
@@ -182,6 +197,31 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def separate_outputs(outputs: dict, inputs: dict) -> None:
+    """Refuse (``FlagError``) an output flag whose path is an input's, lies inside an input
+    directory (the dataset) or holds an input (a folder that is replaced), or is another
+    output's; ``None`` values are ignored. Paths are compared after resolving symlinks."""
+    def real(path) -> str:
+        return os.path.realpath(os.fspath(path))
+
+    def nested(a: str, b: str) -> bool:
+        return a == b or a.startswith(b.rstrip(os.sep) + os.sep)
+
+    seen: dict[str, str] = {}
+    for flag, path in outputs.items():
+        if path is None:
+            continue
+        out = real(path)
+        if out in seen:
+            raise FlagError(f"{flag} and {seen[out]} name the same path ({path})")
+        seen[out] = flag
+        for in_flag, in_path in inputs.items():
+            if in_path is not None and (nested(out, real(in_path))
+                                        or nested(real(in_path), out)):
+                raise FlagError(f"{flag} {path} would overwrite the input {in_flag} {in_path}; "
+                                f"write it elsewhere")
 
 
 def add_debug_flag(parser: argparse.ArgumentParser) -> None:

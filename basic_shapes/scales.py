@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from basic_shapes import portable
+
 SCALE_RANGE = (0.2, 2.0)  # metres, per axis
 MIN_DISTANCE = 0.05  # about 5 % on every axis
 MAX_RADIUS = 1.9  # metres: bounding-sphere radius that still fits the radar range window
@@ -62,12 +64,12 @@ def sample_scales(n: int, rng: np.random.Generator, scale_range=SCALE_RANGE,
         raise ScaleError(f"placed only {placed} of {n} dissimilar scales in {scale_range} m "
                          f"(minimum log-distance {min_distance}); ask for fewer objects or a "
                          f"smaller --min-scale-distance")
-    return np.exp(logs)
+    return portable.exp(logs)
 
 
 def min_pairwise_distance(scales: np.ndarray) -> float:
     """Smallest similarity distance among ``scales`` (inf for fewer than two)."""
-    s = np.sort(np.log(np.asarray(scales, float)), axis=1)
+    s = np.sort(portable.log(np.asarray(scales, float)), axis=1)
     if len(s) < 2:
         return math.inf
     d = np.abs(s[:, None, :] - s[None, :, :]).max(axis=2)

@@ -99,17 +99,28 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
                                             for m in meshes], dtype=h5py.string_dtype()))
             _dataset(g, "vertices", vertices)
             _dataset(g, "faces", faces)
-            f.attrs["fingerprint"] = _fingerprint(f)
+            f.attrs["fingerprint"] = content_fingerprint(f)
 
 
-def _fingerprint(f: h5py.File) -> str:
-    """sha256 over the mesh and object content (not over labels), stable across writes."""
+def content_fingerprint(f: h5py.File) -> str:
+    """sha256 over every dataset under /objects and /meshes (name, dtype, shape, bytes), the
+    class names and the generator config: a flipped bit anywhere in an object's definition or
+    its meshes changes it. Labels have their own (``radar_fingerprint``)."""
     h = hashlib.sha256()
-    for name in ("objects/id", "objects/class", "objects/scale", "objects/split",
-                 "meshes/variant", "meshes/vertex_offset", "meshes/face_offset",
-                 "meshes/vertices", "meshes/faces"):
-        h.update(name.encode())
-        h.update(np.ascontiguousarray(f[name][()]).tobytes())
+    h.update(str(f.attrs.get("generator_config", "")).encode())
+    h.update(str(f["objects/class"].attrs.get("names", "")).encode())
+    for group in ("objects", "meshes"):
+        for name in sorted(f[group]):
+            d = f[group][name]
+            h.update(f"\0{group}/{name}\0{d.dtype.str}\0{d.shape}\0".encode())
+            data = d[()]
+            if data.dtype.kind == "O":  # variable-length strings (JSON parameters)
+                for item in data:
+                    raw = item if isinstance(item, bytes) else str(item).encode()
+                    h.update(len(raw).to_bytes(8, "little"))
+                    h.update(raw)
+            else:
+                h.update(np.ascontiguousarray(data).tobytes())
     return h.hexdigest()
 
 
@@ -210,7 +221,7 @@ class Shard:
             if bad.any():
                 row = start + int(np.flatnonzero(bad)[0])
                 self._fail(f"face row {row} indexes a vertex outside its mesh")
-        if _fingerprint(self.file) != self.fingerprint:
+        if content_fingerprint(self.file) != self.fingerprint:
             self._fail("content does not match its stored fingerprint (edited or corrupted)")
 
     def close(self) -> None:
@@ -325,11 +336,18 @@ def dataset_fingerprint(directory: str | os.PathLike) -> str:
 
 
 def label_fingerprint(directory: str | os.PathLike) -> str:
-    """sha256 over the shards' label fingerprints, in shard order (``ShardError`` if unlabelled)."""
+    """sha256 over the shards' label fingerprints, in shard order, each recomputed from the
+    stored labels and compared with the one stored (``ShardError`` if unlabelled or edited):
+    scoring, training, resuming and submission all come through here."""
     h = hashlib.sha256()
     for p in list_shards(directory):
         with Shard(p) as s:
-            h.update(s.radar.fingerprint.encode())
+            labels = s.radar
+            if labels.computed_fingerprint() != labels.fingerprint:
+                raise ShardError(f"{p}: labels (/radar) do not match their stored fingerprint "
+                                 f"(edited or corrupted); relabel with radar-sim label "
+                                 f"--overwrite")
+            h.update(labels.fingerprint.encode())
     return h.hexdigest()
 
 
@@ -405,18 +423,23 @@ RADAR_ARRAYS = {"response": ("object", "aspect", "roll", "range"),
                 "mesh_mode": ("mesh",)}
 
 
-def radar_fingerprint(config_json: str, rule_json: str, responses) -> str:
-    """sha256 over the radar config, the simulation-mesh rule and the stored label bytes.
-
-    ``responses`` yields the /radar/response rows in object order (complex64, C order), so a
-    writer can hash while streaming and a reader can recompute it from the stored dataset.
-    """
+def radar_fingerprint(config_json: str, rule_json: str, responses, mesh_index=(),
+                      mesh_responses=()) -> str:
+    """sha256 over the radar config, the simulation-mesh rule and the stored label bytes: the
+    /radar/response rows in object order, then the per-mesh physics (its mesh rows and
+    /radar/mesh_response rows) where stored; complex64, C order. Rows are iterables, so a
+    writer hashes while streaming and a reader recomputes it from the stored datasets."""
     h = hashlib.sha256()
     for part in (config_json, rule_json):
         h.update(part.encode())
         h.update(b"\0")
     for row in responses:
         h.update(np.ascontiguousarray(row, np.complex64).tobytes())
+    mesh_index = np.asarray(mesh_index, np.int64)
+    if len(mesh_index):
+        h.update(b"\0mesh\0" + mesh_index.tobytes())
+        for row in mesh_responses:
+            h.update(np.ascontiguousarray(row, np.complex64).tobytes())
     return h.hexdigest()
 
 
@@ -490,8 +513,10 @@ class RadarGroup:
     def computed_fingerprint(self) -> str:
         """The fingerprint recomputed from the stored content (reads every label once)."""
         rows = (self.group["response"][k] for k in range(len(self.object_ids)))
-        return radar_fingerprint(self.group.attrs["config"], self.group.attrs["simulation_rule"],
-                                 rows)
+        mesh_rows = (self.group["mesh_response"][j] for j in range(len(self.mesh_index)))
+        return radar_fingerprint(_text_attr(self.group, "config") or "",
+                                 _text_attr(self.group, "simulation_rule") or "", rows,
+                                 self.mesh_index, mesh_rows)
 
     # labels -----------------------------------------------------------------------------------
     @property
@@ -575,8 +600,11 @@ def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, n
     if mesh_index is not None:
         array("mesh_response", mesh_responses, np.complex64)
         array("mesh_mode", [m.encode() for m in mesh_modes], strings)
+    mesh_rows = g["mesh_response"] if mesh_index is not None else ()
     fingerprint = radar_fingerprint(attrs["config"], attrs["simulation_rule"],
-                                    (response[k] for k in range(len(response))))
+                                    (response[k] for k in range(len(response))),
+                                    coords.get("mesh", ()),
+                                    (mesh_rows[j] for j in range(len(mesh_rows))))
     g.attrs["label_fingerprint"] = fingerprint
     return fingerprint
 

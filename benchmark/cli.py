@@ -102,7 +102,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def evaluate_command(args: argparse.Namespace) -> int:
-    from basic_shapes.infra import one_line
+    from basic_shapes.infra import one_line, separate_outputs
     from basic_shapes.shards import ShardError
     from benchmark.evaluate import evaluate, format_metrics
     from benchmark.protocol import (
@@ -118,6 +118,10 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.speed_ms is not None and not args.predictions:
         raise SystemExit("benchmark evaluate: error: --speed-ms goes with --predictions "
                          "(a --model is timed by the harness)")
+    model_file = args.model.rpartition(":")[0] if args.model and ":" in args.model else None
+    separate_outputs({"--out": args.out, "--write-predictions": args.write_predictions},
+                     {"--data": args.data, "--predictions": args.predictions,
+                      "--model": model_file if model_file and Path(model_file).exists() else None})
     out = Path(args.out)
     overrides = {"name": args.name, "params": args.params, "embedding": args.embedding,
                  "regime": args.regime}

@@ -55,6 +55,25 @@ LOSSES = ("mse", "intensity")
 BUCKET = 8  # batches per length bucket: meshes of similar face count are batched together
 
 
+BOUNDS = {  # numeric fields of TrainConfig: (minimum, maximum); "above" 0 for rates
+    "dim": (1, 4096), "embed_layers": (1, 64), "agg_layers": (1, 64), "n_heads": (1, 256),
+    "decoder_hidden": (1, 65536), "codebook_size": (2, 65536), "n_quantizers": (1, 64),
+    "epochs": (1, 100_000), "batch_size": (1, 65536), "lr": ("above", 10.0),
+    "weight_decay": (0.0, 10.0), "pretrain_meshes": (0, 10_000_000),
+    "pretrain_epochs": (0, 100_000),
+    "pretrain_max_faces": (4, 10_000_000), "pretrain_lr": ("above", 10.0),
+    "corpus_seed": (0, 2**63 - 1), "seed": (0, 2**63 - 1)}
+
+
+def _out_of_bounds(name: str, value) -> str | None:
+    low, high = BOUNDS[name]
+    if not math.isfinite(value) or value > high or (
+            value <= 0 if low == "above" else value < low):
+        return (f"{name} must be {'> 0' if low == 'above' else f'>= {low}'} and <= {high}, "
+                f"got {value}")
+    return None
+
+
 @dataclass
 class TrainConfig:
     """Everything that determines a training run (stored in the checkpoint)."""
@@ -91,6 +110,12 @@ class TrainConfig:
                              f"use regime basic or ideal")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; choose one of {LOSSES}")
+        for name in BOUNDS:
+            problem = _out_of_bounds(name, getattr(self, name))
+            if problem:
+                raise ValueError(problem)
+        if self.dim % self.n_heads:
+            raise ValueError(f"dim ({self.dim}) must be a multiple of n_heads ({self.n_heads})")
 
     @property
     def name(self) -> str:
@@ -354,6 +379,8 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
     """
     device = torch.device(device)
     cache = cache or FeatureCache()
+    identity = {"dataset_fingerprint": data.fingerprint,       # both verified against the
+                "label_fingerprint": data.label_fingerprint}   # content before any training
     seed_everything(cfg.seed)
     n_outputs = int(np.prod(data.target_shape))
     kwargs = cfg.model_kwargs(n_outputs, scale_bins.n)
@@ -389,8 +416,7 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
               "model": kwargs, "target_shape": list(data.target_shape),
               "scale_bins": {"lo": scale_bins.lo, "hi": scale_bins.hi, "n": scale_bins.n},
               "train": asdict(cfg), "history": history, "selection": selection(history["train"]),
-              "train_seconds": time.perf_counter() - t0,
-              "dataset_fingerprint": data.fingerprint}
+              "train_seconds": time.perf_counter() - t0, **identity}
     return model, config
 
 

@@ -11,10 +11,10 @@ from dataclasses import fields
 
 import torch
 
-from basic_shapes.infra import add_quiet_flag
+from basic_shapes.infra import FlagError, add_quiet_flag, number, separate_outputs
 from benchmark.data import BenchmarkData
 from benchmark.models import EMBEDDINGS
-from benchmark.train import LOSSES, REGIMES, TrainConfig, evaluate_checkpoint, train
+from benchmark.train import BOUNDS, LOSSES, REGIMES, TrainConfig, evaluate_checkpoint, train
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for f in fields(TrainConfig):
         default = getattr(defaults, f.name)
         kind = str if f.name == "shapenet" else type(default)
+        if f.name in BOUNDS:   # refused by the parser (exit 2), before any data is read
+            low, high = BOUNDS[f.name]
+            kind = number(kind, maximum=high, **({"above": 0} if low == "above" else
+                                                 {"minimum": low}))
         parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default,
                             choices=choices.get(f.name),
                             help=helps.get(f.name, "") + f" (default: {default})")
@@ -53,6 +57,21 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         return TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
     except ValueError as exc:
         raise SystemExit(f"benchmark train: {exc}") from None
+
+
+def check_device(text: str) -> torch.device:
+    """``--device`` parsed and present on this machine (``FlagError``: exit 2, before work)."""
+    try:
+        device = torch.device(text)
+    except RuntimeError:
+        raise FlagError(f"--device {text!r} is not a torch device (cpu, cuda, cuda:0)") from None
+    if device.type == "cuda" and (not torch.cuda.is_available() or
+                                  (device.index or 0) >= torch.cuda.device_count()):
+        raise FlagError(f"--device {text}: no such CUDA device here "
+                        f"({torch.cuda.device_count()} available)")
+    if device.type not in ("cpu", "cuda"):
+        raise FlagError(f"--device {text}: only cpu and cuda devices are supported")
+    return device
 
 
 def init_distributed() -> tuple[torch.device, int]:
@@ -73,10 +92,11 @@ def run(args: argparse.Namespace) -> None:
     from basic_shapes.shards import ShardError
     from benchmark.models.checkpoint import save_checkpoint
 
+    separate_outputs({"--out": args.out, "--results": args.results}, {"--data": args.data})
     cfg = config_from_args(args)
     device, rank = init_distributed()
     if args.device:
-        device = torch.device(args.device)
+        device = check_device(args.device)
     try:
         with BenchmarkData(args.data) as data:
             model, config = train(cfg, data, device=device, progress=not args.quiet)

@@ -1,27 +1,34 @@
-"""Named dataset versions: each defined here once, built by one command, identified by content.
+"""Named dataset versions: each a recipe defined here once, proved by a committed manifest.
 
 A version fixes everything its meshes and labels depend on: the generator's sizes and seed
 (splits, variants and OOD meshes follow from them), the radar grid (``xband-v1`` with some
-axes coarsened) and the per-mesh physics asked for; the simulation-mesh rule comes with the
-toolkit. ``benchmark dataset NAME --data DIR`` builds it with the toolkit's own CLIs
-(resumable, byte-deterministic) and compares the fingerprints with the ones recorded here
-from a reference build. ``leaderboard submit`` accepts only datasets that are a registered
-version (same generator config and radar config), and the board names the version.
+axes coarsened), the per-mesh physics asked for, and (through ``constraints.txt``) the
+software stack; the simulation-mesh rule comes with the toolkit. Its manifest
+(``benchmark/manifests/NAME.json``: per shard and per object, mesh and label hashes apart)
+is what a build must reproduce, byte for byte, on any machine of the supported stack
+(docs/DATASETS.md). ``benchmark dataset NAME`` builds it (or a slice of its shards), checks a
+directory against it, packs a built one into a release archive, or fetches and verifies one.
+``leaderboard submit`` accepts only datasets that are a registered version.
 
-Adding a version is one entry in VERSIONS; record ``fingerprints`` after its first build.
+Adding a version is one entry in VERSIONS; ``--record`` writes its manifest after the first
+build, and a second build on another machine must then match it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
-import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from basic_shapes.infra import atomic_path
+
+MANIFESTS = Path(__file__).with_name("manifests")
+# the packages whose code computes stored bytes (pinned in constraints.txt)
+BYTE_PACKAGES = ("numpy", "bpy", "pymeshlab", "numba", "llvmlite", "embreex", "h5py", "scipy",
+                 "trimesh")
 
 
 class VersionError(ValueError):
@@ -30,7 +37,7 @@ class VersionError(ValueError):
 
 @dataclass(frozen=True)
 class DatasetVersion:
-    """One named dataset: generator sizes, radar grid, mesh labels, recorded fingerprints."""
+    """One named dataset: generator sizes, radar grid, mesh labels; its manifest on disk."""
 
     name: str
     summary: str
@@ -40,7 +47,20 @@ class DatasetVersion:
     seed: int = 0
     radar: dict = field(default_factory=dict)  # changes to the "xband-v1" RadarConfig
     mesh_labels: str = "none"  # radar-sim label --mesh-labels
-    fingerprints: dict = field(default_factory=dict)  # {"mesh": sha256, "label": sha256}
+
+    @property
+    def manifest_path(self) -> Path:
+        return MANIFESTS / f"{self.name}.json"
+
+    @property
+    def manifest(self) -> dict | None:
+        """The committed manifest, or None where none is recorded yet."""
+        return _manifest(self.manifest_path)
+
+    @property
+    def fingerprints(self) -> dict:
+        """{"mesh": sha256, "label": sha256} recorded in the manifest ({} if none)."""
+        return dict(self.manifest["fingerprints"]) if self.manifest else {}
 
     def radar_config(self):
         """The version's RadarConfig: ``xband-v1``, renamed when a grid axis is coarsened."""
@@ -64,6 +84,13 @@ class DatasetVersion:
                 "seed": self.seed, "grid": self.grid(), "radar_config": self.radar_config().name}
 
 
+@functools.cache
+def _manifest(path: Path) -> dict | None:
+    from basic_shapes import manifest
+
+    return manifest.load(path) if path.exists() else None
+
+
 VERSIONS: dict[str, DatasetVersion] = {v.name: v for v in (
     DatasetVersion(
         "tiny-v1", "the test suite's dataset: 2 objects per class, 3 meshes each",
@@ -76,23 +103,13 @@ VERSIONS: dict[str, DatasetVersion] = {v.name: v for v in (
         "cpu-v1", "the CPU benchmark: 500 objects per class (150 test objects), 10 meshes "
         "each plus OOD test meshes, 31 x 7 grid",
         objects_per_class=500, variants=9, radar={"n_aspect": 31, "n_roll": 7},
-        mesh_labels="sample:1",
-        # recorded from the build of commit adb9fc1 with the fixed-layout MeshLab child
-        # (generate 551 s on 1 worker, label 1,532 s, under load); the same mesh fingerprint as
-        # an earlier build of that fix on 2 workers. The CPU table's first data, f304e7b4...
-        # (commit ca53a6c), differs in 31-42 OOD meshes of 9 test objects (docs/DATASETS.md).
-        fingerprints={"mesh": "390cf5dc79c0a3f47a640ce71992406bee2541cf00a714390b69ca8497dac91d",
-                      "label": "bf31dd56dadd86c5594a7d4432b579b754c11c982e543195f05537f2bdbebd76"}),
+        mesh_labels="sample:1"),
     DatasetVersion(
         "hidden-cpu-v1", "the hidden-parameter track: 500 frustums (50 test objects) whose "
         "top-to-base radius ratio is hidden (class + scale cannot tell it), 10 meshes each, "
         "31 x 7 grid",
         objects_per_class=500, variants=9, classes=("frustum",),
-        radar={"n_aspect": 31, "n_roll": 7}, mesh_labels="sample:1",
-        # recorded from two builds of commit d0907a8 (2 workers each: generate 268 / 275 s,
-        # label 16 / 18 s), the same fingerprints
-        fingerprints={"mesh": "d9b522c8fae114620cce0ccfe709787f0b438d67e13b976e2526f0dac94b7ee8",
-                      "label": "2c086c47cc524017416a3bac16b05fc490cd4ec264b9603d1aaf6b52917ed364"}),
+        radar={"n_aspect": 31, "n_roll": 7}, mesh_labels="sample:1"),
     DatasetVersion(
         "paper-v1", "the paper's scale: 1000 objects per class, 100 meshes each, full grid",
         objects_per_class=1000, variants=99),
@@ -107,48 +124,66 @@ def get(name: str) -> DatasetVersion:
                            f"{', '.join(VERSIONS)}") from None
 
 
-def _tool(name: str, module: str) -> list[str]:
-    """The console script next to this interpreter, else ``python -m module``."""
-    script = Path(sys.executable).with_name(name)
-    return [str(script)] if script.exists() else [sys.executable, "-m", module]
-
-
-def run_tool(cmd: list[str], what: str, quiet: bool) -> float:
-    """Run one of the toolkit's CLIs; its one-line error becomes ours. Returns seconds."""
-    t0 = time.perf_counter()
-    result = subprocess.run(cmd, stdout=subprocess.PIPE if quiet else None,
-                            stderr=subprocess.PIPE, text=True)
-    if result.returncode != 0:
-        tail = (result.stderr or "").strip().splitlines()
-        raise VersionError(f"{what} failed: "
-                           f"{tail[-1] if tail else 'exit code ' + str(result.returncode)}")
-    return time.perf_counter() - t0
-
-
 def build(version: DatasetVersion, directory: str | Path, *, workers: int | None = None,
-          scheduler: str | None = None, quiet: bool = False) -> dict:
-    """Generate and label ``version`` into ``directory`` (both steps resume); return timings
-    and the fingerprints, with whether they match the recorded ones."""
+          scheduler: str | None = None, quiet: bool = False,
+          shards: list[int] | None = None) -> dict:
+    """Generate and label ``version`` into ``directory`` (both resume), or only the shards
+    numbered ``shards`` (a slice: the same bytes as in a whole build); return timings and the
+    comparison with the version's manifest (``check``)."""
+    from basic_shapes.generate import GenerateConfig, generate
+    from radar_sim.label import LabelRequest, label_directory
+
     directory = Path(directory)
-    directory.parent.mkdir(parents=True, exist_ok=True)
-    radar = directory.parent / f"{directory.name}.radar.json"
-    with atomic_path(radar) as tmp:
-        tmp.write_text(version.radar_config().to_json())
-    common = ["--scheduler", scheduler] if scheduler else \
-        [] if workers is None else ["--workers", str(workers)]
-    common += ["--quiet"] if quiet else []
-    t_gen = run_tool([*_tool("basic-shapes", "basic_shapes.cli"), "generate", "--data",
-                      str(directory), "--classes", ",".join(version.classes),
-                      "--objects-per-class", str(version.objects_per_class),
-                      "--variants", str(version.variants), "--seed", str(version.seed),
-                      *common], "basic-shapes generate", quiet)
-    t_label = run_tool([*_tool("radar-sim", "radar_sim.cli"), "label", "--data", str(directory),
-                        "--config", str(radar), "--mesh-labels", version.mesh_labels,
-                        *common], "radar-sim label", quiet)
-    found = fingerprints(directory)
-    expected = version.fingerprints
-    return {"version": version.name, "generate_s": t_gen, "label_s": t_label, **found,
-            "matches_recorded": None if not expected else found == expected}
+    cfg = GenerateConfig(classes=tuple(version.classes),
+                         objects_per_class=version.objects_per_class,
+                         variants=version.variants, seed=version.seed)
+    t0 = time.perf_counter()
+    generate(directory, cfg, workers=workers, scheduler=scheduler, progress=not quiet,
+             shards=shards)
+    t1 = time.perf_counter()
+    label_directory(directory, LabelRequest(version.radar_config(), version.mesh_labels),
+                    workers=workers, scheduler=scheduler, progress=not quiet)
+    return {"version": version.name, "generate_s": round(t1 - t0, 1),
+            "label_s": round(time.perf_counter() - t1, 1), **check(version, directory)}
+
+
+def check(version: DatasetVersion, directory: str | Path) -> dict:
+    """Compare a directory with the version's manifest: its fingerprints, whether they match,
+    and the first differences (shard, object, mesh, data). A directory holding only some of
+    the version's shards (a slice) is compared shard by shard."""
+    from basic_shapes import manifest as mf
+
+    found = mf.build(directory, version.name, stack())
+    report = {"mesh": found["fingerprints"]["mesh"], "label": found["fingerprints"]["label"]}
+    expected = version.manifest
+    if expected is None:
+        return {**report, "matches_recorded": None, "differences": []}
+    names = {s["name"] for s in found["shards"]}
+    if len(names) < len(expected["shards"]):
+        expected = {**expected, "shards": [s for s in expected["shards"] if s["name"] in names],
+                    "fingerprints": found["fingerprints"]}    # a slice: shard by shard
+        report["slice"] = sorted(names)
+    differences = mf.differences(expected, found)
+    stack_changed = sorted(k for k in set(expected["stack"]) | set(found["stack"])
+                           if expected["stack"].get(k) != found["stack"].get(k))
+    return {**report, "matches_recorded": not differences, "differences": differences,
+            "stack_differs": stack_changed}
+
+
+def stack() -> dict:
+    """The software a dataset's bytes depend on (pinned in constraints.txt): recorded in each
+    manifest, so a rebuild that differs can tell what else differs."""
+    import platform
+    from importlib import metadata
+
+    out = {"python": platform.python_version(), "machine": platform.machine(),
+           "libc": "-".join(platform.libc_ver())}
+    for package in BYTE_PACKAGES:
+        try:
+            out[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            out[package] = None
+    return out
 
 
 def fingerprints(directory: str | Path) -> dict:
@@ -192,25 +227,79 @@ def add_arguments(p) -> None:
 
     p.add_argument("name", nargs="?", help="dataset version (see --list)")
     p.add_argument("--data", metavar="DIR",
-                   help="dataset directory to build into (resumes if it exists)")
+                   help="dataset directory: built into (resumes if it exists), checked, packed "
+                   "or fetched into")
     p.add_argument("--list", action="store_true", help="list the registered versions and exit")
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--check", action="store_true",
+                      help="only compare DIR with the version's manifest; name the first shard, "
+                      "object and mesh that differ")
+    what.add_argument("--from", dest="source", metavar="PATH_OR_URL",
+                      help="fetch the version's release archive instead of building it; every "
+                      "shard is verified against the committed manifest (no Blender needed)")
+    what.add_argument("--pack", metavar="ARCHIVE",
+                      help="write a built, checked DIR as the version's release archive (.tar)")
+    what.add_argument("--record", action="store_true",
+                      help="maintainers: write the version's manifest from DIR (its first build)")
+    p.add_argument("--shards", metavar="I,J,...", type=_indices,
+                   help="build only these shards of the version (a slice, checked shard by shard)")
     add_cluster_flags(p)
     add_quiet_flag(p)
 
 
+def _indices(text: str) -> list[int]:
+    import argparse
+
+    try:
+        values = sorted({int(x) for x in text.split(",")})
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of shard "
+                                         f"numbers") from None
+    if not values or values[0] < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: shard numbers are 0 or more")
+    return values
+
+
 def run(args) -> int:
+    from basic_shapes import manifest as mf
+    from basic_shapes import release
+
     if args.list or not args.name:
         for v in VERSIONS.values():
-            recorded = "fingerprints recorded" if v.fingerprints else "no fingerprints recorded"
-            print(f"{v.name:10s} {v.grid():42s} {recorded}\n{'':10s} {v.summary}")
+            recorded = (f"mesh {v.fingerprints['mesh'][:8]} label {v.fingerprints['label'][:8]}"
+                        if v.fingerprints else "no manifest recorded")
+            print(f"{v.name:13s} {v.grid():42s} {recorded}\n{'':13s} {v.summary}")
         return 0
     if not args.data:
-        raise VersionError("--data DIR is required to build a version")
+        raise VersionError("--data DIR is required (the directory to build, check, pack or "
+                           "fetch into)")
     version = get(args.name)
-    report = build(version, args.data, workers=args.workers, scheduler=args.scheduler,
-                   quiet=args.quiet)
+    if args.record:
+        found = mf.build(args.data, version.name, stack())
+        with atomic_path(version.manifest_path) as tmp:
+            tmp.write_text(mf.dumps(found))
+        print(f"recorded {version.manifest_path}: mesh {found['fingerprints']['mesh']}, "
+              f"label {found['fingerprints']['label']}")
+        return 0
+    if (args.source or args.pack) and version.manifest is None:
+        raise VersionError(f"{version.name}: no manifest recorded, so nothing to verify against")
+    if args.source:
+        release.fetch(args.source, version.manifest, args.data, progress=not args.quiet)
+        report = {"version": version.name, "fetched": args.source, **check(version, args.data)}
+    elif args.check or args.pack:
+        report = {"version": version.name, **check(version, args.data)}
+    else:
+        report = build(version, args.data, workers=args.workers, scheduler=args.scheduler,
+                       quiet=args.quiet, shards=args.shards)
+    if report["matches_recorded"] and args.pack:
+        if "slice" in report:
+            raise VersionError(f"{args.data}: holds only a slice of {version.name}; pack a "
+                               f"whole build")
+        report["archive"] = str(release.pack(args.data, version.manifest, args.pack))
     print(json.dumps(report, indent=2))
     if report["matches_recorded"] is False:
-        raise VersionError(f"{args.data}: fingerprints differ from those recorded for "
-                           f"{version.name} (see docs/DATASETS.md)")
+        first = report["differences"][0]
+        hint = (f" (stack differs from the recorded one: {', '.join(report['stack_differs'])})"
+                if report["stack_differs"] else "")
+        raise VersionError(f"{args.data}: not {version.name} as recorded: {first}{hint}")
     return 0

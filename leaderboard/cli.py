@@ -6,7 +6,14 @@ import sys
 from argparse import RawDescriptionHelpFormatter
 from pathlib import Path
 
-from basic_shapes.infra import ArgumentParser, add_debug_flag, add_quiet_flag, cli_boundary, number
+from basic_shapes.infra import (
+    ArgumentParser,
+    add_debug_flag,
+    add_quiet_flag,
+    cli_boundary,
+    number,
+    separate_outputs,
+)
 from leaderboard.store import DEFAULT_ENTRIES
 
 EPILOG = """examples:
@@ -97,11 +104,16 @@ def build_parser() -> ArgumentParser:
 def run(args) -> None:
     if args.command == "submit":
         from leaderboard.submit import submit
+        separate_outputs({"--entries": args.entries},
+                         {"RESULTS": args.results, "--predictions": args.predictions,
+                          "--data": args.data})
         path = submit(args.results, args.predictions, args.data, args.entries, args.name, args.link,
                       unregistered=args.unregistered)
         print(f"accepted: {path}")
     elif args.command == "seed":
         from leaderboard.submit import seed
+        separate_outputs({"--entries": args.entries}, {"--from": args.from_dir,
+                                                       "--data": args.data})
         accepted, skipped, refused = seed(args.from_dir, args.data, args.entries, args.link,
                                           unregistered=args.unregistered,
                                           progress=not args.quiet)
@@ -117,6 +129,7 @@ def run(args) -> None:
                              f"{len(refused)} refused (first: {refused[0]})")
     elif args.command == "simulator":
         from leaderboard.simulator import record
+        separate_outputs({"--entries": args.entries}, {"--data": args.data})
         try:
             path = record(args.data, args.entries, args.ms_per_mesh, args.hardware)
         except ImportError as exc:
@@ -124,6 +137,7 @@ def run(args) -> None:
         print(f"recorded: {path}")
     elif args.command == "render":
         from leaderboard.render import render
+        separate_outputs({"--out": args.out}, {"--entries": args.entries})
         files = render(args.out, args.entries, warn=lambda msg: print(
             f"leaderboard render: warning: {msg}; entry skipped", file=sys.stderr))
         print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")

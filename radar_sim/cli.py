@@ -21,6 +21,7 @@ from basic_shapes.infra import (
     add_quiet_flag,
     cli_boundary,
     number,
+    separate_outputs,
 )
 from basic_shapes.shards import Shard, ShardError, find_object
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_mesh_labels
@@ -220,6 +221,7 @@ def cmd_plot(args) -> None:
     if (args.meshfile is None) == (args.data is None):
         raise SystemExit("plot needs a MESHFILE or --data DIR --object ID (one of the two)")
     source = args.meshfile or args.data
+    separate_outputs({"--out": args.out}, {"MESHFILE": args.meshfile, "--data": args.data})
     if not Path(source).exists():
         raise SystemExit(f"{source}: no such file or directory")
     if args.data is not None:

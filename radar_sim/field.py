@@ -18,9 +18,11 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import math
 
 import numpy as np
 
+from basic_shapes.portable import matmul
 from radar_sim import facet, po_kernel
 from radar_sim.geometry import Mesh, RayCaster, check_units, mode_of, prepare
 
@@ -131,9 +133,9 @@ class _Moments:
         self.k_mid = 0.5 * (float(k.min()) + float(k.max()))
         kappa = k - self.k_mid
         spread = float(np.abs(kappa).max())
-        h = 2.0 ** np.ceil(np.log2(2.0 * radius))           # one bin suffices without spread
+        h = 2.0 ** math.ceil(math.log2(2.0 * radius))           # one bin suffices without spread
         if spread > 0:
-            h = min(h, 2.0 ** np.floor(np.log2(2.0 / spread)))
+            h = min(h, 2.0 ** math.floor(math.log2(2.0 / spread)))
         best = None
         for _ in range(8):                        # eight widths, halving from x <= 2
             x = spread * h
@@ -151,7 +153,7 @@ class _Moments:
             self.terms, x = 0, 0.0
         self.b_min = -(self.n_bins // 2)
         self.width = self.n_bins * self.terms
-        self.phase_error = max(16.0, 2.0 * ((9.0 + 1.5 * x) * np.exp(x) + 1.0)) * facet.EPS
+        self.phase_error = max(16.0, 2.0 * ((9.0 + 1.5 * x) * math.exp(x) + 1.0)) * facet.EPS
         self.two_dk = _uniform_step(k) * 2.0
         step = 1j * kappa * self.h
         taylor = [np.ones_like(step)]
@@ -171,11 +173,11 @@ class _Moments:
     def contract(self, mom: np.ndarray) -> np.ndarray:
         """Σ_(b,m) mom[:, (b,m)] · matrix[(b,m), :]: the k⁻¹-weighted frequency sums."""
         if self._matrix is not None:
-            return mom @ self._matrix
+            return matmul(mom, self._matrix)
         out = np.zeros((len(mom), len(self.k)), dtype=np.complex128)
         for lo in range(0, self.n_bins, self.chunk):
             hi = min(lo + self.chunk, self.n_bins)
-            out += mom[:, lo * self.terms:hi * self.terms] @ self._block(lo, hi)
+            out += matmul(mom[:, lo * self.terms:hi * self.terms], self._block(lo, hi))
         return out
 
 
@@ -218,7 +220,7 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
 
 def _blocked(r: np.ndarray, geo: _Geometry, caster: RayCaster) -> np.ndarray:
     """(n_faces, n_dirs) uint8: 1 where a lit facet's centroid cannot see the radar."""
-    signed = geo.area @ r.T
+    signed = matmul(geo.area, r.T)
     lit = signed != 0 if geo.two_sided else signed > 0
     fi, bi = np.nonzero(lit)
     out = np.zeros(signed.shape, dtype=np.uint8)
@@ -288,10 +290,20 @@ class _PhaseSums:
     def weighted_channels(self, ph, w: np.ndarray) -> np.ndarray:
         """Σ_v w_c,v exp(j2k s_v) for several weight rows c over one batch row of phasors."""
         if not self.uniform:
-            return w @ ph[0]
+            return matmul(w, ph[0])
         pm, qm = ph
         x = pm[0][None] * w[:, None, :]                               # (c, p, V)
-        return np.matmul(x, qm[0].T[None]).reshape(len(w), -1)[:, :len(self.k)]
+        q_t = qm[0].T
+        return np.stack([matmul(xc, q_t) for xc in x]).reshape(len(w), -1)[:, :len(self.k)]
+
+
+def _powers(x: np.ndarray, n: int) -> np.ndarray:
+    """(n, ...) x^0 .. x^(n-1) by repeated products (numpy's ``**`` rounds by CPU model)."""
+    out = np.empty((n, *np.shape(x)))
+    out[0] = 1.0
+    for i in range(1, n):
+        out[i] = out[i - 1] * x
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -371,11 +383,11 @@ def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
             n = n * -np.sign(cos_in)[:, None]            # facing the incoming ray
             cos_in = np.abs(cos_in)
             if bounce == 1:
-                phase = point @ r
+                phase = matmul(point, r)
             else:
                 phase = phase - np.einsum("ij,ij->i", point - previous, d)   # path along d
                 _radiate(out[i], k, r, point, n, d, field, tube_a, tube_b, cos_in,
-                         phase + point @ r, spacing, caster)
+                         phase + matmul(point, r), spacing, caster)
             d = d + 2.0 * cos_in[:, None] * n
             field = -field + 2.0 * np.einsum("ij,ij->i", n, field)[:, None] * n
             tube_a = tube_a - 2.0 * np.einsum("ij,ij->i", tube_a, n)[:, None] * n
@@ -396,7 +408,7 @@ def _radiate(out, k, r, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing
         x[seen] for x in (point, n, d, field, tube_a, tube_b, cos_in, phi))
     e = polarization(r[None, :])[0]
     current = np.cross(n, np.cross(d, field))
-    amp = (current @ e) * spacing ** 2 / cos_in
+    amp = matmul(current, e) * spacing ** 2 / cos_in
     q = r - d                                            # phase slope per unit k
     # tube axes projected along d onto the facet plane: a + d (n·a)/|n·d|
     along_a = tube_a + d * (np.einsum("ij,ij->i", tube_a, n) / cos_in)[:, None]
@@ -409,17 +421,18 @@ def _radiate(out, k, r, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing
     if series.any():
         a2, b2 = alpha[series] ** 2, beta[series] ** 2
         coef = np.zeros((SINC_TERMS, int(series.sum())))
+        a_pow, b_pow = _powers(a2, SINC_TERMS), _powers(b2, SINC_TERMS)
         for i in range(SINC_TERMS):
             for j in range(SINC_TERMS - i):
-                coef[i + j] += _SINC[i] * _SINC[j] * a2 ** i * b2 ** j
+                coef[i + j] += _SINC[i] * _SINC[j] * a_pow[i] * b_pow[j]
         sums = _PhaseSums(k)
         per_power = sums.weighted_channels(sums.phasors(0.5 * phi[series][None, :]),
                                            coef * (amp[series] / facet.SQRT_PI))
-        out += np.sum(per_power * k ** (1 + 2 * np.arange(SINC_TERMS))[:, None], axis=0)
+        out += np.sum(per_power * _powers(k, 2 * SINC_TERMS)[1::2], axis=0)
     rest = np.flatnonzero(~series)                       # wide footprints: per frequency
     for start in range(0, len(rest), SBR_CHUNK):
         sl = rest[start:start + SBR_CHUNK]
         kk = k[None, :]
         term = (np.sinc(kk * alpha[sl, None] / np.pi) * np.sinc(kk * beta[sl, None] / np.pi)
                 * facet.cis(kk * phi[sl, None]))
-        out += (k / facet.SQRT_PI) * (amp[sl] @ term)
+        out += (k / facet.SQRT_PI) * matmul(amp[sl], term)

@@ -25,6 +25,7 @@ from basic_shapes.meshcheck import (  # MeshError is raised here too and re-expo
     signed_volume,
     weld,
 )
+from basic_shapes.portable import matmul
 
 EPS = np.finfo(np.float64).eps
 CONVEX_TOL = 1e-4          # relative to the bounding radius: flat within float32 noise
@@ -191,14 +192,14 @@ def reflected_fraction(mesh: Mesh, caster: RayCaster | None = None, n_probe: int
     normals = area / twice[:, None]
     hit_area = lit_area = 0.0
     for r in fibonacci_directions(n_probe):
-        proj = area @ r
+        proj = matmul(area, r)
         lit = proj > 0 if mesh.closed else proj != 0
         idx = np.flatnonzero(lit)
         n = normals[idx] * np.sign(proj[idx])[:, None]
         p = np.abs(proj[idx])
         shadow = caster.occluded(centroids[idx], np.broadcast_to(r, n.shape), n)
         idx, n, p = idx[~shadow], n[~shadow], p[~shadow]
-        reflected = -r + 2.0 * (n @ r)[:, None] * n
+        reflected = -r + 2.0 * matmul(n, r)[:, None] * n
         face, distance = caster.intersect(centroids[idx], reflected, n)
         lit_area += p.sum()
         hit_area += p[(face >= 0) & (distance > SEE_DISTANCE * mesh.radius)].sum()

@@ -30,6 +30,7 @@ import numpy as np
 
 from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
 from basic_shapes.cluster import dask_client
+from basic_shapes.infra import warn
 from basic_shapes.shards import Shard, atomic_path, list_shards, rewrite_atomically, write_radar
 from radar_sim.field import MODES
 
@@ -186,9 +187,12 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
             stored = {"config": radar.config, "options": radar.options,
                       "simulation_rule": radar.simulation_rule}
             differ = _differences(stored, request.attrs())
-            if not differ:
+            if not differ and radar.computed_fingerprint() == radar.fingerprint:
                 return None
-            if not overwrite:
+            if not differ:  # the same request, but the stored labels were edited: redo them
+                warn(f"{path}: stored labels do not match their fingerprint (edited or "
+                     f"corrupted); labelling the shard again")
+            elif not overwrite:
                 raise LabelError(f"{path}: already labelled, with different radar "
                                  f"{' and '.join(differ)} (stored options: "
                                  f"{json.dumps(stored['options'])}); pass --overwrite to relabel")

@@ -123,8 +123,10 @@ def test_radar_round_trip_and_fingerprint(tmp_path):
         assert list(r.mesh_index) == [0, 2] and r.mesh_modes == ["convex", "convex"]
         np.testing.assert_array_equal(r.mesh_response(1), resp[1])
         assert not r.has_frequency_response and r.config == {"name": "t"}
-        # sha256 over config, rule and the label bytes, written independently here
-        h = hashlib.sha256(b'{"name": "t"}\0{"rule": 1}\0' + resp.tobytes()).hexdigest()
+        # sha256 over config, rule, the label bytes and the per-mesh physics (its rows, then
+        # its responses), written independently here
+        h = hashlib.sha256(b'{"name": "t"}\0{"rule": 1}\0' + resp.tobytes() + b"\0mesh\0"
+                           + np.array([0, 2], np.int64).tobytes() + resp[:2].tobytes()).hexdigest()
         assert r.fingerprint == r.computed_fingerprint() == h
     assert label_fingerprint(tmp_path) == hashlib.sha256(h.encode()).hexdigest()
     again = _labelled(tmp_path / "again.h5", resp)

@@ -1,0 +1,177 @@
+"""Dataset manifests: what a dataset version's bytes are, shard by shard and object by object.
+
+A manifest proves a build (docs/DATASETS.md, "Manifests"). It holds, per shard, the file's
+sha256 and its mesh and label fingerprints, and per object short hashes of its record
+(class, scale, seed, split, hidden parameters), of each mesh's vertices, faces and record, of its
+label and of any stored per-mesh physics. ``compare`` walks a directory against it and names
+the first shard, object and mesh that differ and which data (a mesh's "record" is its
+generator parameters and measured distances): a rebuild that does not match
+says where. Hashes are of array bytes (dtype and C order fixed by the shard format), so they
+do not depend on the HDF5 library that wrote the file; the file hashes do, and are what a
+release archive is checked against.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from basic_shapes.infra import load_json
+from basic_shapes.shards import Shard, ShardError, content_fingerprint, list_shards
+
+FORMAT = 1
+SHORT = 16  # hex digits of the per-object and per-mesh hashes: enough to tell which differs
+
+
+def _short(*arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:SHORT]
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _shard_entry(path: Path) -> dict:
+    """One shard's entry, from its content: fingerprints recomputed, not read back, so an
+    edit shows as the object and mesh it touched even where the stored fingerprint was kept."""
+    with Shard(path) as s:
+        objs, table = s.objects(), s.mesh_table()
+        labels = s.radar if s.has_labels else None
+        physics = {} if labels is None else {int(r): j for j, r in enumerate(labels.mesh_index)}
+        params = s.file["objects/params"][()] if "objects/params" in s.file else None
+        g = s.file["meshes"]
+        measured = [g[n][()] for n in ("hausdorff", "primitive_distance", "params") if n in g]
+        objects = []
+        for k in range(s.n_objects):
+            record = [objs["id"][k], objs["class"][k], objs["scale"][k], objs["seed"][k],
+                      np.bytes_(objs["split"][k])]
+            if params is not None:
+                record.append(np.bytes_(params[k]))
+            meshes = []
+            for i in np.flatnonzero(table["object_index"] == k):
+                v, f = s.mesh(int(i))
+                mesh = {"variant": int(table["variant"][i]), "vertices": _short(v),
+                        "faces": _short(f),
+                        "record": _short(*(np.bytes_(m[i]) if m.dtype.kind == "O" else m[i]
+                                           for m in measured))}
+                if int(i) in physics:
+                    mesh["physics"] = _short(labels.mesh_response(physics[int(i)]))
+                meshes.append(mesh)
+            entry = {"id": int(objs["id"][k]), "record": _short(*record), "meshes": meshes}
+            if labels is not None:
+                entry["label"] = _short(labels.response(k))
+            objects.append(entry)
+        entry = {"name": path.name, "sha256": file_sha256(path),
+                 "fingerprint": content_fingerprint(s.file),
+                 "label_fingerprint": labels.computed_fingerprint() if labels else None,
+                 "objects": objects}
+        stored = (s.fingerprint, labels.fingerprint if labels else None)
+        if stored != (entry["fingerprint"], entry["label_fingerprint"]):
+            entry["stored_fingerprints_differ"] = True
+        return entry
+
+
+def build(directory: str | os.PathLike, version: str | None = None,
+          stack: dict | None = None) -> dict:
+    """The manifest of a dataset directory. Its mesh and label fingerprints are those of
+    ``shards.dataset_fingerprint`` and ``label_fingerprint``, computed from the content."""
+    shards = [_shard_entry(p) for p in list_shards(directory)]
+    labelled = all(s["label_fingerprint"] for s in shards)
+    config = Path(directory) / "dataset.json"
+    return {"format": FORMAT, "version": version, "stack": stack or {},
+            "config": load_json(config, max_bytes=1 << 16, error=ShardError)
+            if config.exists() else None,
+            "fingerprints": {"mesh": _combined(s["fingerprint"] for s in shards),
+                             "label": _combined(s["label_fingerprint"] for s in shards)
+                             if labelled else None},
+            "shards": shards}
+
+
+def _combined(fingerprints) -> str:
+    h = hashlib.sha256()
+    for fp in fingerprints:
+        h.update(fp.encode())
+    return h.hexdigest()
+
+
+def dumps(manifest: dict) -> str:
+    """One line per object, so a diff of two manifests reads object by object."""
+    head = {k: v for k, v in manifest.items() if k != "shards"}
+    lines = ["{" + json.dumps(head, sort_keys=True)[1:-1] + ', "shards": [']
+    for si, shard in enumerate(manifest["shards"]):
+        meta = {k: v for k, v in shard.items() if k != "objects"}
+        lines.append("  {" + json.dumps(meta, sort_keys=True)[1:-1] + ', "objects": [')
+        rows = [f"    {json.dumps(o, sort_keys=True)}" for o in shard["objects"]]
+        lines.append(",\n".join(rows))
+        lines.append("  ]}" + ("," if si < len(manifest["shards"]) - 1 else ""))
+    lines.append("]}")
+    return "\n".join(lines) + "\n"
+
+
+def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
+    """Where ``found`` (a manifest of a directory) differs from ``expected``: shard, object,
+    mesh and data, first difference first; [] when they agree (file hashes aside)."""
+    out: list[str] = []
+    names_e = [s["name"] for s in expected["shards"]]
+    names_f = [s["name"] for s in found["shards"]]
+    if names_e != names_f:
+        missing = sorted(set(names_e) - set(names_f))
+        extra = sorted(set(names_f) - set(names_e))
+        out.append(f"shards differ: missing {missing[:3]}, unexpected {extra[:3]}")
+    for se, sf in zip(expected["shards"], found["shards"]):
+        if se["name"] != sf["name"]:
+            continue
+        where = se["name"]
+        if len(se["objects"]) != len(sf["objects"]):
+            out.append(f"{where}: {len(sf['objects'])} objects, expected {len(se['objects'])}")
+            continue
+        for oe, of in zip(se["objects"], sf["objects"]):
+            obj = f"{where} object {oe['id']}"
+            if oe["id"] != of["id"]:
+                out.append(f"{obj}: found object {of['id']} in its place")
+                continue
+            if oe["record"] != of["record"]:
+                out.append(f"{obj}: record differs (class, scale, seed, split or parameters)")
+            variants_e = [m["variant"] for m in oe["meshes"]]
+            variants_f = [m["variant"] for m in of["meshes"]]
+            if variants_e != variants_f:
+                out.append(f"{obj}: variants {variants_f}, expected {variants_e}")
+            else:
+                for me, mf in zip(oe["meshes"], of["meshes"]):
+                    data = [k for k in ("vertices", "faces", "record", "physics")
+                            if me.get(k) != mf.get(k)]
+                    if data:
+                        out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} "
+                                   f"differ")
+            if oe.get("label") != of.get("label"):
+                out.append(f"{obj}: label differs")
+        if sf.get("stored_fingerprints_differ"):
+            out.append(f"{where}: content does not match its stored fingerprints (edited)")
+            if len(out) >= limit:
+                return out
+        if not out and se["label_fingerprint"] != sf["label_fingerprint"]:
+            out.append(f"{where}: label fingerprint differs (radar config or simulation rule)")
+    if not out:
+        for kind in ("mesh", "label"):
+            if expected["fingerprints"].get(kind) != found["fingerprints"].get(kind):
+                out.append(f"{kind} fingerprint differs")
+    return out[:limit]
+
+
+def load(path: str | os.PathLike) -> dict:
+    manifest = load_json(Path(path), max_bytes=1 << 28, error=ShardError)
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT or \
+            not isinstance(manifest.get("shards"), list):
+        raise ShardError(f"{path}: not a dataset manifest of format {FORMAT}")
+    return manifest

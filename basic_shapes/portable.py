@@ -1,0 +1,101 @@
+"""Arithmetic whose bytes do not depend on the CPU, for every number a dataset stores.
+
+Two things in the scientific stack round differently from one machine to the next:
+
+- numpy's float64 ``exp``, ``log``, ``tan``, ``power``, ``arctan2`` and most other
+  transcendental loops switch to SVML kernels on AVX-512 hosts (numpy 1.26), so
+  ``np.exp(x)`` on an AVX-512 EPYC differs in the last bit from the same call on a Zen 3;
+- BLAS (``@``, ``np.dot``, ``np.linalg``) picks its kernel, and with it the summation order
+  and the use of FMA, by CPU model and by thread count (OpenBLAS ``SkylakeX`` vs ``Haswell``
+  kernels, 1 vs 2 threads: different bits).
+
+Code that computes stored numbers (scales, meshes, labels) calls these instead: the C
+library's functions element by element (``math``: one glibc, the same bits on every x86-64
+host), and matrix products summed in one fixed order (compiled, no fast-math, so the
+compiler may vectorize across outputs but never reorders a sum). ``tests/test_rebuild.py``
+builds a slice of a dataset under an emulated foreign CPU and compares every hash.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+def _elementwise(fn):
+    ufunc = np.frompyfunc(fn, 1, 1)
+
+    def apply(x):
+        x = np.asarray(x, dtype=np.float64)
+        if x.ndim == 0:
+            return np.float64(fn(float(x)))
+        # each distinct value once: grids and lattices repeat a few coordinates many times
+        values, inverse = np.unique(x, return_inverse=True)
+        return ufunc(values).astype(np.float64)[inverse].reshape(x.shape)
+
+    apply.__name__ = fn.__name__
+    apply.__doc__ = f"``math.{fn.__name__}`` element by element (float64, same shape)."
+    return apply
+
+
+exp = _elementwise(math.exp)
+log = _elementwise(math.log)
+tan = _elementwise(math.tan)
+
+
+def norm(x) -> float:
+    """Euclidean length of a 1-D vector, summed in index order (``np.linalg.norm`` of a
+    vector is a BLAS dot product)."""
+    return math.sqrt(math.fsum(float(v) * float(v) for v in np.ravel(x)))
+
+
+def matmul(a, b) -> np.ndarray:
+    """``a @ b`` for 2-D float64 or complex128 arrays (a 1-D ``b`` is a column), each output
+    summed over the inner index in increasing order."""
+    a, b = np.asarray(a), np.asarray(b)
+    vector = b.ndim == 1
+    b2 = b[:, None] if vector else b
+    if a.ndim != 2 or b2.ndim != 2 or a.shape[1] != b2.shape[0]:
+        raise ValueError(f"matmul: shapes {a.shape} and {b.shape} do not chain")
+    if np.iscomplexobj(a) or np.iscomplexobj(b2):
+        a, b2 = a.astype(np.complex128), b2.astype(np.complex128)
+        re = np.zeros((a.shape[0], b2.shape[1]))
+        im = np.zeros_like(re)
+        _matmul_complex(np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag),
+                        np.ascontiguousarray(b2.real), np.ascontiguousarray(b2.imag), re, im)
+        out = re + 1j * im
+    else:
+        out = np.zeros((a.shape[0], b2.shape[1]))
+        _matmul_real(np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b2, np.float64),
+                     out)
+    return out[:, 0] if vector else out
+
+
+@njit(cache=True)
+def _matmul_real(a, b, out):  # pragma: no cover - compiled
+    n, m = a.shape
+    k = b.shape[1]
+    for i in range(n):
+        for p in range(m):
+            x = a[i, p]
+            if x == 0.0:
+                continue  # adds +0 or -0 to a sum that is never -0: nothing changes
+            for j in range(k):
+                out[i, j] += x * b[p, j]
+
+
+@njit(cache=True)
+def _matmul_complex(a_re, a_im, b_re, b_im, re, im):  # pragma: no cover - compiled
+    n, m = a_re.shape
+    k = b_re.shape[1]
+    for i in range(n):
+        for p in range(m):
+            xr = a_re[i, p]
+            xi = a_im[i, p]
+            if xr == 0.0 and xi == 0.0:
+                continue
+            for j in range(k):
+                re[i, j] += xr * b_re[p, j] - xi * b_im[p, j]
+                im[i, j] += xr * b_im[p, j] + xi * b_re[p, j]

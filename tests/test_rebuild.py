@@ -1,0 +1,212 @@
+"""A recorded dataset version rebuilds byte for byte on another machine, or says where not.
+
+``tiny-v1`` is a slice of everything a version holds: objects of every class, OOD meshes of
+every remesher, labels. It is built here in fresh processes, once natively and once under an
+emulated foreign CPU (numpy's AVX-512 loops off, OpenBLAS's Haswell kernels on one thread,
+numba compiling for a generic x86-64, a different worker count and memory layout), and both
+builds must equal the committed manifest (benchmark/manifests/tiny-v1.json) in every hash.
+The old code failed exactly this: its scales came from numpy's exp, whose AVX-512 loop
+rounds differently, and its labels from BLAS.
+
+Then the release path: pack the build, serve it on the loopback address, fetch it, and
+refuse corrupted and foreign archives in one line with nothing left behind.
+"""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+import threading
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from basic_shapes import manifest as mf
+from benchmark import versions
+
+FOREIGN_CPU = {
+    "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "
+                                "AVX512_SPR",
+    "OPENBLAS_CORETYPE": "Haswell",
+    "OPENBLAS_NUM_THREADS": "1",
+    "NUMBA_CPU_NAME": "generic",
+}
+
+
+def dataset_cli(*args, env=None, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "benchmark.cli", "dataset", *args],
+                          capture_output=True, text=True, env={**os.environ, **(env or {})},
+                          cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    """tiny-v1 built natively on 2 workers (fresh processes)."""
+    data = tmp_path_factory.mktemp("tiny") / "tiny-v1"
+    proc = dataset_cli("tiny-v1", "--data", str(data), "--workers", "2", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["matches_recorded"] is True, report["differences"]
+    assert report["mesh"] == versions.get("tiny-v1").fingerprints["mesh"]
+    return data
+
+
+def test_tiny_v1_is_a_slice_of_everything(tiny):
+    """Every class, test objects with OOD meshes of all three remeshers, and labels."""
+    expected = versions.get("tiny-v1").manifest
+    variants = {m["variant"] for s in expected["shards"] for o in s["objects"]
+                for m in o["meshes"]}
+    assert {0, 1, 2} <= variants
+    assert {v // 25 for v in variants if v >= 900} == {36, 37, 38}   # isotropic, qem, delaunay
+    assert all("label" in o for s in expected["shards"] for o in s["objects"])
+
+
+def test_rebuild_under_a_foreign_cpu_matches_the_manifest(tmp_path):
+    """Another CPU's arithmetic, one worker, another memory layout: the same bytes."""
+    data = tmp_path / "foreign"
+    env = {**FOREIGN_CPU, "PADDING": "x" * 4099}   # moves the stack and environment
+    setarch = shutil.which("setarch")
+    cmd = [sys.executable, "-m", "benchmark.cli", "dataset", "tiny-v1", "--data", str(data),
+           "--workers", "1", "--quiet"]
+    if setarch and subprocess.run([setarch, "x86_64", "-R", "true"]).returncode == 0:
+        cmd = [setarch, "x86_64", "-R", *cmd]   # no address randomization at all
+    proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env})
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["matches_recorded"] is True, report["differences"]
+
+
+def test_check_names_the_altered_mesh(tiny, tmp_path):
+    """One vertex moved by one float32 ulp (fingerprint kept): --check names shard, object,
+    variant and that the vertices differ, exit 1, one line on stderr."""
+    data = tmp_path / "altered"
+    shutil.copytree(tiny, data)
+    shard = data / "shard-00000.h5"
+    with h5py.File(shard, "r+") as f:
+        oi, var = f["meshes/object_index"][()], f["meshes/variant"][()]
+        row = int(np.flatnonzero((oi == 2) & (var == 1))[0])
+        start = int(f["meshes/vertex_offset"][row])
+        v = f["meshes/vertices"][start]
+        f["meshes/vertices"][start] = np.nextafter(v, np.float32(np.inf))
+    proc = dataset_cli("tiny-v1", "--check", "--data", str(data))
+    assert proc.returncode == 1
+    error = proc.stderr.strip()
+    assert error.count("\n") == 0
+    object_id = versions.get("tiny-v1").manifest["shards"][0]["objects"][2]["id"]
+    assert f"shard-00000.h5 object {object_id} mesh variant 1: vertices differ" in error
+    report = json.loads(proc.stdout)
+    assert report["matches_recorded"] is False
+    assert any("stored fingerprints" in d for d in report["differences"])
+
+
+def test_check_names_an_altered_label(tiny, tmp_path):
+    data = tmp_path / "relabelled"
+    shutil.copytree(tiny, data)
+    with h5py.File(data / "shard-00000.h5", "r+") as f:
+        f["radar/response"][1] = f["radar/response"][1] * np.complex64(10)
+    proc = dataset_cli("tiny-v1", "--check", "--data", str(data))
+    assert proc.returncode == 1
+    object_id = versions.get("tiny-v1").manifest["shards"][0]["objects"][1]["id"]
+    assert f"object {object_id}: label differs" in proc.stderr
+
+
+class _Quiet(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture
+def server(tmp_path):
+    """A static HTTP server on the loopback address, serving ``tmp_path/www``."""
+    root = tmp_path / "www"
+    root.mkdir()
+    httpd = http.server.ThreadingHTTPServer(
+        ("127.0.0.1", 0), functools.partial(_Quiet, directory=str(root)))
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    yield root, f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+    httpd.server_close()
+
+
+def test_pack_then_fetch_over_http_gives_the_recorded_bytes(tiny, server, tmp_path):
+    root, url = server
+    proc = dataset_cli("tiny-v1", "--pack", str(root / "tiny-v1.tar"), "--data", str(tiny))
+    assert proc.returncode == 0, proc.stderr
+    target = tmp_path / "fetched"
+    proc = dataset_cli("tiny-v1", "--from", f"{url}/tiny-v1.tar", "--data", str(target),
+                       "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["matches_recorded"] is True
+    assert report["mesh"] == versions.get("tiny-v1").fingerprints["mesh"]
+    recorded = versions.get("tiny-v1").manifest
+    for shard in recorded["shards"]:
+        assert mf.file_sha256(target / shard["name"]) == shard["sha256"]
+    # packing is deterministic: the same directory gives the same archive bytes
+    again = dataset_cli("tiny-v1", "--pack", str(tmp_path / "again.tar"), "--data", str(target))
+    assert again.returncode == 0
+    assert mf.file_sha256(tmp_path / "again.tar") == mf.file_sha256(root / "tiny-v1.tar")
+
+
+def _tar(path: Path, members: dict[str, bytes]) -> None:
+    with tarfile.open(path, "w") as tar:
+        for name, data in members.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+
+
+def test_corrupted_and_foreign_archives_are_refused(tiny, server, tmp_path):
+    root, url = server
+    good = root / "good.tar"
+    assert dataset_cli("tiny-v1", "--pack", str(good), "--data", str(tiny)).returncode == 0
+    with tarfile.open(good) as tar:
+        members = {m.name: tar.extractfile(m).read() for m in tar.getmembers()}
+    shard = bytearray(members["shard-00000.h5"])
+    shard[len(shard) // 2] ^= 0x01                      # one flipped bit in the shard
+    _tar(root / "flipped.tar", {**members, "shard-00000.h5": bytes(shard)})
+    _tar(root / "foreign.tar", {"notes.txt": b"hello"})
+    _tar(root / "escape.tar", {**members, "../evil.h5": b"x"})
+    (root / "truncated.tar").write_bytes(good.read_bytes()[:5000])
+    cases = {"flipped.tar": "does not match the sha256", "foreign.tar": "unexpected member",
+             "escape.tar": "unexpected member", "truncated.tar": "tar",
+             "missing.tar": "cannot download"}
+    for name, message in cases.items():
+        target = tmp_path / f"out-{name}"
+        proc = dataset_cli("tiny-v1", "--from", f"{url}/{name}", "--data", str(target),
+                           "--quiet")
+        assert proc.returncode == 1, name
+        assert message in proc.stderr and proc.stderr.strip().count("\n") == 0, proc.stderr
+        assert not target.exists(), name
+        assert not any(p.name.startswith(".out-") for p in tmp_path.iterdir()), name
+    assert not (tmp_path / "evil.h5").exists()
+
+
+def test_fetch_refuses_a_directory_that_holds_data(tiny, tmp_path):
+    target = tmp_path / "busy"
+    target.mkdir()
+    (target / "keep.txt").write_text("mine")
+    proc = dataset_cli("tiny-v1", "--from", str(tmp_path / "none.tar"), "--data", str(target))
+    assert proc.returncode == 1 and "not empty" in proc.stderr
+    assert (target / "keep.txt").read_text() == "mine"
+
+
+def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
+    """--shards builds only some shards; they are checked against those of the manifest."""
+    data = tmp_path / "slice"
+    proc = dataset_cli("tiny-v1", "--data", str(data), "--shards", "0", "--workers", "0",
+                       "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["matches_recorded"] is True
+    proc = dataset_cli("tiny-v1", "--data", str(tmp_path / "x"), "--shards", "7", "--quiet")
+    assert proc.returncode == 1 and "shard 7 does not exist" in proc.stderr
