@@ -10,7 +10,7 @@ from pathlib import Path
 
 import trimesh
 
-from basic_shapes.shards import find_object, iter_objects
+from basic_shapes.shards import dataset_fingerprint, find_object, iter_objects
 
 
 def export(directory: str | Path, out: str | Path, fmt: str, object_id: int | None = None) -> int:
@@ -22,6 +22,8 @@ def export(directory: str | Path, out: str | Path, fmt: str, object_id: int | No
 
         return export_g2s(directory, out)
     out = Path(out)
+    if object_id is None:
+        dataset_fingerprint(directory)  # every shard verified before the first file is written
     objects = ([find_object(directory, object_id)] if object_id is not None
                else iter_objects(directory))
     n = 0

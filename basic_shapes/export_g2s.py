@@ -157,6 +157,8 @@ def export_g2s(directory: str | Path, out: str | Path) -> int:
             if not s.has_labels:
                 raise ShardError(f"{p}: has no radar labels; run `radar-sim label` first")
             s.radar  # noqa: B018 - reading it refuses a malformed /radar before any write
+            s.verify()
+            s.verify_labels()
     out = Path(out)
     targets = [out / (p.stem + ".nc") for p in paths]
     if out.is_dir():

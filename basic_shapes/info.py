@@ -9,7 +9,6 @@ import numpy as np
 
 from basic_shapes.shards import (
     Shard,
-    ShardError,
     dataset_fingerprint,
     is_ood_variant,
     label_fingerprint,
@@ -30,10 +29,11 @@ def _histogram(n_faces: np.ndarray) -> list[str]:
 
 def _labels(directory) -> str:
     """The dataset's label fingerprint and radar config, or why there is none."""
-    try:
-        fingerprint = label_fingerprint(directory)
-    except ShardError:
-        return "(not every shard is labelled: run `radar-sim label`)"
+    for p in list_shards(directory):
+        with Shard(p) as s:
+            if not s.has_labels:
+                return "(not every shard is labelled: run `radar-sim label`)"
+    fingerprint = label_fingerprint(directory)  # refuses labels edited since they were stored
     with Shard(list_shards(directory)[0]) as s:
         return f"{fingerprint} (radar config {s.radar.config.get('name')!r})"
 
@@ -42,6 +42,7 @@ def summary(directory: str | Path) -> str:
     per_class = defaultdict(lambda: {"objects": 0, "train": 0, "val": 0, "test": 0, "faces": [],
                                      "hausdorff": [], "labelled": 0, "ood": 0})
     shards = list_shards(directory)
+    mesh_fingerprint = dataset_fingerprint(directory)  # every shard verified before reporting
     config = None
     for p in shards:
         with Shard(p) as s:
@@ -62,9 +63,9 @@ def summary(directory: str | Path) -> str:
                 per_class[names[c]]["faces"].append(table["n_faces"][sel])
                 complex_ = sel & (table["variant"] > 0)
                 per_class[names[c]]["hausdorff"].append(table["hausdorff"][complex_])
-    lines = [f"dataset {directory}: {len(shards)} shards, seed {config['seed']}, "
-             f"{config['variants']} complex variants per object",
-             f"mesh fingerprint  {dataset_fingerprint(directory)}",
+    lines = [f"dataset {directory}: {len(shards)} shards, seed {config.get('seed', '?')}, "
+             f"{config.get('variants', '?')} complex variants per object",
+             f"mesh fingerprint  {mesh_fingerprint}",
              f"label fingerprint {_labels(directory)}"]
     for name, d in per_class.items():
         faces = np.concatenate(d["faces"])

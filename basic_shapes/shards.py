@@ -224,6 +224,12 @@ class Shard:
         if content_fingerprint(self.file) != self.fingerprint:
             self._fail("content does not match its stored fingerprint (edited or corrupted)")
 
+    def verify_labels(self) -> None:
+        """The labels (/radar) against their stored fingerprint, where there are labels."""
+        if self.has_labels and self.radar.computed_fingerprint() != self.radar.fingerprint:
+            self._fail("labels (/radar) do not match their stored fingerprint (edited or "
+                       "corrupted); relabel with radar-sim label")
+
     def close(self) -> None:
         self.file.close()
 
@@ -342,11 +348,8 @@ def label_fingerprint(directory: str | os.PathLike) -> str:
     h = hashlib.sha256()
     for p in list_shards(directory):
         with Shard(p) as s:
-            labels = s.radar
-            if labels.computed_fingerprint() != labels.fingerprint:
-                raise ShardError(f"{p}: labels (/radar) do not match their stored fingerprint "
-                                 f"(edited or corrupted); relabel with radar-sim label "
-                                 f"--overwrite")
+            labels = s.radar  # ShardError if unlabelled
+            s.verify_labels()
             h.update(labels.fingerprint.encode())
     return h.hexdigest()
 
@@ -369,6 +372,7 @@ def iter_objects(directory: str | os.PathLike, split: str | None = None):
         raise ValueError(f"split must be one of {', '.join(SPLITS)} (or None), got {split!r}")
     for p in list_shards(directory):
         with Shard(p) as s:
+            s.verify()  # readers never hand out a mesh whose bytes were changed
             objs = s.objects()
             oi = s.file["meshes/object_index"][()]
             var = s.file["meshes/variant"][()]
@@ -384,6 +388,8 @@ def find_object(directory: str | os.PathLike, object_id: int):
             ids = s.file["objects/id"][()]
             hit = np.flatnonzero(ids == object_id)
             if len(hit):
+                s.verify()
+                s.verify_labels()
                 oi = s.file["meshes/object_index"][()]
                 var = s.file["meshes/variant"][()]
                 return (p, *_object(s, s.objects(), int(hit[0]), oi, var))

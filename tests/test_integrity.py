@@ -1,0 +1,134 @@
+"""Every hash is checked where its data is trusted, and no command overwrites its inputs.
+
+A flipped bit in a shard's meshes (fingerprint kept) or a scaled label is refused by every
+reader: scoring, info, export, show, radar-sim plot; `radar-sim label` redoes tampered labels
+instead of skipping the shard as done. Outputs that name an input, lie inside the dataset or
+name each other are refused by the parser's rules (exit 2) before any work. Training flags out
+of range are refused by the parser too.
+"""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, label_fingerprint
+from benchmark.protocol import MeanResponseModel
+from benchmark_fixture import make_dataset
+from test_hostile import cli
+
+
+@pytest.fixture
+def data(tmp_path):
+    return make_dataset(tmp_path / "data", objects_per_class=2, n_test_per_class=1)
+
+
+def flip_vertex(directory, shard="shard-00000.h5", row=3):
+    with h5py.File(directory / shard, "r+") as f:
+        v = f["meshes/vertices"][row]
+        f["meshes/vertices"][row] = np.nextafter(v, np.float32(np.inf))
+
+
+def scale_labels(directory, shard="shard-00000.h5", factor=10):
+    with h5py.File(directory / shard, "r+") as f:
+        f["radar/response"][0] = f["radar/response"][0] * np.complex64(factor)
+
+
+def test_fingerprints_refuse_edited_content(data):
+    mesh, labels = dataset_fingerprint(data), label_fingerprint(data)
+    scale_labels(data)
+    assert dataset_fingerprint(data) == mesh          # the meshes did not change
+    with pytest.raises(ShardError, match="labels .* do not match"):
+        label_fingerprint(data)
+    flip_vertex(data)
+    with pytest.raises(ShardError, match="does not match its stored fingerprint"):
+        dataset_fingerprint(data)
+    assert labels
+
+
+def test_every_array_of_an_object_is_in_the_mesh_fingerprint(data):
+    """object_index, params, hausdorff: none of them can change unnoticed (issue 20)."""
+    for name in ("meshes/object_index", "objects/params", "meshes/hausdorff", "objects/seed"):
+        copy = data.parent / name.replace("/", "-")
+        import shutil
+
+        shutil.copytree(data, copy)
+        with h5py.File(copy / "shard-00000.h5", "r+") as f:
+            d = f[name]
+            if d.dtype.kind == "O":
+                d[0] = b'{"x": 1}'
+            else:
+                d[0] = d[0] + 1
+        with Shard(copy / "shard-00000.h5") as s, pytest.raises(ShardError):
+            s.verify()
+
+
+def test_scoring_refuses_tampered_labels(data, tmp_path):
+    scale_labels(data)
+    cli("benchmark", "evaluate", "--data", data, "--model",
+        f"benchmark.protocol:{MeanResponseModel.__name__}", "--model-arg", f"data_dir={data}",
+        "--out", tmp_path / "r.json", phrase="do not match their stored fingerprint",
+        watch=[data, tmp_path])
+
+
+@pytest.mark.parametrize("tool, args", [
+    ("basic-shapes", ("info", "--data", "{data}")),
+    ("basic-shapes", ("export", "--data", "{data}", "--format", "obj", "--out", "{out}")),
+    ("basic-shapes", ("export", "--data", "{data}", "--format", "g2s", "--out", "{out}")),
+    ("basic-shapes", ("show", "--data", "{data}", "--object", "0", "--out", "{tmp}/s.png")),
+    ("radar-sim", ("plot", "--data", "{data}", "--object", "0", "--out", "{tmp}/r.png")),
+])
+def test_readers_refuse_a_flipped_vertex(data, tmp_path, tool, args):
+    flip_vertex(data)
+    out = tmp_path / "out"
+    module = tool.replace("-", "_") if tool != "radar-sim" else "radar_sim"
+    cli(module, *(a.format(data=data, out=out, tmp=tmp_path) for a in args),
+        phrase="does not match its stored fingerprint", watch=[data, tmp_path])
+    assert not out.exists() and not list(tmp_path.glob("*.png"))
+
+
+@pytest.mark.parametrize("tool, args, phrase", [
+    ("benchmark", ("evaluate", "--data", "{data}", "--predictions", "{p}", "--out", "{p}"),
+     "--out {p} would overwrite the input --predictions"),
+    ("benchmark", ("evaluate", "--data", "{data}", "--predictions", "{p}", "--out",
+                   "{data}/shard-00000.h5"), "would overwrite the input --data"),
+    ("benchmark", ("evaluate", "--data", "{data}", "--model", "m:M", "--out", "{x}",
+                   "--write-predictions", "{x}"), "name the same path"),
+    ("benchmark", ("train", "--data", "{data}", "--out", "{data}/ckpt"),
+     "would overwrite the input --data"),
+    ("basic_shapes", ("export", "--data", "{data}", "--format", "obj", "--out", "{data}"),
+     "would overwrite the input --data"),
+    ("basic_shapes", ("show", "--data", "{data}", "--object", "0", "--out",
+                      "{data}/shard-00001.h5"), "would overwrite the input --data"),
+    ("radar_sim", ("plot", "--data", "{data}", "--object", "0", "--out", "{data}/x.png"),
+     "would overwrite the input --data"),
+    ("leaderboard", ("render", "--entries", "{e}", "--out", "{e}"),
+     "would overwrite the input --entries"),
+    ("leaderboard", ("render", "--entries", "{e}/sub", "--out", "{e}"),
+     "would overwrite the input --entries"),
+])
+def test_outputs_never_overwrite_inputs(data, tmp_path, tool, args, phrase):
+    names = {"data": data, "p": tmp_path / "p.h5", "x": tmp_path / "x.json",
+             "e": tmp_path / "entries"}
+    (tmp_path / "p.h5").write_bytes(b"predictions")
+    (tmp_path / "entries" / "sub").mkdir(parents=True)
+    cli(tool, *(a.format(**names) for a in args), rc=2, phrase=phrase.format(**names),
+        watch=[data, tmp_path])
+
+
+@pytest.mark.parametrize("flag, value, phrase", [
+    ("--epochs", "-1", "must be >= 1"), ("--batch-size", "0", "must be >= 1"),
+    ("--lr", "nan", "not a finite number"), ("--dim", "0", "must be >= 1"),
+    ("--dim", "100000000", "must be <= 4096"), ("--weight-decay", "-1", "must be >= 0"),
+])
+def test_training_flags_are_refused_by_the_parser(data, tmp_path, flag, value, phrase):
+    cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", flag, value, rc=2,
+        phrase=phrase, watch=[data, tmp_path])
+
+
+def test_training_flags_that_contradict_each_other(data, tmp_path):
+    cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", "--n-heads", "3",
+        "--dim", "10", phrase="multiple of n_heads", watch=[data, tmp_path])
+    cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", "--device", "cuda:99",
+        rc=2, phrase="no such CUDA device", watch=[data, tmp_path])
