@@ -367,6 +367,9 @@ def open_hdf5(path: str | os.PathLike, error=InputError, what: str = "HDF5 file"
         raise error(f"{path}: not a readable {what} ({one_line(exc)})") from None
     try:
         _HDF5Check(path, size, error).group(f, "")
+    except (KeyError, RuntimeError, OSError) as exc:  # h5py on a corrupted header
+        f.close()
+        raise error(f"{path}: not a readable {what} ({one_line(exc)})") from None
     except BaseException:
         f.close()
         raise

@@ -19,7 +19,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset
+from basic_shapes.infra import atomic_path, load_json, one_line, open_hdf5, require_dataset
 
 SCHEMA_VERSION = 2  # 2: /radar with dimension scales, label fingerprint, mesh_*
 SHARD_GLOB = "shard-*.h5"
@@ -124,6 +124,21 @@ def content_fingerprint(f: h5py.File) -> str:
     return h.hexdigest()
 
 
+def _readable(method):
+    """h5py's errors on a corrupted file (OSError, KeyError, RuntimeError without the file's
+    name) become one ShardError naming the shard."""
+    @functools.wraps(method)
+    def read(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except ShardError:
+            raise
+        except (OSError, KeyError, RuntimeError, TypeError, ValueError, IndexError) as exc:
+            raise ShardError(f"{self.path}: unreadable, corrupted or truncated "
+                             f"({one_line(exc)})") from None
+    return read
+
+
 class Shard:
     """Read access to one shard. Meshes are read lazily, one slice at a time."""
 
@@ -143,6 +158,7 @@ class Shard:
     def _fail(self, problem: str):
         raise ShardError(f"{self.path}: {problem}")
 
+    @_readable
     def _validate(self) -> None:
         """Structure and indices, all checked before any mesh is handed out.
 
@@ -203,6 +219,7 @@ class Shard:
         if len(var) and (var.min() < 0 or var.max() >= MAX_VARIANTS):
             self._fail(f"/meshes/variant holds a value outside 0..{MAX_VARIANTS - 1}")
 
+    @_readable
     def verify(self, chunk: int = 1 << 20) -> None:
         """Check every face index against its mesh's vertex count (in chunks of ``chunk``
         faces, so memory stays bounded) and the stored fingerprint against the content.
@@ -224,6 +241,7 @@ class Shard:
         if content_fingerprint(self.file) != self.fingerprint:
             self._fail("content does not match its stored fingerprint (edited or corrupted)")
 
+    @_readable
     def verify_labels(self) -> None:
         """The labels (/radar) against their stored fingerprint, where there are labels."""
         if self.has_labels and self.radar.computed_fingerprint() != self.radar.fingerprint:
@@ -260,18 +278,21 @@ class Shard:
     def n_meshes(self) -> int:
         return len(self.file["meshes/variant"])
 
+    @_readable
     def objects(self) -> dict[str, np.ndarray]:
         g = self.file["objects"]
         out = {k: g[k][()] for k in ("id", "class", "scale", "seed")}
         out["split"] = np.array([s.decode() for s in g["split"][()]])
         return out
 
+    @_readable
     def mesh_table(self) -> dict[str, np.ndarray]:
         """Per-mesh metadata (no geometry): object_index, variant, n_faces, hausdorff."""
         g = self.file["meshes"]
         return {k: g[k][()] for k in ("object_index", "variant", "n_faces", "hausdorff")}
 
     # --- geometry ---------------------------------------------------------------------
+    @_readable
     def mesh(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """(vertices float32 (V,3), faces int32 (F,3)) of mesh ``i`` of this shard."""
         g = self.file["meshes"]
@@ -308,6 +329,7 @@ class Shard:
         return "radar/response" in self.file
 
     @functools.cached_property
+    @_readable
     def radar(self) -> RadarGroup:
         """The ``/radar`` group (labels), validated once; ``ShardError`` if absent or malformed."""
         return RadarGroup(self)
