@@ -295,6 +295,13 @@ class Predictions:
         bad = ~np.isfinite(out).reshape(len(out), -1).all(axis=1)
         if bad.any():
             self._fail(f"non-finite prediction for mesh_uid {uids[np.flatnonzero(bad)[0]]}")
+        # a dB response always has bins far below 0 dB (the -80 dB floor); a row without one
+        # is linear magnitude |A| (or intensity), the most common unit slip
+        linear = (out.reshape(len(out), -1) >= 0).all(axis=1)
+        if linear.any():
+            self._fail(f"every predicted value for mesh_uid {uids[np.flatnonzero(linear)[0]]} "
+                       f"is >= 0: these look like linear magnitudes, not dB; store "
+                       f"20*log10(max(|A|, 1e-4)) (docs/BENCHMARK.md)")
         return out
 
     def content_sha256(self, chunk: int = 64) -> str:

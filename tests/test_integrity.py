@@ -132,3 +132,18 @@ def test_training_flags_that_contradict_each_other(data, tmp_path):
         "--dim", "10", phrase="multiple of n_heads", watch=[data, tmp_path])
     cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", "--device", "cuda:99",
         rc=2, phrase="no such CUDA device", watch=[data, tmp_path])
+
+
+def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
+    """|A| stored where 20 log10 |A| is expected: refused with the conversion, exit 1."""
+    from benchmark.data import BenchmarkData
+    from benchmark.protocol import write_predictions
+
+    with BenchmarkData(data) as d:
+        rows = d.mesh_rows("test")   # the fixture has no OOD meshes
+        db = np.stack([d.target(int(d.meshes["object"][r])) for r in rows])
+        pred = tmp_path / "linear.h5"
+        write_predictions(pred, d.fingerprint, d.meshes["uid"][rows], 10 ** (db / 20),
+                          label_fingerprint=d.label_fingerprint)
+    cli("benchmark", "evaluate", "--data", data, "--predictions", pred, "--out",
+        tmp_path / "r.json", phrase="look like linear magnitudes", watch=[data])
