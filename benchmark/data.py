@@ -34,6 +34,7 @@ from basic_shapes.shards import (
     label_fingerprint,
     list_shards,
     mesh_uid,
+    ood_remesher,
 )
 
 FLOOR_AMPLITUDE = 1e-4
@@ -286,13 +287,15 @@ class BenchmarkData:
 
 class BasicShapes:
     """Map-style PyTorch dataset of one split: ``BasicShapes(root, split="train",
-    variants="simple")`` (what Basic trains on) or ``variants="all"`` (Ideal; every mesh).
+    variants="simple")`` (what Basic trains on) or ``variants="all"`` (Ideal; every mesh, and
+    on the test split the out-of-distribution meshes too: every mesh that is scored).
 
     ``root`` is a directory of labelled shards (or an open ``BenchmarkData``); ``split`` is
     "train", "val" or "test" (by object; see docs/BENCHMARK.md). Item: dict of tensors
     ``vertices`` (V,3) float32 normalized, ``faces`` (F,3) int64, ``scale_bins`` (3,) int64,
     ``scale_m`` (3,) float32, ``target`` (n_aspect, n_roll, n_range) float32 dB,
-    ``class_index``, ``object_id`` and ``mesh_uid`` int64 scalars; ``transform`` (e.g.
+    ``class_index``, ``object_id``, ``mesh_uid`` and ``variant`` int64 scalars, ``remesher``
+    (the OOD remesher's name, "" for the generator's own meshes); ``transform`` (e.g.
     ``BasicShapes.to_pyg``) is applied to it. Meshes are ragged: batch with
     ``collate_meshes`` (or PyG's ``DataLoader`` on the ``to_pyg`` view).
     """
@@ -303,6 +306,11 @@ class BasicShapes:
         self.data = root if isinstance(root, BenchmarkData) else BenchmarkData(root)
         self.split, self.variants = split, variants
         self.rows = self.data.mesh_rows(split, variants)
+        if variants == "all":   # OOD meshes exist on test objects only: never in training
+            self.rows = np.concatenate([self.rows, *(self.data.ood_meshes_of(o) for o in
+                                                     self.data.object_rows(split))])
+            self.rows = self.rows[np.lexsort((self.data.meshes["variant"][self.rows],
+                                              self.data.meshes["object"][self.rows]))]
         self.scale_bins = scale_bins or self.data.scale_bins
         self.transform = transform
         self._last: tuple[int, np.ndarray] | None = None  # consecutive meshes share a target
@@ -328,6 +336,7 @@ class BasicShapes:
 
         row = int(self.rows[i])
         obj = self.object_of(i)
+        variant = int(self.data.meshes["variant"][row])
         b = self.data.batch(np.array([row]), self.scale_bins)
         item = {"vertices": torch.from_numpy(b["vertices"][0]),
                 "faces": torch.from_numpy(b["faces"][0]),
@@ -336,7 +345,9 @@ class BasicShapes:
                 "target": torch.from_numpy(self.target(obj)),
                 "class_index": torch.tensor(int(self.data.objects["class_index"][obj])),
                 "object_id": torch.tensor(int(self.data.objects["id"][obj])),
-                "mesh_uid": torch.tensor(int(self.data.meshes["uid"][row]))}
+                "mesh_uid": torch.tensor(int(self.data.meshes["uid"][row])),
+                "variant": torch.tensor(variant),
+                "remesher": ood_remesher(variant) or ""}
         return self.transform(item) if self.transform else item
 
     @staticmethod
@@ -350,7 +361,8 @@ class BasicShapes:
                     y=item["target"].unsqueeze(0), scale_bins=item["scale_bins"].unsqueeze(0),
                     scale_m=item["scale_m"].unsqueeze(0),
                     class_index=item["class_index"].view(1), object_id=item["object_id"].view(1),
-                    mesh_uid=item["mesh_uid"].view(1))
+                    mesh_uid=item["mesh_uid"].view(1), variant=item["variant"].view(1),
+                    remesher=item["remesher"])
 
 
 def collate_meshes(items: list[dict]) -> dict:
@@ -360,5 +372,6 @@ def collate_meshes(items: list[dict]) -> dict:
     out = {k: [it[k] for it in items] for k in ("vertices", "faces")}
     for k in items[0]:
         if k not in out:
-            out[k] = torch.stack([it[k] for it in items])
+            values = [it[k] for it in items]
+            out[k] = torch.stack(values) if torch.is_tensor(values[0]) else values
     return out

@@ -215,9 +215,8 @@ class Evaluator:
                 f"{{'mesh_uid': mesh_uid, 'target_db': target_db}}\n"
                 f"- mesh_uid: int64 array (M,), every test-split mesh exactly once, any order "
                 f"(M = {len(self.test_mesh_uid)}; BasicShapes(root, split='test', "
-                f"variants='all') yields all but the out-of-distribution ones as "
-                f"item['mesh_uid'], BenchmarkData.ood_meshes_of lists those; "
-                f"Evaluator.test_mesh_uid holds them all)\n"
+                f"variants='all') yields every one, out-of-distribution meshes included, as "
+                f"item['mesh_uid']; Evaluator.test_mesh_uid holds them all)\n"
                 f"- target_db: real array (M, {', '.join(map(str, self.target_shape))}): the "
                 f"predicted dB response of each mesh (aspect, roll, range bin), row i for "
                 f"mesh_uid[i]; values below -80 dB are scored as -80 dB\n"
@@ -250,8 +249,11 @@ class Evaluator:
                                    "numbers")
         with tempfile.TemporaryDirectory() as tmp, BenchmarkData(self.root) as data:
             path = Path(tmp) / "predictions.h5"
-            write_predictions(path, self.fingerprint, arrays["mesh_uid"].astype(np.int64),
-                              arrays["target_db"].astype(np.float32),
-                              label_fingerprint=data.label_fingerprint)
-            with Predictions(path, data) as preds:
-                return score(data, preds)
+            try:
+                write_predictions(path, self.fingerprint, arrays["mesh_uid"].astype(np.int64),
+                                  arrays["target_db"].astype(np.float32),
+                                  label_fingerprint=data.label_fingerprint)
+                with Predictions(path, data) as preds:
+                    return score(data, preds)
+            except PredictionsError as exc:  # name the caller's input, not our scratch file
+                raise PredictionsError(str(exc).replace(str(path), "Evaluator input")) from None

@@ -46,7 +46,8 @@ def build_parser() -> ArgumentParser:
                        description="Score the predictions file again against the dataset (nothing "
                        "submitted is executed), refuse the results if any number differs from the "
                        "re-score, if a fingerprint belongs to another dataset or if a file is "
-                       "malformed; otherwise write one entry file atomically.")
+                       "malformed; otherwise write one entry file atomically. No model is run, so "
+                       "the entry's speed and parameter count are recorded as self-reported.")
     s.add_argument("results", type=Path, help="results JSON written by `benchmark evaluate`")
     s.add_argument("--predictions", type=Path, required=True, help="predictions HDF5 file")
     s.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
@@ -61,7 +62,9 @@ def build_parser() -> ArgumentParser:
         description="Submit each row that `benchmark reproduce` wrote "
         "(OUT/results/<row>/results.json beside OUT/results/<row>/predictions.h5, "
         "where OUT is reproduce's --out). Rows already on "
-        "the board are skipped; every refusal is listed, then the exit is non-zero.",
+        "the board are skipped; every refusal is listed, then the exit is non-zero. For your "
+        "own reproduce runs only: the speeds and parameter counts the harness measured there "
+        "are kept as measured.",
     )
     d.add_argument("--from", dest="from_dir", type=Path, required=True, metavar="OUT/results",
                    help="the results/ folder inside `benchmark reproduce --out OUT`")
@@ -139,7 +142,7 @@ def run(args) -> None:
         from leaderboard.render import render
         separate_outputs({"--out": args.out}, {"--entries": args.entries})
         files = render(args.out, args.entries, warn=lambda msg: print(
-            f"leaderboard render: warning: {msg}; entry skipped", file=sys.stderr))
+            f"leaderboard render: warning: {msg}", file=sys.stderr))
         print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
     elif args.command == "serve":
         from leaderboard.serve import serve

@@ -3,7 +3,8 @@
 Speed against error puts every model of one dataset at (ms per mesh, Complex MSE) with its
 95% interval, the physics simulator as the reference point (a model is only useful left of it,
 and only as good as it is low) and the harness's reference rows as dashed lines (they cost
-nothing to run: a model must be below them). Self-reported speeds are drawn as diamonds.
+nothing to run: a model must be below them). Speeds the harness did not measure (every
+``leaderboard submit`` entry's, ``store.speed_self_reported``) are drawn as diamonds.
 The example shows one test object's physics response beside the best models' predictions for
 its simple mesh and for a complex mesh of exactly the same shape.
 """
@@ -15,6 +16,7 @@ import numpy as np
 
 from benchmark import plotting
 from benchmark.plotting import Point, literal
+from leaderboard.store import speed_self_reported
 
 EXAMPLE_ROWS = 4
 DB_RANGE = 60.0  # colour scale: the physics peak down to DB_RANGE dB below it
@@ -33,7 +35,7 @@ def speed_vs_error(models: list[dict], simulator: dict | None,
     self-reported speeds as diamonds (``benchmark.plotting`` draws it, as for the table)."""
     points = []
     for e in plottable(models):
-        m, own = e["metrics"], e["speed"].get("self_reported")
+        m, own = e["metrics"], speed_self_reported(e)
         points.append(Point(e["speed"]["ms_per_mesh"], m["complex_mse"],
                             e["name"] + (" (self-reported speed)" if own else ""),
                             ci=m.get("complex_mse_ci"), marker="D" if own else "o",

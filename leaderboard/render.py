@@ -4,12 +4,15 @@ Entries are grouped by dataset fingerprint, because numbers on different dataset
 comparable; each dataset gets its table (sorted by Complex MSE; sortable in the browser) with
 95% intervals, the harness's reference rows (marked "reference", unranked) and each model's
 skill against the strongest of them, the OOD Complex and OOD Variation MSE (meshes from
-remeshers no training mesh comes from), a no-skill flag, self-reported speeds marked as such,
-a per-class breakdown, a speed-vs-error chart and an example figure. Every text from an entry is
+remeshers no training mesh comes from), a no-skill flag, speeds and parameter counts the
+harness did not measure marked self-reported (with a footnote), a per-class breakdown, a
+speed-vs-error chart and an example figure. Every text from an entry is
 escaped; the page loads nothing but its own files (a Content-Security-Policy says so), so it
 works offline and from any static host. Everything is built in memory first, then the site
 is published as a whole (a new directory swapped in), so a kill mid-render leaves the previous
-site intact.
+site intact. Nothing is read or published through a symbolic link (entries, the package's
+template and static files, files carried over from the previous site, the --out folder
+itself): a link would publish whatever it points to.
 """
 
 from __future__ import annotations
@@ -20,19 +23,35 @@ import html
 import os
 import re
 import shutil
+import stat
 from importlib import resources
 from pathlib import Path
 from string import Template
 
 from basic_shapes.infra import fsync_dir
 from leaderboard import figures
-from leaderboard.store import DEFAULT_ENTRIES, METRIC_NAMES, load_entries
+from leaderboard.store import (
+    DEFAULT_ENTRIES,
+    METRIC_NAMES,
+    load_entries,
+    params_self_reported,
+    read_regular,
+    speed_self_reported,
+)
 
 FIGURES = ("speed-vs-error-*.png", "example-*.png")
 METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
                  "variation_mse": "Variation MSE", "ood_complex_mse": "OOD Complex MSE",
                  "ood_variation_mse": "OOD Variation MSE"}
 COLUMNS = METRIC_NAMES + ("ood_complex_mse", "ood_variation_mse")  # "—" in older entries
+PACKAGE = resources.files("leaderboard")  # the template and static files
+ASSET_MAX_BYTES = 1 << 20
+SELF_REPORTED = " (self-reported)"  # the marker of a number the harness did not measure
+SELF_REPORTED_NOTE = ("(self-reported): given by the submitter, not measured by the harness. "
+                      "A submission is scored from its predictions file and no model is run, so "
+                      "the speed and the parameter count of a submitted entry are always "
+                      "self-reported; only the maintainers' own reproduce runs (leaderboard "
+                      "seed) and the timed physics simulator are measured.")
 
 
 def fmt_mse(x: float | None) -> str:
@@ -64,10 +83,23 @@ def no_skill(m: dict) -> bool:
     return bool(m.get("no_skill", m.get("mode_collapse")))
 
 
-def fmt_speed(speed: dict) -> str:
-    text = fmt_ms(speed.get("ms_per_mesh"))
-    return text + " (self-reported)" if speed.get("self_reported") and speed.get("ms_per_mesh") \
-        is not None else text
+def fmt_speed(e: dict) -> str:
+    """ms per mesh, marked unless the harness measured it (``store.speed_self_reported``)."""
+    ms = e["speed"].get("ms_per_mesh")
+    return fmt_ms(ms) + (SELF_REPORTED if ms is not None and speed_self_reported(e) else "")
+
+
+def fmt_entry_params(e: dict) -> str:
+    """The parameter count, marked unless the harness counted it."""
+    n = e.get("params")
+    return fmt_params(n) + (SELF_REPORTED if n is not None and params_self_reported(e) else "")
+
+
+def self_reported_note(g: dict) -> str:
+    """The footnote of the marker, when a row of the dataset carries it ('' if none does)."""
+    marked = any(SELF_REPORTED in fmt_speed(e) + fmt_entry_params(e) for e in g["models"])
+    sim = g["simulator"]
+    return SELF_REPORTED_NOTE if marked or (sim and SELF_REPORTED in fmt_speed(sim)) else ""
 
 
 def skill_of(e: dict) -> tuple[float | None, str]:
@@ -131,7 +163,7 @@ def simulator_note(sim: dict | None) -> str:
         return ("No physics simulator point for this dataset yet "
                 "(run `leaderboard simulator --data DIR`).")
     how = sim.get("complex_mse_source", "")
-    return (f"Physics simulator ({sim['name']}): {fmt_ms(sim['speed']['ms_per_mesh'])} ms per mesh "
+    return (f"Physics simulator ({sim['name']}): {fmt_speed(sim)} ms per mesh "
             f"on {sim['speed']['hardware'] or 'unknown hardware'}; "
             f"Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² ({how}).")
 
@@ -186,8 +218,8 @@ def html_table(g: dict) -> str:
                  + [_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS]
                  + [_num(skill, skill_text),
                     '<td class="flag">yes</td>' if flagged else "<td>no</td>",
-                    _num(e.get("params"), fmt_params(e.get("params"))),
-                    _num(e["speed"]["ms_per_mesh"], fmt_speed(e["speed"])),
+                    _num(e.get("params"), fmt_entry_params(e)),
+                    _num(e["speed"]["ms_per_mesh"], fmt_speed(e)),
                     f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
                     f'<td class="date">{_e(e["submitted"][:10])}</td>', _link(e)])
         cls = ' class="collapsed"' if flagged else ""
@@ -249,6 +281,8 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
              f'<p class="note">{_e(describe(g["dataset"]))}</p>']
     if g["models"]:
         parts += [html_table(g), f'<p class="note">{_e(skill_note(g))}</p>']
+    if self_reported_note(g):
+        parts.append(f'<p class="note self-reported">{_e(self_reported_note(g))}</p>')
     notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
     parts += ["<h3>Speed against error</h3>", f"<p>{_e(notes)}</p>",
               _img(f"speed-vs-error-{short}.png", images[f"speed-vs-error-{short}.png"],
@@ -272,6 +306,12 @@ def _md(text) -> str:
     return re.sub(r"([\\`*_\[\]<>|#])", r"\\\1", str(text))
 
 
+def md_url(url: str) -> str:
+    """A link target for a Markdown table cell: parentheses would end the link and a ``|``
+    the cell, so they are percent-encoded (the same URL to a browser)."""
+    return url.replace("(", "%28").replace(")", "%29").replace("|", "%7C")
+
+
 def markdown(groups: list[dict]) -> str:
     out = ["# Basic Shapes leaderboard", "",
            "Verified by re-scoring each submission's predictions against the dataset; MSE in dB² "
@@ -279,8 +319,8 @@ def markdown(groups: list[dict]) -> str:
            "computed by the harness and not ranked. Models with no skill (not better than the "
            "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
            "not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
-           "meshes from remeshers no training mesh comes from. Speeds marked (self-reported) "
-           "were not measured by the harness.", ""]
+           "meshes from remeshers no training mesh comes from. Speeds and parameter counts "
+           "marked (self-reported) were not measured by the harness.", ""]
     if not groups:
         out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
@@ -296,10 +336,10 @@ def markdown(groups: list[dict]) -> str:
                 m = e["metrics"]
                 name = _md(e["name"])
                 if e.get("link"):
-                    name = f"[{name}]({e['link'].replace('(', '%28').replace(')', '%29')})"
+                    name = f"[{name}]({md_url(e['link'])})"
                 out.append(f"| {rank} | {name} | " + " | ".join(fmt_ci(m, k) for k in COLUMNS)
                            + f" | {skill_of(e)[1]} | {'**yes**' if no_skill(m) else 'no'} | "
-                           f"{fmt_params(e.get('params'))} | {fmt_speed(e['speed'])} | "
+                           f"{fmt_entry_params(e)} | {fmt_speed(e)} | "
                            f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |")
             for ref, r in references(g).items():
                 out.append(f"| ref | reference: {_md(ref)} | "
@@ -307,6 +347,8 @@ def markdown(groups: list[dict]) -> str:
                            + f" | — | {'**yes**' if r.get('no_skill') else 'no'} "
                            f"| 0 | — | — | — |")
             out += ["", _md(skill_note(g)), ""]
+        if self_reported_note(g):
+            out += [_md(self_reported_note(g)), ""]
         notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
         out += [_md(notes), "",
                 f"![Speed against error](speed-vs-error-{short}.png)", ""]
@@ -342,14 +384,26 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     sizes = {name: _png_size(data) for name, data in files.items()}
     body = "\n".join(html_section(g, sizes) for g in groups) if groups else \
         "<p>No entries yet: see docs/SUBMITTING.md.</p>"
-    page = Template(
-        resources.files("leaderboard").joinpath("templates/page.html").read_text("utf-8")
-    )
+    page = Template(asset("templates", "page.html").decode("utf-8"))
     files["index.html"] = page.substitute(body=body, n_entries=len(entries)).encode()
     files["LEADERBOARD.md"] = markdown(groups).encode()
     for name in ("sort.js", "style.css"):
-        files[name] = resources.files("leaderboard").joinpath("static", name).read_bytes()
+        files[name] = asset("static", name)
     return files
+
+
+def asset(folder: str, name: str) -> bytes:
+    """A template or static file of the package, refused if it or its folder is a symbolic
+    link (a link committed in their place would publish its target)."""
+    base = PACKAGE.joinpath(folder)
+    if not isinstance(base, Path):  # a zipped package holds no links
+        return base.joinpath(name).read_bytes()
+    if base.is_symlink():
+        raise ValueError(f"{base}: a symbolic link (never followed: it would publish its target)")
+    data = read_regular(base / name, ASSET_MAX_BYTES, error=ValueError)
+    if len(data) > ASSET_MAX_BYTES:
+        raise ValueError(f"{base / name}: larger than the {ASSET_MAX_BYTES} bytes allowed")
+    return data
 
 
 def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
@@ -358,33 +412,51 @@ def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_
 
     A bad entry file is skipped, reported through ``warn(message)`` (one broken file must not
     take the board down). The site is written into a new sibling directory and swapped in
-    (``publish``), so a reader or a kill never sees a mix of old and new files.
+    (``publish``), so a reader or a kill never sees a mix of old and new files. An ``out_dir``
+    that is a symbolic link is refused before anything is built or written.
     """
-    files = build(load_entries(entries_dir, on_error=warn or (lambda msg: None)))
-    publish(Path(out_dir), files)
+    warn = warn or (lambda msg: None)
+    check_out(Path(out_dir))
+    files = build(load_entries(entries_dir, on_error=lambda msg: warn(f"{msg}; entry skipped")))
+    publish(Path(out_dir), files, warn)
     return files
 
 
-def publish(out: Path, files: dict[str, bytes]) -> None:
+def check_out(out: Path) -> None:
+    """Refuse an output folder that is a symbolic link: the swap would replace the link by a
+    directory and leave its target stale (and a stray link beside it)."""
+    if out.is_symlink():
+        raise ValueError(f"{out}: a symbolic link; render publishes into a real directory, "
+                         f"never through a link (pass its target as --out)")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: not a directory")
+
+
+def publish(out: Path, files: dict[str, bytes], warn=None) -> None:
     """Write ``files`` into a fresh directory beside ``out`` and swap it with ``out``.
 
     Files in ``out`` that the site does not produce (a CNAME, notes) are carried over, except
-    figures of datasets no longer on the board. The swap is one atomic renameat2 exchange
-    where the kernel has it; otherwise two renames (the old site stays whole as ``.old``
-    until the new one is in place).
+    figures of datasets no longer on the board, and except symbolic links and special files
+    (at any depth), left out with a ``warn(message)``: copying a link copies its target's
+    contents. ``out`` itself must not be a link (``check_out``). The swap is one atomic
+    renameat2 exchange where the kernel has it; otherwise two renames (the old site stays
+    whole as ``.old`` until the new one is in place).
     """
+    warn = warn or (lambda msg: None)
+    check_out(out)
     out = out.absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
     new = out.with_name(f".{out.name}.new-{os.getpid()}")
     old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    if new.is_symlink():
+        new.unlink()
     shutil.rmtree(new, ignore_errors=True)
     new.mkdir()
     try:
         if out.is_dir():
-            for item in out.iterdir():
-                stale = any(fnmatch.fnmatch(item.name, pat) for pat in FIGURES)
-                if item.name not in files and not stale:
-                    (shutil.copytree if item.is_dir() else shutil.copy2)(item, new / item.name)
+            keep = [n for n in sorted(os.listdir(out)) if n not in files
+                    and not any(fnmatch.fnmatch(n, pat) for pat in FIGURES)]
+            _carry(out, new, keep, warn)
         for name, data in files.items():
             (new / name).write_bytes(data)
             with open(new / name, "rb") as fh:
@@ -400,6 +472,40 @@ def publish(out: Path, files: dict[str, bytes]) -> None:
         fsync_dir(out.parent)
     finally:
         shutil.rmtree(new, ignore_errors=True)
+
+
+def _carry(src: Path, dst: Path, names: list[str], warn) -> None:
+    """Copy ``names`` of ``src`` into ``dst``: folders recursively, regular files with their
+    mode and times; never through a symbolic link (opened with O_NOFOLLOW, so a file swapped
+    for a link meanwhile is left out too), and no FIFO or device."""
+    for name in names:
+        path, target = src / name, dst / name
+        try:
+            st = os.lstat(path)
+        except FileNotFoundError:  # removed meanwhile
+            continue
+        if stat.S_ISDIR(st.st_mode):
+            target.mkdir()
+            _carry(path, target, sorted(os.listdir(path)), warn)
+            shutil.copystat(path, target)
+            continue
+        if stat.S_ISLNK(st.st_mode) or not stat.S_ISREG(st.st_mode):
+            what = "a symbolic link" if stat.S_ISLNK(st.st_mode) else "not a regular file"
+            warn(f"{path}: {what}; not carried over into the new site")
+            continue
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError as exc:
+            warn(f"{path}: cannot read ({exc.strerror or exc}); not carried over into the new site")
+            continue
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # swapped meanwhile
+                warn(f"{path}: not a regular file; not carried over into the new site")
+                continue
+            with open(target, "xb") as out:
+                shutil.copyfileobj(fh, out)
+        os.chmod(target, stat.S_IMODE(st.st_mode))
+        os.utime(target, ns=(st.st_atime_ns, st.st_mtime_ns))
 
 
 def _exchange(a: Path, b: Path) -> bool:

@@ -24,7 +24,13 @@ from basic_shapes.shards import Shard, is_ood_variant
 from benchmark.data import BenchmarkData, db_target
 from benchmark.evaluate import speed_block
 from benchmark.metrics import Scorer
-from leaderboard.store import DEFAULT_ENTRIES, ENTRY_VERSION, write_entry
+from leaderboard.store import (
+    DEFAULT_ENTRIES,
+    ENTRY_VERSION,
+    entries_lock,
+    validate_entry,
+    write_entry,
+)
 
 TIMING_MESHES = 24
 MEASURED = "simulator on the representation meshes vs the object's label (its analytic primitive)"
@@ -122,6 +128,7 @@ def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT
     name = f"radar_sim on the representation mesh {config.get('name', '')}".strip()
     entry = {
         "entry_version": ENTRY_VERSION, "id": f"physics-{fingerprint[:12]}", "kind": "simulator",
+        "origin": "simulator",
         "name": name, "link": None, "params": None, "dataset": dataset, "metrics": metrics,
         "complex_mse_source": f"{MEASURED}, {scored} test objects",
         "speed": {**(speed_block(ms_per_mesh) if timed else
@@ -130,4 +137,6 @@ def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT
         "submitted": utc_timestamp(),
         "sample": None,
     }
-    return write_entry(entries_dir, entry, replace=True)
+    validate_entry(entry)  # before the lock creates the folder
+    with entries_lock(entries_dir):
+        return write_entry(entries_dir, entry, replace=True)

@@ -7,10 +7,14 @@ with a one-line error naming the file, never rendered.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import math
 import os
 import re
+import stat
+import unicodedata
 from pathlib import Path
 
 from basic_shapes.infra import atomic_path, load_json
@@ -26,9 +30,18 @@ ENTRY_MAX_BYTES = 4 << 20
 # predictions_content_sha256 covers the data scored (``benchmark.protocol.content_sha256``);
 # predictions_sha256 is the container's, kept for entries made before it existed
 FILE_HASHES = ("results_sha256", "predictions_sha256", "predictions_content_sha256")
-ENTRY_FIELDS = ("entry_version", "id", "kind", "name", "link", "model", "params",
-                "benchmark_version", "dataset", "metrics", "speed", "seeds", "created",
-                "submitted", "files", "sample", "complex_mse_source")
+ENTRY_FIELDS = ("entry_version", "id", "kind", "origin", "name", "link", "model", "params",
+                "params_self_reported", "benchmark_version", "dataset", "metrics", "speed",
+                "seeds", "created", "submitted", "files", "sample", "complex_mse_source")
+# Which command wrote an entry, so the board knows what the harness measured itself:
+# ``submit`` scores a predictions file and runs no model (its speed and params are claims),
+# ``seed`` publishes the maintainers' own `benchmark reproduce` runs (timed and counted by the
+# harness), ``simulator`` times radar_sim. Entries made before the field read as ``submit``.
+ORIGINS = {"model": ("submit", "seed"), "simulator": ("simulator",)}
+# Unicode categories refused in any entry text: controls (Cc), format characters such as the
+# bidi override U+202E or zero-width spaces (Cf), line and paragraph separators (Zl, Zp) and
+# lone surrogates (Cs, not encodable): they reorder or hide what the board shows.
+FORBIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
 
 
 class EntryError(ValueError):
@@ -41,12 +54,40 @@ def slug(text: str) -> str:
     return s[:40] or "model"
 
 
+def hidden_character(text: str) -> str | None:
+    """The first character of ``text`` that is invisible or reorders text (a control, a bidi
+    override, a zero-width or line separator), as ``U+XXXX``; None if there is none."""
+    for c in text:
+        if unicodedata.category(c) in FORBIDDEN_CATEGORIES:
+            return f"U+{ord(c):04X}"
+    return None
+
+
 def check_text(value, what: str, max_len: int = MAX_TEXT) -> str:
     if not isinstance(value, str) or not value.strip():
         raise EntryError(f"{what} must be a non-empty string")
-    if len(value) > max_len or any(ord(c) < 32 for c in value):
-        raise EntryError(f"{what} must be one printable line of at most {max_len} characters")
+    bad = hidden_character(value)
+    if len(value) > max_len or bad:
+        raise EntryError(f"{what} must be one printable line of at most {max_len} characters"
+                         + (f" (has the control or format character {bad})" if bad else ""))
     return value
+
+
+def _check_strings(value, where: str) -> None:
+    """Every text of an entry, keys included, free of ``FORBIDDEN_CATEGORIES``: the schema's
+    own check refuses only ASCII controls, and a U+202E in a hardware line or a class name
+    would reorder the table around it."""
+    if isinstance(value, str):
+        bad = hidden_character(value)
+        if bad:
+            raise EntryError(f"{where} has the control or format character {bad}")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_strings(k, f"{where or 'entry'} key")
+            _check_strings(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_strings(v, f"{where}[{i}]")
 
 
 def check_link(value) -> str | None:
@@ -127,6 +168,10 @@ def validate_entry(entry) -> dict:
         )
     if entry.get("kind") not in KINDS:
         raise EntryError(f"kind must be one of {', '.join(KINDS)}")
+    if entry.get("origin") is not None and entry["origin"] not in ORIGINS[entry["kind"]]:
+        raise EntryError(f"origin of a {entry['kind']} entry must be one of "
+                         f"{', '.join(ORIGINS[entry['kind']])}")
+    _check_strings(entry, "")
     if not re.fullmatch(r"[a-z0-9][a-z0-9-]*", str(entry.get("id", ""))):
         raise EntryError("id must be lower-case letters, digits and dashes")
     check_text(entry.get("name"), "name", MAX_NAME)
@@ -160,6 +205,8 @@ def validate_entry(entry) -> dict:
     if entry["speed"].get("source") is not None:
         check_text(entry["speed"]["source"], "speed.source")
     _check_schema(schema.MODEL["params"].check, entry.get("params"), "params")
+    if not isinstance(entry.get("params_self_reported", False), bool):
+        raise EntryError("params_self_reported must be true or false")
     if entry.get("seeds") is not None:
         _check_schema(schema.check_seeds, entry["seeds"])
     for k in ("benchmark_version", "complex_mse_source"):
@@ -176,10 +223,33 @@ def validate_entry(entry) -> dict:
     return entry
 
 
-def load_entry(path: Path) -> dict:
-    """One entry file, validated (bounded JSON); EntryError naming the file."""
+def read_regular(path: str | os.PathLike, max_bytes: int, error=EntryError) -> bytes:
+    """The bytes of ``path`` if it is a regular file and not a symbolic link (opened with
+    O_NOFOLLOW, so a link swapped in after a check is refused too; O_NONBLOCK, so a FIFO
+    does not hang the read); at most ``max_bytes`` + 1 bytes."""
     try:
-        entry = validate_entry(load_json(path, max_bytes=ENTRY_MAX_BYTES, error=EntryError))
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        if os.path.islink(path):
+            raise error(f"{path}: a symbolic link (never followed: it would publish "
+                        f"its target)") from None
+        raise error(f"{path}: {exc.strerror or exc.__class__.__name__}") from None
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+            raise error(f"{path}: not a regular file")
+        try:
+            return fh.read(max_bytes + 1)
+        except OSError as exc:
+            raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+
+
+def load_entry(path: Path) -> dict:
+    """One entry file, validated (bounded JSON, never through a symbolic link); EntryError
+    naming the file."""
+    try:
+        raw = read_regular(path, ENTRY_MAX_BYTES)
+        entry = validate_entry(load_json(raw, what=str(path), max_bytes=ENTRY_MAX_BYTES,
+                                         error=EntryError))
     except EntryError as exc:
         raise EntryError(str(exc) if str(exc).startswith(str(path)) else f"{path}: {exc}") from None
     if path.stem != entry["id"]:
@@ -190,21 +260,57 @@ def load_entry(path: Path) -> dict:
 def load_entries(directory: str | os.PathLike = DEFAULT_ENTRIES, on_error=None) -> list[dict]:
     """Every ``*.json`` entry of ``directory``, validated, in file-name order.
 
-    A bad entry raises EntryError, or, with ``on_error``, is passed to ``on_error(message)``
-    and skipped: one broken file must not take the whole board down.
+    A bad entry (a symbolic link included: its target is not a reviewed entry) raises
+    EntryError, or, with ``on_error``, is passed to ``on_error(message)`` and skipped: one
+    broken file must not take the whole board down.
     """
     d = Path(directory)
     if not d.is_dir():
         raise EntryError(f"{d}: no such entries directory")
     entries = []
-    for p in sorted(d.glob("*.json")):
+    names = sorted(n for n in os.listdir(d) if n.endswith(".json") and not n.startswith("."))
+    for name in names:
         try:
-            entries.append(load_entry(p))
+            entries.append(load_entry(d / name))
         except EntryError as exc:
             if on_error is None:
                 raise
             on_error(str(exc))
     return entries
+
+
+@contextlib.contextmanager
+def entries_lock(directory: str | os.PathLike):
+    """Hold an exclusive lock on the entries folder (flock on the directory itself, so no lock
+    file lands in the repository): a submission's duplicate check and its write are one step,
+    and two concurrent submissions of the same predictions cannot both land. Creates the
+    folder. Not reentrant: take it once per check-and-write."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    fd = os.open(d, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield d
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def origin(entry: dict) -> str:
+    """The command that wrote ``entry``; an entry made before ``origin`` existed reads as
+    ``submit`` (a model) or ``simulator``: the reading that claims the least."""
+    return entry.get("origin") or ("simulator" if entry["kind"] == "simulator" else "submit")
+
+
+def speed_self_reported(entry: dict) -> bool:
+    """Whether the entry's ms per mesh is a claim the harness did not measure: always for
+    ``submit`` (a predictions file is scored, no model is run), whatever its results JSON
+    says; otherwise unless the entry says it was measured (``self_reported: false``)."""
+    return origin(entry) == "submit" or entry["speed"].get("self_reported", True) is not False
+
+
+def params_self_reported(entry: dict) -> bool:
+    """Whether the parameter count is a claim the harness did not count (as for speed)."""
+    return origin(entry) == "submit" or entry.get("params_self_reported", True) is not False
 
 
 def dumps(entry: dict) -> str:

@@ -6,7 +6,14 @@ validates them (``benchmark.protocol.load_results``, ``Predictions``: layout, da
 fingerprint, every test mesh present, finite values), the predictions are scored again by
 ``benchmark.protocol.score_predictions``, and every claimed number must agree with the re-score
 within ``REL_TOL`` / ``ABS_TOL``. All checks run before anything is written, and the entry is
-written atomically, so a refused submission leaves the entries folder untouched.
+written atomically, so a refused submission leaves the entries folder untouched. The duplicate
+check and the write hold a lock on the entries folder, so two concurrent submissions of the
+same predictions cannot both land.
+
+The board claims only what it checked: the metrics are re-scored, but no model is run, so the
+speed and the parameter count of a submission are the submitter's claims and are recorded as
+self-reported whatever the results JSON says. Only ``seed`` (the maintainers' own
+`benchmark reproduce` runs, timed and counted by the harness) keeps them as measured.
 """
 
 from __future__ import annotations
@@ -29,8 +36,10 @@ from leaderboard.store import (
     check_link,
     check_metrics,
     check_text,
+    entries_lock,
     load_entries,
     slug,
+    validate_entry,
     write_entry,
 )
 
@@ -104,10 +113,25 @@ def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> 
         raise SubmissionError(f"{exc}; pass --unregistered for a private board") from None
 
 
+SPEED_SOURCES = {
+    "submit": "self-reported by the submitter (benchmark evaluate), not re-measured",
+    "seed": "measured by the benchmark harness (benchmark reproduce, the maintainers' run)",
+    "seed-self-reported": "not measured by the harness (self-reported in the results)",
+}
+
+
 def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
            data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
-           name: str | None = None, link: str | None = None, unregistered: bool = False) -> Path:
-    """Verify one submission and write its entry; refused: SubmissionError, nothing written."""
+           name: str | None = None, link: str | None = None, unregistered: bool = False,
+           origin: str = "submit") -> Path:
+    """Verify one submission and write its entry; refused: SubmissionError, nothing written.
+
+    ``origin="seed"`` (only ``seed`` passes it) trusts the results' own ``self_reported``
+    flag and parameter count: the maintainers' reproduce run measured them. Anything else is
+    a submission, whose speed and parameter count are always marked self-reported.
+    """
+    if origin not in ("submit", "seed"):
+        raise ValueError(f"origin must be submit or seed, not {origin!r}")
     try:
         results = load_results(results_path)
     except ValueError as exc:
@@ -144,24 +168,29 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
     pred_sha = sha256_file(predictions_path)
     with data, Predictions(predictions_path, data) as preds:
         content_sha = preds.content_sha256()
-        _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)
+        _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)  # fail early
         sample = example.sample(data, preds)
         test_objects, test_meshes = len(data.object_rows("test")), len(data.mesh_rows("test"))
+    measured = origin == "seed" and results["speed"].get("self_reported") is False
     entry = {
         "entry_version": ENTRY_VERSION,
         "id": f"{slug(name)}-{content_sha[:10]}",
         "kind": "model",
+        "origin": origin,
         "name": name,
         "link": link,
         "model": results["model"],
         "params": results["model"].get("params"),
+        # counted by the harness only in the maintainers' reproduce runs (checkpoint.params)
+        "params_self_reported": origin != "seed",
         "benchmark_version": results["benchmark_version"],
         "dataset": {"fingerprint": fingerprint, "label_fingerprint": labels,
                     "version": version, "classes": data.class_names,
                     "test_objects": test_objects, "test_meshes": test_meshes},
         "metrics": check_metrics(rescored, "re-scored metrics"),
-        "speed": {**results["speed"],
-                  "source": "self-reported by the submitter (benchmark evaluate), not re-measured"},
+        "speed": {**results["speed"], "self_reported": not measured,
+                  "source": SPEED_SOURCES[origin if measured or origin == "submit"
+                                          else "seed-self-reported"]},
         "seeds": results["seeds"],
         "created": results["created"],
         "submitted": utc_timestamp(),
@@ -170,7 +199,10 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         "sample": sample,
     }
     try:
-        return write_entry(entries_dir, entry)
+        validate_entry(entry)  # before the lock creates the folder: a refusal writes nothing
+        with entries_lock(entries_dir):  # the check and the write as one step
+            _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)
+            return write_entry(entries_dir, entry)
     except EntryError as exc:  # e.g. a hardware text too long to show
         raise _refuse(results_path, exc) from None
 
@@ -209,7 +241,7 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
         try:
             accepted.append(submit(results, predictions, data_dir, entries_dir,
                                    name=results.parent.name, link=link,
-                                   unregistered=unregistered))
+                                   unregistered=unregistered, origin="seed"))
         except DuplicateSubmission as exc:
             skipped.append(str(exc))
         except ValueError as exc:
