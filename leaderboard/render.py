@@ -29,6 +29,7 @@ from pathlib import Path
 from string import Template
 
 from basic_shapes.infra import fsync_dir
+from benchmark.schema import OOD_METRIC_NAMES
 from leaderboard import figures
 from leaderboard.store import (
     DEFAULT_ENTRIES,
@@ -43,7 +44,7 @@ FIGURES = ("speed-vs-error-*.png", "example-*.png")
 METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
                  "variation_mse": "Variation MSE", "ood_complex_mse": "OOD Complex MSE",
                  "ood_variation_mse": "OOD Variation MSE"}
-COLUMNS = METRIC_NAMES + ("ood_complex_mse", "ood_variation_mse")  # "—" in older entries
+COLUMNS = METRIC_NAMES + OOD_METRIC_NAMES  # "—" in older entries
 PACKAGE = resources.files("leaderboard")  # the template and static files
 ASSET_MAX_BYTES = 1 << 20
 SELF_REPORTED = " (self-reported)"  # the marker of a number the harness did not measure
@@ -153,6 +154,12 @@ def describe(dataset: dict) -> str:
     head = (f"version {v.name}: {v.summary}; grid {v.grid()}, radar config "
             f"{v.radar_config().name}; built by: benchmark dataset {v.name} --data DIR. "
             if v else "not a registered dataset version. ")
+    recorded = v.fingerprints.get("mesh") if v else None
+    if recorded and dataset.get("fingerprint") != recorded:
+        head += (f"Scored on an earlier build of {v.name} (mesh {dataset['fingerprint'][:8]}..., "
+                 f"made before dataset bytes were machine-independent; the recorded build is "
+                 f"{recorded[:8]}...): its numbers re-score only where that build comes back "
+                 f"(docs/RESULTS.md, Status). ")
     return (head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
             f"test objects, {dataset['test_meshes']} test meshes")
 

@@ -23,7 +23,7 @@ from benchmark import schema
 ENTRY_VERSION = 1
 DEFAULT_ENTRIES = Path(__file__).resolve().parent / "entries"
 KINDS = ("model", "simulator")
-METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
+METRIC_NAMES = schema.METRIC_NAMES
 MAX_NAME = schema.MAX_NAME
 MAX_TEXT = schema.MAX_TEXT
 ENTRY_MAX_BYTES = 4 << 20

@@ -147,3 +147,25 @@ def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
                           label_fingerprint=d.label_fingerprint)
     cli("benchmark", "evaluate", "--data", data, "--predictions", pred, "--out",
         tmp_path / "r.json", phrase="look like linear magnitudes", watch=[data])
+
+
+def test_scoring_imports_without_torch():
+    """What leaderboard and a submitter need (scoring, schema, data readers) imports with
+    torch unavailable: the scoring path never depends on the training stack."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['torch'] = None; sys.modules['bpy'] = None\n"
+            "import benchmark.protocol, benchmark.metrics, benchmark.evaluate, benchmark.schema\n"
+            "import benchmark.references, leaderboard.submit, leaderboard.render\n"
+            "from benchmark.protocol import score_predictions\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_one_owner_for_metric_names():
+    from benchmark import metrics, schema
+    from leaderboard import render, store
+
+    assert metrics.METRIC_NAMES is schema.METRIC_NAMES is store.METRIC_NAMES
+    assert render.COLUMNS == schema.METRIC_NAMES + schema.OOD_METRIC_NAMES
