@@ -1,16 +1,22 @@
 # The two set-up commands of the README:  `make demo` (main job, small default)  and  `make test`.
-# Both create .venv and install everything; torch==2.13.0 (CPU build) goes in first.
+# Both create .venv and install everything from constraints.txt; torch==2.13.0 (CPU build)
+# goes in first. Where it comes from: pip's own configuration (on this project's machines a
+# local CPU wheel); elsewhere name a CPU wheel index, e.g.
+#   make test TORCH_INDEX=https://download.pytorch.org/whl/cpu
+# (a plain PyPI install of torch pulls several GB of CUDA packages).
 PYTHON ?= python3
 VENV := .venv
+TORCH_INDEX ?=
 BIN := $(VENV)/bin
 OUT ?= out/demo
 
 .PHONY: install browser demo test test-slow clean
 
 $(BIN)/.installed: pyproject.toml constraints.txt
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else "make: Python 3.11 is required (bpy 5.0.1, Blender as a module, exists for 3.11 only); found " + sys.version.split()[0] + ": run make PYTHON=python3.11 ...")'
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -c constraints.txt torch==2.13.0
+	$(BIN)/pip install -q -c constraints.txt $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX)) torch==2.13.0
 	$(BIN)/pip install -q -c constraints.txt -e '.[dev]'
 	touch $@
 

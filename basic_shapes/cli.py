@@ -26,8 +26,28 @@ EPILOG = """examples:
 The dataset is always --data DIR; --out names what a command derives from it (docs/CLI.md)."""
 
 
-def _positive_list(text: str) -> tuple[str, ...]:
-    return tuple(c.strip() for c in text.split(",") if c.strip())
+def _classes(text: str) -> tuple[str, ...]:
+    """Comma-separated primitives: at least one, known, each once (exit 2, like other flags)."""
+    from basic_shapes.primitives import PRIMITIVES
+
+    names = tuple(c.strip() for c in text.split(",") if c.strip())
+    unknown = [c for c in names if c not in PRIMITIVES]
+    if unknown or not names:
+        what = f"unknown class {', '.join(unknown)}" if unknown else f"{text!r} names no class"
+        raise argparse.ArgumentTypeError(f"{what}; known: {', '.join(PRIMITIVES)}")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"{text!r} names a class twice")
+    return names
+
+
+class _Range(argparse.Action):
+    """LOW HIGH with LOW < HIGH, refused by the parser (exit 2) like every other flag value."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if values[0] >= values[1]:
+            parser.error(f"argument {option_string}: LOW {values[0]:g} must be < HIGH "
+                         f"{values[1]:g}")
+        setattr(namespace, self.dest, values)
 
 
 def build_parser() -> ArgumentParser:
@@ -50,7 +70,7 @@ def build_parser() -> ArgumentParser:
                    help="dataset directory (created; resumed if it exists)")
     g.add_argument(
         "--classes",
-        type=_positive_list,
+        type=_classes,
         default=GenerateConfig.classes,
         help="comma-separated primitives (default: cube,cylinder,sphere; also cone,torus)",
     )
@@ -71,7 +91,7 @@ def build_parser() -> ArgumentParser:
                    default=GenerateConfig.objects_per_shard,
                    help="objects per HDF5 shard (default: %(default)s)")
     g.add_argument("--scale-range", type=number(above=0), nargs=2, default=SCALE_RANGE,
-                   metavar=("LOW", "HIGH"),
+                   metavar=("LOW", "HIGH"), action=_Range,
                    help="per-axis bbox extent range in metres (default: %(default)s)")
     g.add_argument(
         "--min-scale-distance",

@@ -4,18 +4,30 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
+import signal
 import socket
 import struct
+import threading
+import time
 from urllib.parse import urlsplit
 
 CONNECT_TIMEOUT_S = 3.0
 MAX_HANDSHAKE_BYTES = 1 << 16
+NO_WORKER_TIMEOUT_S = 60.0
+"""A batch job fails once its cluster has had no worker this long while tasks wait
+(docs/CLI.md); ``NO_WORKER_ENV`` overrides it (tests, clusters whose workers start slowly)."""
+NO_WORKER_ENV = "BASIC_SHAPES_NO_WORKER_TIMEOUT_S"
 
 
 class SchedulerError(ConnectionError):
     """``--scheduler`` does not point at a reachable Dask scheduler (an OSError, like Dask's own
     connection errors, so callers that handle those handle this too)."""
+
+
+class NoWorkersError(SchedulerError):
+    """The cluster had no worker for ``no_worker_timeout()`` seconds while tasks waited."""
 
 
 def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
@@ -68,6 +80,79 @@ def _read(sock: socket.socket, n: int) -> bytes:
     return data
 
 
+def no_worker_timeout() -> float:
+    """``NO_WORKER_TIMEOUT_S``, or the seconds in the environment variable ``NO_WORKER_ENV``."""
+    text = os.environ.get(NO_WORKER_ENV, "")
+    if not text:
+        return NO_WORKER_TIMEOUT_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{NO_WORKER_ENV}={text!r}: expected a number of seconds > 0")
+    return value
+
+
+def finished(client, futures):
+    """Iterate ``futures`` (a ``distributed.as_completed``, which may grow meanwhile) as they
+    finish, but raise ``NoWorkersError`` once the cluster has had no worker for
+    ``no_worker_timeout()`` seconds while tasks wait.
+
+    Dask waits for workers forever and says nothing: a job on a scheduler without workers sat
+    at 0% for 11.5 minutes. A finished task counts as a sign of life, so only the time without
+    any worker counts. Finished work is kept (shards, labelled objects): a rerun resumes.
+    A Ctrl-C is not lost either (``_noted_sigint``).
+    """
+    timeout = no_worker_timeout()
+    with _noted_sigint() as interrupted:
+        alive = checked = time.monotonic()
+        while not futures.is_empty():
+            if interrupted():
+                raise KeyboardInterrupt
+            if futures.has_ready():
+                yield next(futures)
+                alive = time.monotonic()
+                continue
+            now = time.monotonic()
+            if now - checked >= 1.0:
+                checked = now
+                if client.nthreads():
+                    alive = now
+                elif now - alive >= timeout:
+                    where = ("the local Dask cluster" if client.cluster is not None
+                             else f"--scheduler {client.scheduler.address}")
+                    raise NoWorkersError(f"{where}: no Dask worker for {timeout:g} s with "
+                                         f"tasks waiting; start workers (dask worker ADDRESS) "
+                                         f"and rerun: finished work is kept")
+            time.sleep(0.05)
+
+
+@contextlib.contextmanager
+def _noted_sigint():
+    """Yield a test for "Ctrl-C was pressed"; the loop then raises KeyboardInterrupt itself.
+
+    Python drops a KeyboardInterrupt raised in a destructor or a weakref callback (Dask and
+    h5py run many: a job went on after printing "Exception ignored ... KeyboardInterrupt"), so
+    the first SIGINT is only noted, and raised at the loop's next turn (within 50 ms while it
+    waits); a second one raises at once. Main thread only, like Python's signal handlers."""
+    noted = []
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+
+    def handler(signum, frame):
+        noted.append(signum)
+        if len(noted) > 1:
+            raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: bool(noted)
+    finally:  # None: a handler set outside Python
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None):
     """Yield a ``distributed.Client``.
@@ -82,7 +167,11 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     threshold at 128 KiB: every large numpy temporary is then mmapped and page-faulted afresh
     (the radar simulator ran 2.4x slower per object). Local workers here keep glibc's default.
     Worker logs are silenced below CRITICAL: a task's error reaches the user once, as the
-    one-line error of the command, not also as a block of Dask log lines.
+    one-line error of the command, not also as a block of Dask log lines. Ctrl-C reaches the
+    whole process group, but only this process answers it (``<tool>: interrupted``) and stops
+    its workers: local worker processes start with SIGINT blocked (``_hold_sigint``) instead of
+    each printing a traceback; a Ctrl-C during the start is delivered once the cluster runs.
+    Iterate results with ``finished``.
     """
     import dask
     from distributed import Client, LocalCluster
@@ -98,7 +187,28 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
             return
         in_process = workers == 0  # one thread in this process: debuggers and profilers see it
         n = 1 if in_process else workers or os.cpu_count() or 1
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=not in_process,
-                          dashboard_address=":0", silence_logs=logging.CRITICAL) as cluster, \
-                Client(cluster) as client:
-            yield client
+        release = (lambda: None) if in_process else _hold_sigint()
+        try:
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=not in_process,
+                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
+        except BaseException:
+            release()
+            raise
+        with cluster:
+            release()  # a Ctrl-C of the start-up arrives here, and the cluster closes cleanly
+            with Client(cluster) as client:
+                yield client
+
+
+def _hold_sigint():
+    """Block SIGINT in this thread until the returned function is called.
+
+    Threads and processes started meanwhile inherit the blocked signal: the cluster's loop
+    thread, and the worker processes it spawns (also later ones). Multiprocessing's resource
+    tracker is started first, because starting it unblocks SIGINT in the thread that does.
+    """
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    return lambda: signal.pthread_sigmask(signal.SIG_SETMASK, mask)

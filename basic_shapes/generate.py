@@ -19,8 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import __version__
-from basic_shapes.analytic import hidden_params, solid_for
-from basic_shapes.infra import atomic_path, load_json
+from basic_shapes.infra import atomic_path, load_json, one_line
 from basic_shapes.scales import MIN_DISTANCE, SCALE_RANGE, ScaleError, capacity, sample_scales
 from basic_shapes.shards import (
     OOD_FIRST,
@@ -123,6 +122,8 @@ def _rng(seed: int, *key: int) -> np.random.Generator:
 
 def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:
     """Every object's class, scale, seed and split: cheap, done once by the client."""
+    from basic_shapes.analytic import hidden_params  # numba: not needed to read a config
+
     plans = []
     for ci, name in enumerate(cfg.classes):
         key = zlib.crc32(name.encode())
@@ -154,14 +155,20 @@ def shard_plans(cfg: GenerateConfig) -> list[list[ObjectPlan]]:
 
 def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
     """One Dask task: make, verify and write every mesh of the shard's objects."""
+    from basic_shapes.analytic import solid_for
     from basic_shapes.blender import object_meshes
 
     t0 = time.perf_counter()
-    objects = [ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
-                            _with_ood(p, object_meshes(p.class_name, np.array(p.scale), p.seed,
-                                                       cfg_json["variants"], p.params), cfg_json),
-                            params=solid_for(p.class_name, p.scale, p.params).params)
-               for p in plans]
+    objects = []
+    for p in plans:
+        try:
+            meshes = _with_ood(p, object_meshes(p.class_name, np.array(p.scale), p.seed,
+                                                cfg_json["variants"], p.params), cfg_json)
+        except OSError as exc:  # a MeshLab child that died (killed, out of memory)
+            raise OSError(f"{path}: object {p.id} ({p.class_name}): {one_line(exc)}") from None
+        objects.append(ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
+                                    meshes, params=solid_for(p.class_name, p.scale,
+                                                             p.params).params))
     write_shard(path, objects, cfg_json["classes"], cfg_json, cfg_json["toolkit_version"])
     return {"path": path, "meshes": sum(len(o.meshes) for o in objects),
             "seconds": time.perf_counter() - t0}
@@ -194,10 +201,10 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
                 k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k)
             )
             raise ShardError(f"{out}: holds a dataset with a different config "
-                             f"({', '.join(diff)} differ); use another --out")
+                             f"({', '.join(diff)} differ); use another --data")
         return
     if any(out.glob("shard-*.h5")):
-        raise ShardError(f"{out}: holds shards but no {CONFIG_FILE}; use another --out")
+        raise ShardError(f"{out}: holds shards but no {CONFIG_FILE}; use another --data")
     out.mkdir(parents=True, exist_ok=True)
     with atomic_path(cfg_path) as tmp:
         tmp.write_text(json.dumps(cfg.to_json(), indent=2, sort_keys=True))
@@ -290,12 +297,12 @@ def _run(todo, cfg_json, workers, scheduler, progress):
         return
     from distributed import as_completed
 
-    from basic_shapes.cluster import dask_client
+    from basic_shapes.cluster import dask_client, finished
 
     with dask_client(workers, scheduler) as client:
         futures = [client.submit(build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}",
                                  pure=False) for path, plans in todo]
-        for fut in as_completed(futures):
+        for fut in finished(client, as_completed(futures)):
             r = fut.result()
             bar.update(r["meshes"])
             yield r

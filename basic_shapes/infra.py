@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import math
 import os
@@ -36,7 +37,8 @@ class InputError(ValueError):
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
-    """Yield a temporary path; on success fsync it and rename it onto ``path``."""
+    """Yield a temporary path; on success fsync it and rename it onto ``path``. A full disk
+    (or quota, or file size limit) is raised as an ``OSError`` naming ``path``."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     tmp.unlink(missing_ok=True)
@@ -46,8 +48,32 @@ def atomic_path(path: str | os.PathLike):
             os.fsync(fh.fileno())
         os.replace(tmp, path)
         fsync_dir(path.parent)
+    except (OSError, RuntimeError) as exc:
+        code = _disk_full(exc)
+        if code is None:
+            raise
+        raise OSError(code, os.strerror(code), str(path)) from exc
     finally:
         tmp.unlink(missing_ok=True)
+
+
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def _disk_full(exc: BaseException | None) -> int | None:
+    """The errno of a full disk, quota or file size limit behind ``exc``, else None. The write
+    that hits it often names no file (h5py's error also spans lines and names the temporary
+    file, and closing the file then raises a RuntimeError), so ``atomic_path`` names ``path``."""
+    for _ in range(8):  # exc and what it was raised while handling
+        if exc is None:
+            return None
+        code = getattr(exc, "errno", None)
+        found = re.search(r"errno = (\d+)", str(exc)) if code is None else None
+        code = int(found.group(1)) if found else code
+        if code in _DISK_FULL:
+            return code
+        exc = exc.__context__
+    return None
 
 
 def fsync_dir(directory: str | os.PathLike) -> None:
@@ -117,7 +143,10 @@ def one_line(exc: BaseException) -> str:
     """An exception as one line: ``file: problem`` for OS errors, else its first message line."""
     if isinstance(exc, OSError) and exc.strerror:
         where = exc.filename if exc.filename is not None else ""
-        return f"{where}: {exc.strerror}" if where != "" else exc.strerror
+        problem = (exc.strerror.strip().splitlines() or [exc.strerror])[0]
+        if exc.errno and "errno = " in exc.strerror:  # h5py's page of HDF5 details
+            problem = os.strerror(exc.errno)
+        return f"{where}: {problem}" if where != "" else problem
     try:
         lines = str(exc).strip().splitlines()
     except Exception:

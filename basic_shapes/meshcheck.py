@@ -17,13 +17,19 @@ from __future__ import annotations
 
 import numpy as np
 
+MAX_COORDINATE = 1e9
+"""Largest vertex coordinate accepted (metres for the simulator): a million kilometres. Far
+beyond it products of coordinates overflow and phases lose every digit (a mesh scaled by 1e30
+printed numpy's overflow warnings and a meaningless RCS)."""
+
 
 class MeshError(ValueError):
     """The vertices/faces cannot be used as a triangle mesh (one-line message says why)."""
 
 
 def as_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    """Validated copies: vertices float64 (V, 3) finite, faces int64 (F, 3) in range.
+    """Validated copies: vertices float64 (V, 3) finite and within ``MAX_COORDINATE``, faces
+    int64 (F, 3) in range.
 
     Raises ``MeshError`` naming the first bad vertex or face, so a user can find it in a file.
     """
@@ -47,12 +53,21 @@ def as_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     if len(bad):
         raise MeshError(f"vertex {bad[0]} is not finite: {v[bad[0]].tolist()} "
                         f"({len(bad)} non-finite vertices)")
+    check_coordinates(v)
     f = f.astype(np.int64)
     out = np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))
     if len(out):
         raise MeshError(f"face {out[0]} refers to vertex {f[out[0]].tolist()}, but the mesh has "
                         f"{len(v)} vertices (indices are 0-based)")
     return v, f
+
+
+def check_coordinates(v: np.ndarray) -> None:
+    """Refuse (``MeshError``) coordinates beyond ``MAX_COORDINATE`` in absolute value."""
+    largest = float(np.abs(v).max(initial=0.0))
+    if largest > MAX_COORDINATE:
+        raise MeshError(f"coordinates too large (up to {largest:.3g} in absolute value, at most "
+                        f"{MAX_COORDINATE:g} allowed): check the units")
 
 
 def bbox_diagonal(vertices: np.ndarray) -> float:

@@ -17,6 +17,7 @@ import io
 import json
 import subprocess
 import sys
+import tempfile
 
 import numpy as np
 
@@ -76,30 +77,58 @@ def _recv(pipe) -> np.ndarray:
                    allow_pickle=False)
 
 
+class MeshLabError(OSError):
+    """The MeshLab child ended without answering (killed, out of memory, crashed)."""
+
+
 class MeshLabChild:
-    """A child process that applies MeshLab filters; use as a context manager."""
+    """A child process that applies MeshLab filters; use as a context manager.
+
+    The child's stderr is a file of its own, read only to explain its death: a child whose
+    parent died (a killed worker, an interrupted job) fails writing to the pipe, and its
+    traceback must not reach the user's terminal (its program text, part of its fixed memory
+    layout, stays as it is)."""
 
     def __enter__(self) -> MeshLabChild:
+        self._stderr = tempfile.TemporaryFile()
         self._proc = subprocess.Popen([sys.executable, "-s", "-c", CHILD, CHILD],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                      env=ENV, cwd="/")
+                                      stderr=self._stderr, env=ENV, cwd="/")
         return self
 
     def __exit__(self, *exc) -> None:
-        self._proc.stdin.close()
+        for pipe in (self._proc.stdin, self._proc.stdout):  # a child still writing stops too
+            try:
+                pipe.close()
+            except OSError:  # BrokenPipeError flushing to a child that is gone
+                pass
         self._proc.wait()
+        self._stderr.close()
 
     def apply(self, filter_name: str, vertices: np.ndarray, faces: np.ndarray,
               **kwargs) -> tuple[np.ndarray, np.ndarray]:
         """``MeshSet.<filter_name>(**kwargs)`` on one mesh; its result (vertices, faces).
-        ``targetlen`` is an absolute length (MeshLab's PureValue)."""
-        pipe = self._proc.stdin
-        pipe.write(json.dumps([filter_name, kwargs]).encode() + b"\n")
-        _send(pipe, np.asarray(vertices, np.float64))
-        _send(pipe, np.asarray(faces, np.int32))
-        pipe.flush()
+        ``targetlen`` is an absolute length (MeshLab's PureValue). ``MeshLabError`` if the
+        child dies."""
         try:  # numpy's own array format both ways, length-prefixed: nothing is unpickled
+            pipe = self._proc.stdin
+            pipe.write(json.dumps([filter_name, kwargs]).encode() + b"\n")
+            _send(pipe, np.asarray(vertices, np.float64))
+            _send(pipe, np.asarray(faces, np.int32))
+            pipe.flush()
             return _recv(self._proc.stdout), _recv(self._proc.stdout)
-        except (ValueError, EOFError):
-            raise RuntimeError(f"MeshLab child died during {filter_name} "
-                               f"(exit code {self._proc.wait()})") from None
+        except (OSError, ValueError, EOFError):
+            try:
+                code = self._proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:  # alive but talking nonsense
+                self._proc.kill()
+                code = self._proc.wait()
+            raise MeshLabError(f"MeshLab child died during {filter_name} (exit code "
+                               f"{code}{self._last_words()})") from None
+
+    def _last_words(self) -> str:
+        """The last line the child wrote to stderr (its exception), as ``: <line>``."""
+        self._stderr.seek(0, 2)
+        self._stderr.seek(max(0, self._stderr.tell() - 4096))
+        lines = self._stderr.read().decode(errors="replace").strip().splitlines()
+        return f": {lines[-1][:200]}" if lines else ""

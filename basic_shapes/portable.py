@@ -18,10 +18,10 @@ builds a slice of a dataset under an emulated foreign CPU and compares every has
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
-from numba import njit
 
 
 def _elementwise(fn):
@@ -63,17 +63,24 @@ def matmul(a, b) -> np.ndarray:
         a, b2 = a.astype(np.complex128), b2.astype(np.complex128)
         re = np.zeros((a.shape[0], b2.shape[1]))
         im = np.zeros_like(re)
-        _matmul_complex(np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag),
-                        np.ascontiguousarray(b2.real), np.ascontiguousarray(b2.imag), re, im)
+        _compiled()[1](np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag),
+                       np.ascontiguousarray(b2.real), np.ascontiguousarray(b2.imag), re, im)
         out = re + 1j * im
     else:
         out = np.zeros((a.shape[0], b2.shape[1]))
-        _matmul_real(np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b2, np.float64),
-                     out)
+        _compiled()[0](np.ascontiguousarray(a, np.float64),
+                       np.ascontiguousarray(b2, np.float64), out)
     return out[:, 0] if vector else out
 
 
-@njit(cache=True)
+@functools.cache
+def _compiled():
+    """The two loops, compiled on first use (numba is not needed to read or score data)."""
+    from numba import njit
+
+    return njit(cache=True)(_matmul_real), njit(cache=True)(_matmul_complex)
+
+
 def _matmul_real(a, b, out):  # pragma: no cover - compiled
     n, m = a.shape
     k = b.shape[1]
@@ -86,7 +93,6 @@ def _matmul_real(a, b, out):  # pragma: no cover - compiled
                 out[i, j] += x * b[p, j]
 
 
-@njit(cache=True)
 def _matmul_complex(a_re, a_im, b_re, b_im, re, im):  # pragma: no cover - compiled
     n, m = a_re.shape
     k = b_re.shape[1]

@@ -20,7 +20,7 @@ import manifold3d as m3d
 import numpy as np
 from tqdm import tqdm
 
-from basic_shapes.infra import atomic_path, open_hdf5
+from basic_shapes.infra import atomic_path, load_json, open_hdf5
 from basic_shapes.meshcheck import (
     MeshError,
     as_arrays,
@@ -419,9 +419,10 @@ def _corpus_header(h5: h5py.File, path: Path) -> tuple[list[str], dict]:
             f"{path}: corpus version {h5.attrs.get('version')} unsupported (need {CORPUS_VERSION})"
         )
     try:
-        return json.loads(h5.attrs["class_names"]), json.loads(h5.attrs["meta"])
-    except (KeyError, ValueError) as exc:
-        raise CorpusError(f"{path}: damaged corpus header ({exc})") from None
+        return tuple(load_json(h5.attrs[name], what=f"{path}: {name} attribute",
+                               error=CorpusError) for name in ("class_names", "meta"))
+    except KeyError as exc:
+        raise CorpusError(f"{path}: damaged corpus header (no {exc} attribute)") from None
 
 
 def _open(path: Path) -> h5py.File:
@@ -504,11 +505,9 @@ def shapenet_class_names(path: str | Path) -> list[str]:
     names = {}
     taxonomy = root / "taxonomy.json"
     if taxonomy.is_file():
+        entries = load_json(taxonomy, error=CorpusError)
         try:
-            names = {
-                e["synsetId"]: e["name"].split(",")[0].strip()
-                for e in json.loads(taxonomy.read_text())
-            }
+            names = {e["synsetId"]: e["name"].split(",")[0].strip() for e in entries}
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise CorpusError(f"{taxonomy}: unreadable taxonomy ({exc})") from None
     return [names.get(s.name, s.name) for s in synsets]

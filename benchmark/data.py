@@ -306,7 +306,7 @@ class BasicShapes:
         self.data = root if isinstance(root, BenchmarkData) else BenchmarkData(root)
         self.split, self.variants = split, variants
         self.rows = self.data.mesh_rows(split, variants)
-        if variants == "all":   # OOD meshes exist on test objects only: never in training
+        if variants == "all" and split == "test":   # scored, never trained on
             self.rows = np.concatenate([self.rows, *(self.data.ood_meshes_of(o) for o in
                                                      self.data.object_rows(split))])
             self.rows = self.rows[np.lexsort((self.data.meshes["variant"][self.rows],

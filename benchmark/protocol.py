@@ -25,7 +25,14 @@ from typing import Protocol
 import h5py
 import numpy as np
 
-from basic_shapes.infra import atomic_path, load_json, open_hdf5, require_dataset, utc_timestamp
+from basic_shapes.infra import (
+    atomic_path,
+    load_json,
+    one_line,
+    open_hdf5,
+    require_dataset,
+    utc_timestamp,
+)
 from basic_shapes.shards import ood_remesher
 from benchmark import __version__
 from benchmark.data import BenchmarkData
@@ -291,7 +298,10 @@ class Predictions:
         rows = self.order[np.searchsorted(self.sorted_uids, uids)]
         perm = np.argsort(rows)
         out = np.empty((len(rows), *self.file["target_db"].shape[1:]), np.float32)
-        out[perm] = self.file["target_db"][rows[perm]]
+        try:
+            out[perm] = self.file["target_db"][rows[perm]]
+        except OSError as exc:  # a checksum (fletcher32) or a compressed chunk that fails
+            self._fail(f"/target_db cannot be read ({one_line(exc)})")
         bad = ~np.isfinite(out).reshape(len(out), -1).all(axis=1)
         if bad.any():
             self._fail(f"non-finite prediction for mesh_uid {uids[np.flatnonzero(bad)[0]]}")

@@ -24,11 +24,10 @@ Simple MSE) and against ``class-mean``, as paired differences over the same test
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
-from basic_shapes.shards import ood_remesher
+from basic_shapes.infra import load_json
+from basic_shapes.shards import ShardError, ood_remesher
 from benchmark.data import BenchmarkData
 from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
 from benchmark.uncertainty import paired, verdict
@@ -238,8 +237,10 @@ def hidden_parameters(data: BenchmarkData) -> tuple[list[str], np.ndarray]:
     shard's ``/objects/params`` (0 where an object lacks one; no names on Basic Shapes)."""
     params = []
     for s, r in zip(data.objects["shard"], data.objects["row"]):
-        f = data._shard(int(s)).file
-        params.append(json.loads(f["objects/params"][int(r)] if "objects/params" in f else b"{}"))
+        shard = data._shard(int(s))
+        raw = shard.file["objects/params"][int(r)] if "objects/params" in shard.file else b"{}"
+        params.append(load_json(raw, what=f"{shard.path}: /objects/params[{int(r)}]",
+                                error=ShardError))
     keys = sorted({k for p in params for k in p})
     values = np.array([[p.get(k, 0.0) for k in keys] for p in params], np.float64)
     return keys, values.reshape(len(params), len(keys))

@@ -19,10 +19,9 @@ import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.models import REGISTRY
+from benchmark.models.checkpoint import CONFIG_MAX_BYTES
 from benchmark.presets import EMBEDDINGS, PRESETS, PRETRAINING, ROWS
 from benchmark.runner import checkpoint_dir, row_files
-
-CONFIG_MAX_BYTES = 16 << 20  # a checkpoint's config.json: the config and per-epoch history
 
 
 class ReportError(ValueError):

@@ -12,13 +12,12 @@ table ``benchmark.report``, which ``benchmark report`` rebuilds from the results
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
 from pathlib import Path
 
-from basic_shapes.infra import add_quiet_flag, hardware, number
+from basic_shapes.infra import add_quiet_flag, hardware, load_json, number
 from benchmark import report, runner
 from benchmark.presets import PRESETS, ROWS, Preset, rows_of, seeds_of
 
@@ -123,5 +122,5 @@ def run(args: argparse.Namespace) -> None:
     for e, r in rows:
         runner.publish_row(out, f"{e}-{r}", seeds)
     write(with_plot=True)
-    print(report.render_markdown(json.loads((out / "table.json").read_text())))
+    print(report.render_markdown(load_json(out / "table.json", max_bytes=64 << 20)))
     print(f"table, JSON and plot in {out}")

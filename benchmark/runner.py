@@ -9,14 +9,15 @@ Every (row, seed) already finished with the same configuration on the same datas
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
 from dataclasses import asdict, fields
 from pathlib import Path
 
+from basic_shapes.infra import load_json
 from benchmark.models import REGISTRY
+from benchmark.models.checkpoint import CONFIG_MAX_BYTES
 from benchmark.presets import Preset
 
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
@@ -56,10 +57,12 @@ def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
     """The checkpoint config of a (row, seed) trained earlier with this exact config on
     this dataset."""
     try:
-        ck = json.loads((checkpoint_dir(out, cfg.name, cfg.seed) / "config.json").read_text())
+        ck = load_json(checkpoint_dir(out, cfg.name, cfg.seed) / "config.json",
+                       max_bytes=CONFIG_MAX_BYTES)
     except (OSError, ValueError):
         return None
-    if ck.get("train") != asdict(cfg) or ck.get("dataset_fingerprint") != fingerprint:
+    if not isinstance(ck, dict) or ck.get("train") != asdict(cfg) \
+            or ck.get("dataset_fingerprint") != fingerprint:
         return None
     return ck
 
@@ -120,6 +123,17 @@ def _train_flags(cfg) -> list[str]:
     return flags
 
 
+def run_tool(cmd: list[str], what: str) -> None:
+    """Run a toolkit CLI in a child process (torchrun); its one-line error becomes ours."""
+    import subprocess
+
+    result = subprocess.run(cmd, stderr=subprocess.PIPE, text=True)
+    if result.returncode != 0:
+        tail = (result.stderr or "").strip().splitlines()
+        raise ValueError(f"{what} failed: "
+                           f"{tail[-1] if tail else 'exit code ' + str(result.returncode)}")
+
+
 def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc: int,
             progress: bool, log=None) -> dict:
     """Train (in-process or under torchrun) and evaluate one (row, seed); return its record."""
@@ -132,12 +146,10 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
     if trained is not None:  # trained earlier, evaluation missing or interrupted
         train_seconds = trained["train_seconds"]
     elif preset.launcher == "torchrun" and nproc > 1:
-        from benchmark.versions import run_tool
-
         run_tool([sys.executable, "-m", "torch.distributed.run", f"--nproc_per_node={nproc}",
                   "-m", "benchmark.cli", "train", "--data", str(data_dir), "--out", str(ckpt),
-                  "--quiet", *_train_flags(cfg)], f"training {job_name(cfg)}", quiet=False)
-        train_seconds = json.loads((ckpt / "config.json").read_text())["train_seconds"]
+                  "--quiet", *_train_flags(cfg)], f"training {job_name(cfg)}")
+        train_seconds = load_json(ckpt / "config.json", max_bytes=CONFIG_MAX_BYTES)["train_seconds"]
     else:
         from benchmark.data import BenchmarkData
 

@@ -180,6 +180,7 @@ def dataset_signature(directory, object_id: int, config: str, mode: str = "auto"
     simulated with ``config``.
     """
     from basic_shapes.analytic import simulation_mesh, solid_for
+    from radar_sim import MeshError
     from radar_sim.label import object_mode, object_params
 
     path, obj, meshes = find_object(directory, object_id)
@@ -191,8 +192,11 @@ def dataset_signature(directory, object_id: int, config: str, mode: str = "auto"
             raise ShardError(f"{path}: object {obj['id']} has no variant {variant} "
                              f"(--variant 0..{max(by_variant)})")
         name = "simple mesh" if variant == 0 else f"variant {variant}"
-        return simulated_signature(*by_variant[variant], config, mode, f"{title}, physics on "
-                                   f"its {name}")
+        try:
+            return simulated_signature(*by_variant[variant], config, mode, f"{title}, physics "
+                                       f"on its {name}")
+        except MeshError as exc:  # name the shard and the mesh, not only --data
+            raise ShardError(f"{path}: object {obj['id']} variant {variant}: {exc}") from None
     with Shard(path) as s:
         if s.has_labels and s.radar.has_frequency_response:
             radar = s.radar

@@ -29,9 +29,16 @@ import h5py
 import numpy as np
 
 from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
-from basic_shapes.cluster import dask_client
-from basic_shapes.infra import warn
-from basic_shapes.shards import Shard, atomic_path, list_shards, rewrite_atomically, write_radar
+from basic_shapes.cluster import dask_client, finished
+from basic_shapes.infra import load_json, warn
+from basic_shapes.shards import (
+    Shard,
+    ShardError,
+    atomic_path,
+    list_shards,
+    rewrite_atomically,
+    write_radar,
+)
 from radar_sim.field import MODES
 
 SIDECAR = ".labels"
@@ -104,7 +111,8 @@ def object_params(shard: Shard) -> list[dict]:
     """Hidden shape parameters per object (``/objects/params``; {} where the shard has none)."""
     if "objects/params" not in shard.file:
         return [{} for _ in range(shard.n_objects)]
-    return [json.loads(p) for p in shard.file["objects/params"][()]]
+    return [load_json(p, what=f"{shard.path}: /objects/params[{k}]", error=ShardError)
+            for k, p in enumerate(shard.file["objects/params"][()])]
 
 
 @dataclass
@@ -394,6 +402,10 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
             print(text, flush=True)
 
     paths = list_shards(directory)
+    for path in [Path(directory), *paths]:  # labels go into the shards: fail before any work
+        if not os.access(path, os.W_OK):
+            raise LabelError(f"{path}: not writable (labels are written into the dataset in "
+                             f"place); label a writable copy")
     plans = {p: plan_shard(p, request, overwrite) for p in paths}
     for path in [p for p, plan in plans.items() if plan is None]:  # killed after its merge
         shutil.rmtree(path.parent / SIDECAR / path.stem, ignore_errors=True)
@@ -441,7 +453,7 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
         for _ in range(4 * n_threads):
             submit_next()
         progress_log = _Progress(log, n_todo, total_work, n_threads)
-        for future in running:
+        for future in finished(client, running):
             plan, obj = owner.pop(future.key)
             try:
                 result = future.result()

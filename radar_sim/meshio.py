@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.meshcheck import MeshError, check_coordinates
+
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 FORMATS = (".obj", ".stl", ".ply")
 
@@ -48,6 +50,10 @@ def load_mesh(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np
         )
     if not np.isfinite(vertices).all():
         raise MeshFileError(f"{path}: vertices contain NaN or inf")
+    try:  # before merging: trimesh rounds coordinates to integers there (numpy warnings)
+        check_coordinates(vertices)
+    except MeshError as exc:
+        raise MeshFileError(f"{path}: {exc}") from None
     merged = trimesh.Trimesh(vertices, faces, process=False)
     merged.merge_vertices()
     return np.asarray(merged.vertices) * UNITS[units], np.asarray(merged.faces, np.int32)

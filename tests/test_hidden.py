@@ -15,7 +15,8 @@ import pytest
 
 import radar_sim
 from basic_shapes import analytic
-from basic_shapes.generate import GenerateConfig, generate, hidden_params, plan_objects
+from basic_shapes.analytic import hidden_params
+from basic_shapes.generate import GenerateConfig, generate, plan_objects
 from basic_shapes.shards import Shard, list_shards
 from benchmark.data import db_target
 

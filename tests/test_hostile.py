@@ -10,6 +10,7 @@ memory (max RSS) and wall time.
 
 from __future__ import annotations
 
+import ctypes
 import http.server
 import json
 import os
@@ -21,6 +22,7 @@ import subprocess
 import sys
 import threading
 import time
+import types
 from pathlib import Path
 
 import h5py
@@ -33,6 +35,7 @@ from basic_shapes.shards import (
     ObjectRecord,
     Shard,
     ShardError,
+    content_fingerprint,
     iter_objects,
     mesh_uid,
     shard_name,
@@ -64,14 +67,15 @@ def snapshot(*dirs: Path) -> dict:
     return out
 
 
-def cli(tool: str, *args, rc: int = 1, phrase: str, watch=(), env=None) -> str:
+def cli(tool: str, *args, rc: int = 1, phrase: str, watch=(), env=None,
+        preexec=_limit) -> str:
     """Run ``python -m <tool>.cli args`` bounded; assert a one-line refusal naming ``phrase``."""
     watch = [Path(w) for w in watch]
     before = snapshot(*watch)
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", f"{tool}.cli", *map(str, args)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
-                            preexec_fn=_limit, env={**os.environ, **(env or {})})
+                            preexec_fn=preexec, env={**os.environ, **(env or {})})
     try:
         out, err = proc.communicate(timeout=TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -489,13 +493,18 @@ def test_6_edited_shard_is_not_resumed_as_done(ws):
     assert str(d / shard_name(0)) in label
 
 
-def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
-    d = tmp_path / "bad"
+def collinear_dataset(d: Path) -> Path:
+    """One cube object whose only mesh has no face of non-zero area."""
     d.mkdir()
     v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]], np.float32) * 0.1  # collinear
     obj = ObjectRecord(0, 0, np.array([0.3, 0.3, 0.3]), 1, "test",
                        [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})])
     write_shard(d / shard_name(0), [obj], ["cube"], {"fixture": True}, "0.1.0")
+    return d
+
+
+def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
+    d = collinear_dataset(tmp_path / "bad")
     cli(
         "radar_sim",
         "label",
@@ -549,6 +558,10 @@ def test_7_plot_into_a_missing_directory(tmp_path, ws):
     (["--scale-range", "0", "1"], "argument --scale-range"),
     (["--variants", "1000"], "argument --variants"),
     (["--objects-per-shard", "0"], "argument --objects-per-shard"),
+    (["--scale-range", "2", "1"], "argument --scale-range: LOW 2 must be < HIGH 1"),
+    (["--classes", ""], "argument --classes: '' names no class"),
+    (["--classes", "cube,cube"], "argument --classes: 'cube,cube' names a class twice"),
+    (["--classes", "box"], "argument --classes: unknown class box"),
 ])
 def test_10_generate_flags_name_the_flag(tmp_path, args, phrase):
     cli("basic_shapes", "generate", "--data", tmp_path / "g", *args, rc=2, phrase=phrase,
@@ -561,6 +574,14 @@ def test_7_dataset_json_holding_a_list(tmp_path):
     (out / "dataset.json").write_text("[]")
     cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
         phrase="dataset config is not a JSON object", watch=[tmp_path])
+
+
+def test_7_another_dataset_points_at_the_data_flag(tmp_path):
+    out = tmp_path / "g"
+    out.mkdir()
+    (out / "dataset.json").write_text(json.dumps({"seed": 1}))
+    cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
+        phrase="use another --data", watch=[tmp_path])
 
 
 def test_8_model_calling_sys_exit_0_is_an_error(ws, tmp_path):
@@ -620,6 +641,10 @@ def test_boundary_turns_expected_and_unexpected_errors_into_one_line():
                         (ShardError("x.h5: broken"), "x.h5: broken"),
                         (FileNotFoundError(2, "No such file or directory", "a.h5"),
                          "a.h5: No such file or directory"),
+                        (OSError(28, "Can't synchronously write data (file write failed: time = "
+                                     "Thu Nov 26 00:43:14 2026\n, filename = 'x.h5.tmp', errno "
+                                     "= 28, error message = 'No space left on device')"),
+                         "tool: error: No space left on device"),
                         (TypeError("bug\nmore"), "internal error: TypeError: bug")]:
         with pytest.raises(SystemExit) as info:
             infra.cli_boundary("tool", raising(exc), [])
@@ -640,3 +665,129 @@ def test_10_site_is_published_as_a_whole(tmp_path):
     publish(site, {"index.html": b"new", "LEADERBOARD.md": b"new"})
     assert {p.name: p.read_bytes() for p in site.iterdir()} == {
         "index.html": b"new", "LEADERBOARD.md": b"new", "CNAME": b"mine"}
+
+
+# --- 11. one error boundary (reliability audit): a dead child, a full disk, huge numbers, deep
+# JSON, read-only data; each refused in one line naming the file (liveness: test_liveness.py)
+
+def test_11_a_dead_meshlab_child_is_one_error_naming_the_object(tmp_path, monkeypatch):
+    from basic_shapes.generate import ObjectPlan, build_shard
+    from basic_shapes.meshlab_child import MeshLabChild
+
+    def killed_child(*args):  # object_meshes whose MeshLab child is killed (out of memory)
+        with MeshLabChild() as child:
+            child._proc.kill()
+            return child.apply("meshing_remove_duplicate_vertices", np.eye(3), [[0, 1, 2]])
+
+    monkeypatch.setitem(sys.modules, "basic_shapes.blender",
+                        types.SimpleNamespace(object_meshes=killed_child))
+    shard = tmp_path / shard_name(0)
+    with pytest.raises(OSError, match=rf"{shard}: object 7 \(cube\): MeshLab child died during "
+                       rf"meshing_remove_duplicate_vertices \(exit code -9\)"):
+        build_shard(str(shard), [ObjectPlan(7, "cube", 0, (0.5, 0.5, 0.5), 1, "train")],
+                    {"variants": 0})
+    assert not shard.exists()
+
+
+def test_11_meshlab_child_prints_no_traceback_when_its_pipe_closes(capfd):
+    import trimesh
+
+    from basic_shapes.meshlab_child import MeshLabChild, _send
+
+    sphere = trimesh.creation.icosphere(5)  # its answer (250 kB) overflows the pipe
+    with MeshLabChild() as child:
+        pipe = child._proc.stdin
+        pipe.write(json.dumps(["meshing_remove_duplicate_vertices", {}]).encode() + b"\n")
+        _send(pipe, np.asarray(sphere.vertices, np.float64))
+        _send(pipe, np.asarray(sphere.faces, np.int32))
+        pipe.flush()
+        child._proc.stdout.close()  # as when its parent dies: the child's write fails
+    assert child._proc.returncode != 0
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_11_huge_coordinates_are_refused_not_overflowed(tmp_path):
+    from radar_sim import MeshError, monostatic_field
+
+    mesh = tmp_path / "huge.obj"
+    mesh.write_text("v 0 0 0\nv 1e30 0 0\nv 0 1e30 0\nv 0 0 1e30\n"
+                    "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    cli("radar_sim", "rcs", mesh, "--freq", "10", "--aspect", "0",
+        phrase=f"{mesh}: coordinates too large", watch=[tmp_path])
+    with pytest.raises(MeshError, match="coordinates too large"):
+        monostatic_field(np.eye(3) * 1e30, [[0, 1, 2]], np.array([1e10]), np.eye(3))
+
+
+def _small_files():
+    _limit()
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64, 64))  # a write beyond 64 bytes: EFBIG
+
+
+def test_11_a_full_disk_names_the_file(tmp_path):
+    out = tmp_path / "g"
+    cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
+        phrase=f"{out / 'dataset.json'}: File too large", watch=[tmp_path], preexec=_small_files)
+
+
+def test_11_a_checksum_failure_names_the_file(ws, tmp_path):
+    def checksummed(f, name):
+        f.create_dataset(name, data=ws["targets"], chunks=(1, *ws["shape"]), fletcher32=True)
+    bad = predictions_file(tmp_path / "sum.h5", ws, target=checksummed)
+    with h5py.File(bad, "r") as f:
+        offset = f["target_db"].id.get_chunk_info(0).byte_offset
+    with open(bad, "r+b") as fh:
+        fh.seek(offset + 100)
+        byte = fh.read(1)
+        fh.seek(offset + 100)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    evaluate_refuses(ws, bad, f"{bad}: /target_db cannot be read", tmp_path)
+
+
+def test_11_a_degenerate_mesh_names_the_shard_and_the_mesh(tmp_path):
+    d = collinear_dataset(tmp_path / "bad")
+    cli("radar_sim", "plot", "--data", d, "--object", "0", "--variant", "0", "--out",
+        tmp_path / "x.png", phrase=f"{d / shard_name(0)}: object 0 variant 0: mesh has no face",
+        watch=[tmp_path])
+
+
+def test_11_deeply_nested_shard_params_are_refused(ws):
+    def deep(f):
+        f["objects/params"][0] = "[" * 5000 + "]" * 5000
+        f.attrs["fingerprint"] = content_fingerprint(f)  # a consistent, hostile shard
+    d = shard_copy(ws, "deep-params", deep)
+    cli("radar_sim", "label", "--data", d, "--overwrite", "--workers", "0",
+        phrase="/objects/params[0]: JSON nested 5000 deep", watch=[d])
+
+
+def test_11_checkpoint_config_is_read_with_a_bound(tmp_path):
+    from benchmark.models.checkpoint import CONFIG_MAX_BYTES, CheckpointError, load_checkpoint
+
+    with open(tmp_path / "config.json", "wb") as fh:
+        fh.truncate(4 * CONFIG_MAX_BYTES)  # sparse: costs no disk, and no memory to refuse
+    with pytest.raises(CheckpointError, match="config.json: larger than"):
+        load_checkpoint(tmp_path)
+
+
+def _as_plain_user():
+    """``_limit``; and as root, without the capabilities that override file modes."""
+    _limit()
+    if os.geteuid() == 0:
+        libc = ctypes.CDLL(None, use_errno=True)
+        for cap in (1, 2):  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH: out of the bounding set,
+            if libc.prctl(24, cap, 0, 0, 0):  # PR_CAPBSET_DROP; so gone after exec
+                raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP)")
+
+
+def test_11_label_refuses_a_read_only_dataset_before_any_work(ws):
+    try:
+        subprocess.run(["true"], preexec_fn=_as_plain_user, check=True)
+    except (OSError, subprocess.SubprocessError):
+        pytest.skip("cannot drop root's file-mode override here")
+    d = shard_copy(ws, "read-only")
+    for path in [*d.glob("*.h5"), d]:
+        path.chmod(0o555 if path.is_dir() else 0o444)
+    try:  # refused before planning or simulating, not when the first label is written
+        cli("radar_sim", "label", "--data", d, "--overwrite", phrase=f"{d}: not writable",
+            watch=[d], preexec=_as_plain_user)
+    finally:
+        d.chmod(0o755)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from basic_shapes.infra import atomic_path
+from basic_shapes.infra import atomic_path, load_json
 from benchmark.models import (
     REGISTRY,
     MeshSimulator,
@@ -28,6 +28,7 @@ from benchmark.models import (
 CHECKPOINT_FORMAT = "basic-shapes-checkpoint"
 CHECKPOINT_VERSION = 1
 WEIGHTS, CONFIG = "model.pt", "config.json"
+CONFIG_MAX_BYTES = 16 << 20  # config.json: the config and per-epoch history
 
 
 class CheckpointError(ValueError):
@@ -56,13 +57,8 @@ def load_checkpoint(directory: str | os.PathLike,
                     map_location: str | torch.device = "cpu") -> tuple[MeshSimulator, dict]:
     """Rebuild the model of a checkpoint directory (eval mode) and return it with its config."""
     directory = Path(directory)
-    try:
-        config = json.loads((directory / CONFIG).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise CheckpointError(
-            f"{directory / CONFIG}: unreadable checkpoint config ({exc})"
-        ) from None
-    if config.get("format") != CHECKPOINT_FORMAT:
+    config = load_json(directory / CONFIG, max_bytes=CONFIG_MAX_BYTES, error=CheckpointError)
+    if not isinstance(config, dict) or config.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{directory / CONFIG}: not a {CHECKPOINT_FORMAT} config")
     kwargs = dict(config["model"])
     model = build_model(kwargs.pop("name"), **kwargs)
