@@ -56,8 +56,16 @@ def _numbers(text: str, positive: bool = False) -> np.ndarray:
     return values
 
 
+MAX_GHZ = 3000.0  # above this a --freq value is Hz given where GHz is expected
+
+
 def _frequencies(text: str) -> np.ndarray:
-    return _numbers(text, positive=True)
+    values = _numbers(text, positive=True)
+    if values.max() > MAX_GHZ:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: --freq is in GHz; {values.max():g} looks like Hz "
+            f"(give {values.max() / 1e9:g} for {values.max():g} Hz)")
+    return values
 
 
 def _png_path(text: str) -> str:
@@ -86,12 +94,6 @@ def load_config(spec: str):
         return RadarConfig.named(spec)
     except ValueError as exc:
         raise SystemExit(f"--config: {exc}") from None
-
-
-def line_of_sight(aspect_deg: np.ndarray, roll_deg: float) -> np.ndarray:
-    """(sin θ cos φ, sin θ sin φ, cos θ) per aspect θ at roll φ: unit vectors, object frame."""
-    t, p = np.radians(aspect_deg), np.radians(roll_deg)
-    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
 @contextlib.contextmanager
@@ -147,13 +149,12 @@ def size_warning(extent_m, f_min_hz: float, f_max_hz: float, units: str) -> str 
 
 
 def cmd_rcs(args) -> None:
-    from radar_sim import detect_mode, monostatic_field
+    from radar_sim import detect_mode, rcs
 
     vertices, faces = load_mesh(args.meshfile, args.units)
     mode = detect_mode(vertices, faces) if args.mode == "auto" else args.mode
     with units_hint(args.meshfile):
-        field = monostatic_field(vertices, faces, args.freq * 1e9,
-                                 line_of_sight(args.aspect, args.roll), mode=mode)
+        field = rcs(vertices, faces, args.freq * 1e9, args.aspect, args.roll, mode=mode)
     extent = np.ptp(vertices, axis=0)
     text = " x ".join(f"{e:.4g}" for e in extent)
     print(f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {text} m), "

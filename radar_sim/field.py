@@ -19,12 +19,13 @@ import ctypes
 import ctypes.util
 import functools
 import math
+import warnings
 
 import numpy as np
 
 from basic_shapes.portable import matmul
 from radar_sim import facet, po_kernel
-from radar_sim.geometry import Mesh, RayCaster, check_units, mode_of, prepare
+from radar_sim.geometry import Mesh, RayCaster, UnitsWarning, check_units, mode_of, prepare
 
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
@@ -34,6 +35,7 @@ VERTEX_TERM_COST = 8.0        # one moment update per vertex / one multiply-add 
 DIRECT_COST = 30.0            # one direct phasor and multiply-add / one of the contraction
 MOMENT_EPS = facet.EPS / 16    # Taylor remainder of a vertex phasor in the binned sums
 MOMENT_BUDGET = 64 << 20       # bytes of moments (or contraction matrix) held at a time
+MIN_PLAUSIBLE_HZ = 1e6         # physical optics on a mesh below 1 MHz: GHz given as Hz
 
 
 def _cis_of_product(s, s_parts, c) -> np.ndarray:
@@ -45,6 +47,10 @@ def wavenumbers(frequencies_hz) -> np.ndarray:
     f = np.atleast_1d(np.asarray(frequencies_hz, dtype=np.float64))
     if f.ndim != 1 or len(f) == 0 or not np.all(np.isfinite(f)) or np.any(f <= 0):
         raise ValueError(f"frequencies must be a non-empty 1-D array of positive Hz, got {f!r}")
+    if f.max() < MIN_PLAUSIBLE_HZ:
+        warnings.warn(f"frequencies up to {f.max():g} Hz: the simulator takes Hz, so these look "
+                      f"like GHz (pass {f.max() * 1e9:g} for {f.max():g} GHz)", UnitsWarning,
+                      stacklevel=3)
     return 2.0 * np.pi * f / C0
 
 

@@ -196,3 +196,22 @@ def test_one_owner_for_metric_names():
 
     assert metrics.METRIC_NAMES is schema.METRIC_NAMES is store.METRIC_NAMES
     assert render.COLUMNS == schema.METRIC_NAMES + schema.OOD_METRIC_NAMES
+
+
+def test_frequency_unit_slips_are_caught(tmp_path):
+    """GHz flag given in Hz: refused by the parser with the fix; Hz API given GHz: warned."""
+    import warnings
+
+    import trimesh
+
+    import radar_sim
+
+    cube = trimesh.creation.box(extents=(0.3, 0.3, 0.3))
+    cube.export(tmp_path / "cube.stl")
+    cli("radar_sim", "rcs", tmp_path / "cube.stl", "--freq", "10e9", "--aspect", "0", rc=2,
+        phrase="looks like Hz (give 10 for 1e+10 Hz)", watch=[tmp_path])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        radar_sim.rcs(cube.vertices, cube.faces, 10.0, [0.0])
+    assert any(issubclass(w.category, radar_sim.UnitsWarning) and "look like GHz" in
+               str(w.message) and "pass 1e+10" in str(w.message) for w in caught)
