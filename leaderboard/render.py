@@ -154,9 +154,9 @@ def describe(dataset: dict) -> str:
     head = (f"version {v.name}: {v.summary}; grid {v.grid()}, radar config "
             f"{v.radar_config().name}; built by: benchmark dataset {v.name} --data DIR. "
             if v else "not a registered dataset version. ")
-    recorded = v.fingerprints.get("mesh") if v else None
-    if recorded and dataset.get("fingerprint") != recorded:
-        head += (f"Scored on an earlier build of {v.name} (mesh {dataset['fingerprint'][:8]}..., "
+    recorded, found = v.fingerprints.get("mesh") if v else None, dataset.get("fingerprint")
+    if recorded and found and found != recorded:
+        head += (f"Scored on an earlier build of {v.name} (mesh {found[:8]}..., "
                  f"made before dataset bytes were machine-independent; the recorded build is "
                  f"{recorded[:8]}...): its numbers re-score only where that build comes back "
                  f"(docs/RESULTS.md, Status). ")

@@ -18,13 +18,13 @@ self-reported whatever the results JSON says. Only ``seed`` (the maintainers' ow
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 
 from tqdm import tqdm
 
 from basic_shapes.infra import utc_timestamp
+from basic_shapes.manifest import file_sha256
 from benchmark.data import BenchmarkData
 from benchmark.protocol import Predictions, load_results, score_predictions
 from leaderboard import example
@@ -90,13 +90,6 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
         ]
     return diffs
 
-
-def sha256_file(path: str | os.PathLike) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 22), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
@@ -165,7 +158,7 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         more = f" (and {len(diffs) - 1} more differences)" if len(diffs) > 1 else ""
         raise SubmissionError(f"{results_path}: {diffs[0]}{more}")
 
-    pred_sha = sha256_file(predictions_path)
+    pred_sha = file_sha256(predictions_path)
     with data, Predictions(predictions_path, data) as preds:
         content_sha = preds.content_sha256()
         _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)  # fail early
@@ -194,7 +187,7 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         "seeds": results["seeds"],
         "created": results["created"],
         "submitted": utc_timestamp(),
-        "files": {"results_sha256": sha256_file(results_path), "predictions_sha256": pred_sha,
+        "files": {"results_sha256": file_sha256(results_path), "predictions_sha256": pred_sha,
                   "predictions_content_sha256": content_sha},
         "sample": sample,
     }

@@ -34,6 +34,7 @@ from basic_shapes.shards import (
     write_radar,
     write_shard,
 )
+from benchmark import versions
 from leaderboard import cli, store
 from leaderboard.submit import REL_TOL
 
@@ -571,6 +572,11 @@ def test_board_names_the_dataset_version_with_its_grid_and_config():
     assert "version cpu-v1" in text and "31 aspects x 7 rolls x 107 range bins" in text
     assert "xband-v1-31x7x107" in text and "benchmark dataset cpu-v1" in text
     assert describe({**split, "version": None}).startswith("not a registered dataset version")
+    recorded = {**split, "version": "cpu-v1",
+                "fingerprint": versions.get("cpu-v1").fingerprints["mesh"]}
+    assert "earlier build" not in describe(recorded)
+    assert "Scored on an earlier build of cpu-v1 (mesh 390cf5dc" in describe(
+        {**recorded, "fingerprint": "390cf5dc" + "0" * 56})
 
 
 def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path):
