@@ -58,6 +58,20 @@ def atomic_path(path: str | os.PathLike):
 
 
 _DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+FREE_MARGIN = 64 << 20  # bytes kept free beyond a write's estimate (HDF5 metadata, labels)
+
+
+def require_free_space(path: str | os.PathLike, nbytes: int) -> None:
+    """Refuse (``OSError`` ENOSPC naming ``path``) a write of about ``nbytes`` that the disk
+    cannot hold, before it starts: HDF5 that runs out of space mid-write can crash the
+    process on close (h5py issues 914, 2160) instead of raising."""
+    import shutil
+
+    free = shutil.disk_usage(Path(path).parent).free
+    if free < nbytes + FREE_MARGIN:
+        raise OSError(errno.ENOSPC, f"No space left on device (about "
+                      f"{(nbytes + FREE_MARGIN) >> 20} MiB needed, {free >> 20} MiB free)",
+                      str(path))
 
 
 def _disk_full(exc: BaseException | None) -> int | None:

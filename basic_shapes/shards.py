@@ -19,7 +19,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from basic_shapes.infra import atomic_path, load_json, one_line, open_hdf5, require_dataset
+from basic_shapes.infra import (
+    atomic_path,
+    load_json,
+    one_line,
+    open_hdf5,
+    require_dataset,
+    require_free_space,
+)
 
 SCHEMA_VERSION = 2  # 2: /radar with dimension scales, label fingerprint, mesh_*
 SHARD_GLOB = "shard-*.h5"
@@ -70,6 +77,7 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
     nf = np.array([len(m.faces) for m in meshes], dtype=np.int64)
     vertices = np.concatenate([np.asarray(m.vertices, np.float32) for m in meshes]).reshape(-1, 3)
     faces = np.concatenate([np.asarray(m.faces, np.int32) for m in meshes]).reshape(-1, 3)
+    require_free_space(path, vertices.nbytes + faces.nbytes)
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w", libver="earliest") as f:
             f.attrs["schema_version"] = SCHEMA_VERSION
@@ -421,6 +429,7 @@ def find_object(directory: str | os.PathLike, object_id: int):
 def rewrite_atomically(path: str | os.PathLike, edit) -> None:
     """Copy a shard, let ``edit(h5py.File)`` change the copy, then swap it in atomically."""
     path = Path(path)
+    require_free_space(path, path.stat().st_size)
     with atomic_path(path) as tmp:
         shutil.copyfile(path, tmp)
         with h5py.File(tmp, "r+") as f:

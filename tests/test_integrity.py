@@ -215,3 +215,22 @@ def test_frequency_unit_slips_are_caught(tmp_path):
         radar_sim.rcs(cube.vertices, cube.faces, 10.0, [0.0])
     assert any(issubclass(w.category, radar_sim.UnitsWarning) and "look like GHz" in
                str(w.message) and "pass 1e+10" in str(w.message) for w in caught)
+
+
+def test_a_disk_too_full_for_a_shard_is_refused_before_writing(data, tmp_path, monkeypatch):
+    """HDF5 that runs out of space mid-write can crash on close: the writers check first."""
+    import collections
+    import shutil
+
+    from basic_shapes.shards import Shard, rewrite_atomically
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(1 << 30, 1 << 30, 1 << 20))
+    shard = data / "shard-00000.h5"
+    before = shard.read_bytes()
+    with pytest.raises(OSError, match="No space left on device") as err:
+        rewrite_atomically(shard, lambda f: None)
+    assert err.value.filename == str(shard)
+    assert shard.read_bytes() == before and not list(data.glob("*.tmp"))
+    with Shard(shard) as s:
+        s.verify()
