@@ -17,7 +17,7 @@ import radar_sim
 from basic_shapes import analytic
 from basic_shapes.analytic import hidden_params
 from basic_shapes.generate import GenerateConfig, generate, plan_objects
-from basic_shapes.shards import Shard, list_shards
+from basic_shapes.shards import Shard, content_fingerprint, list_shards
 from benchmark.data import db_target
 
 
@@ -244,6 +244,7 @@ def test_report_table_shows_the_oracle_only_with_hidden_parameters(tmp_path):
         with h5py.File(path, "r+") as f:
             f["objects/params"][...] = [json.dumps({"top_ratio": float(x)})
                                         for x in rng.uniform(0, 0.9, len(f["objects/id"]))]
+            f.attrs["fingerprint"] = content_fingerprint(f)   # a new dataset, not an edit
     with BenchmarkData(directory) as data:
         scorers, rows, oracle = report.reference_rows(data)
         own = OracleReference(References(data)).score().per_object()
