@@ -38,8 +38,15 @@ class Preset:
 SMALL_MODEL = dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
                    codebook_size=64, pretrain_meshes=1500, pretrain_epochs=8,
                    pretrain_max_faces=400)
-"""CPU-sized models: complex meshes reach ~4000 faces, so self-attention over faces dominates;
-one aggregator layer, two heads, one thread per job with two jobs at once."""
+"""CPU-sized models: complex meshes reach ~4000 faces; one aggregator layer (computed for the
+CLS token alone, so linear in the faces), two heads, one thread per job with two jobs at once
+(two threads per job ran 10-50x slower per step whenever other work shared the 2 cores)."""
+PLATEAU = dict(epochs=150, patience=10)
+"""Train to the validation plateau (``benchmark.train.plateau``), capped at 150 epochs. On
+cpu-v1 an epoch of all 14 rows x 3 seeds costs ~150 s of one core (perf/training_speed.py,
+scaled from 240 to 1,200 training objects); with pretraining (~9 min), evaluation (~20-50 s
+per run) and twice that for two jobs contending, the table takes at most ~7 hours on 2
+cores even if every run reaches the cap, about 3.5 without contention."""
 
 PRESETS = {
     # For the test suite: every row on a few objects, with models too small to learn much.
@@ -51,17 +58,19 @@ PRESETS = {
         expected="about a minute on 2 CPU cores", seeds=(0,), findings=False),
     # The demo's dataset with the CPU models: a quick look, too few test objects for findings.
     "small": Preset(
-        dataset="demo-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, epochs=30, batch_size=8),
+        dataset="demo-v1", workers=None, jobs=2,
+        train=dict(SMALL_MODEL, **PLATEAU, batch_size=8),
         expected="about 10 minutes on 2 CPU cores", seeds=(0,), findings=False),
     # The CPU benchmark (docs/RESULTS.md): 150 test objects, 3 seeds, paired intervals.
     "cpu": Preset(
-        dataset="cpu-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, epochs=8, batch_size=16),
-        expected="estimated 4-6 hours on 2 CPU cores (resumable: rerun to continue)"),
+        dataset="cpu-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, **PLATEAU, batch_size=16),
+        expected="estimated at most 8 hours on 2 CPU cores, less where runs plateau before "
+                 "the cap (resumable: rerun to continue)"),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
         dataset="paper-v1", workers=None,
         train=dict(dim=256, embed_layers=5, agg_layers=6, n_heads=8, decoder_hidden=1024,
-                   codebook_size=512, epochs=100, batch_size=32, pretrain_meshes=20000,
+                   codebook_size=512, epochs=100, patience=10, batch_size=32, pretrain_meshes=20000,
                    pretrain_epochs=30, pretrain_max_faces=800, lr=3e-4, pretrain_lr=3e-4),
         launcher="torchrun",
         expected="estimated (not measured) 3-4 hours of training and evaluation on one "

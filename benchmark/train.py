@@ -12,12 +12,15 @@
 
 The loss is MSE on the dB target (or the intensity-weighted MSE of ``benchmark.metrics``),
 plus the token embedding's commitment loss. The decoder predicts in units standardized by
-the training responses (``Decoder.set_output_statistics``). The checkpoint is the epoch
-with the lowest Simple MSE on the validation split (``fit``; the last epoch when the dataset
-has no val objects); the test split is never looked at. Runs are deterministic for a
-seed and a thread count on one machine. Under ``torchrun`` (``WORLD_SIZE`` > 1, joined by
-``benchmark.train_cli``) the loss module is wrapped in DistributedDataParallel and every
-epoch's objects are sharded with a DistributedSampler; rank 0 writes the checkpoint.
+the training responses (``Decoder.set_output_statistics``). Training runs to a plateau of
+the Simple MSE on the validation split (``plateau``: the learning rate is halved when the
+best epoch is ``patience // 2`` epochs old, training stops when it is ``patience`` epochs
+old, ``epochs`` is the cap) and the checkpoint is the best epoch (``fit``; without val
+objects, all ``epochs`` with a cosine decay, and the last epoch); the test split is never
+looked at. Runs are deterministic for a seed and a thread count on one machine. Under
+``torchrun`` (``WORLD_SIZE`` > 1, joined by ``benchmark.train_cli``) the loss module is
+wrapped in DistributedDataParallel and every epoch's objects are sharded with a
+DistributedSampler; rank 0's val MSE decides for all ranks; rank 0 writes the checkpoint.
 """
 
 from __future__ import annotations
@@ -58,7 +61,8 @@ BUCKET = 8  # batches per length bucket: meshes of similar face count are batche
 BOUNDS = {  # numeric fields of TrainConfig: (minimum, maximum); "above" 0 for rates
     "dim": (1, 4096), "embed_layers": (1, 64), "agg_layers": (1, 64), "n_heads": (1, 256),
     "decoder_hidden": (1, 65536), "codebook_size": (2, 65536), "n_quantizers": (1, 64),
-    "epochs": (1, 100_000), "batch_size": (1, 65536), "lr": ("above", 10.0),
+    "epochs": (1, 100_000), "patience": (1, 100_000), "batch_size": (1, 65536),
+    "lr": ("above", 10.0),
     "weight_decay": (0.0, 10.0), "pretrain_meshes": (0, 10_000_000),
     "pretrain_epochs": (0, 100_000),
     "pretrain_max_faces": (4, 10_000_000), "pretrain_lr": ("above", 10.0),
@@ -87,7 +91,8 @@ class TrainConfig:
     decoder_hidden: int = 256
     codebook_size: int = 128
     n_quantizers: int = 2
-    epochs: int = 40
+    epochs: int = 200  # the cap: a run stops earlier at its validation plateau
+    patience: int = 10  # epochs without a new best val MSE before stopping (see ``plateau``)
     batch_size: int = 16
     lr: float = 1e-3
     weight_decay: float = 1e-4
@@ -275,54 +280,89 @@ class PretrainTask(nn.Module):
 def validation_mse(model: MeshSimulator, examples: list[Example], batch_size: int,
                    device: torch.device) -> float:
     """Mean over validation objects of the MSE (dB²) of the floored prediction on the
-    simple mesh: the benchmark's Simple MSE, which model selection may look at."""
+    simple mesh: the benchmark's Simple MSE, which model selection may look at. Batched in
+    face-count order (little padding), averaged in the examples' order."""
     was_training = model.training
     model.eval()
-    errors = []
-    for s in range(0, len(examples), batch_size):
-        batch = make_batch(examples, list(range(s, min(s + batch_size, len(examples))))).to(device)
+    order = sorted(range(len(examples)), key=lambda i: examples[i].features.n_faces)
+    errors = np.empty(len(examples))
+    for s in range(0, len(order), batch_size):
+        idx = order[s:s + batch_size]
+        batch = make_batch(examples, idx).to(device)
         pred = model(batch)[0].clamp_min(FLOOR_DB)
-        errors += ((pred - batch.target) ** 2).mean(dim=1).tolist()
+        errors[idx] = ((pred - batch.target) ** 2).mean(dim=1).cpu().numpy()
     model.train(was_training)
     return float(np.mean(errors))
+
+
+def plateau(val_mse: list[float], patience: int) -> dict:
+    """Where a validation curve stands after its last epoch (a pure function of the curve).
+
+    ``best``: the epoch of the lowest val MSE (the first of ties). ``halvings``: how often
+    the learning rate has been halved, once each time the best reached ``patience // 2``
+    epochs of age (at least 1), so a stalled run is annealed before it is stopped. ``stop``:
+    the best is ``patience`` epochs old (no new best in the last ``patience`` epochs).
+    """
+    best, halvings, wait = 0, 0, max(1, patience // 2)
+    for epoch, value in enumerate(val_mse):
+        if value < val_mse[best]:
+            best = epoch
+        halvings += epoch - best == wait
+    return {"best": best, "halvings": halvings, "stop": len(val_mse) - 1 - best >= patience}
+
+
+def lr_factor(step: int, warm: int, total: int, halvings: int | None) -> float:
+    """The learning rate's multiplier at an optimizer step: linear warm-up over ``warm``
+    steps, then halved ``halvings`` times (a run selected on val, ``plateau``) or, without
+    validation (``halvings`` None: a fixed length), cosine decay to 5% at ``total``."""
+    up = min(1.0, (step + 1) / warm)
+    if halvings is not None:
+        return up * 0.5 ** halvings
+    return up * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
+
+
+def make_optimizer(task: nn.Module, lr: float, weight_decay: float) -> torch.optim.Optimizer:
+    """AdamW, fused: one pass over each parameter instead of one per operation. The decoder's
+    output layer (n_outputs x decoder_hidden, nearly all of the parameters) made the
+    per-tensor step the most expensive part of a small-mesh training step."""
+    return torch.optim.AdamW(task.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
 
 
 def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, epochs: int,
         batch_size: int, lr: float, weight_decay: float, seed: int, desc: str,
         device: torch.device, progress: bool = True,
-        val: list[Example] | None = None, log=None) -> list[dict]:
-    """AdamW with linear warm-up and cosine decay, gradient clipping at 1; returns the mean
-    loss and statistics of every epoch.
+        val: list[Example] | None = None, patience: int | None = None, log=None) -> list[dict]:
+    """AdamW with linear warm-up, gradient clipping at 1; returns the mean loss and
+    statistics of every epoch, and its learning rate.
 
     With ``val`` examples (a regression task), every epoch's model is scored on them
-    (``val_mse``) and the weights of the best epoch are kept: the checkpoint is selected on
-    the validation split, never on test, and its record is marked ``selected``. Without,
-    the last epoch is kept. ``log`` (a callable taking one line) reports each finished epoch
-    where no progress bar can be shown (pool workers of ``benchmark reproduce``)."""
+    (``val_mse``), the learning rate is halved and training stopped by ``plateau`` with
+    ``patience`` (``epochs`` is the cap), and the weights of the best epoch are kept: the
+    checkpoint is selected on the validation split, never on test, and its record is marked
+    ``selected``. Without, all ``epochs`` run with a cosine decay and the last is kept.
+    ``log`` (a callable taking one line) reports each finished epoch where no progress bar
+    can be shown (pool workers of ``benchmark reproduce``)."""
     distributed = torch.distributed.is_available() and torch.distributed.is_initialized()
     rank = torch.distributed.get_rank() if distributed else 0
     world = torch.distributed.get_world_size() if distributed else 1
+    if val and patience is None:
+        raise ValueError("fit with val examples needs a patience")
     task.to(device).train()
     runner = task
     if distributed:
         runner = nn.parallel.DistributedDataParallel(
             task, device_ids=[device.index] if device.type == "cuda" else None,
             find_unused_parameters=isinstance(task, PretrainTask))
-    opt = torch.optim.AdamW(task.parameters(), lr=lr, weight_decay=weight_decay)
+    opt = make_optimizer(task, lr, weight_decay)
     steps_per_epoch = len(epoch_batches(examples, groups, batch_size, 0, seed, rank, world))
     total = max(1, epochs * steps_per_epoch)
-    warm = max(1, total // 20)
-
-    def schedule(step: int) -> float:
-        """Linear warm-up, then cosine decay to 5% of the learning rate."""
-        return min(1.0, (step + 1) / warm) * (
-            0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
-
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, schedule)
+    warm = max(1, min(total // 20, steps_per_epoch))
+    halvings = 0 if val else None
     history = []
     best = None
     bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
     t0 = time.perf_counter()
+    step = 0
     for epoch in bar:
         sums: dict[str, float] = {}
         batches = epoch_batches(examples, groups, batch_size, epoch, seed, rank, world)
@@ -332,13 +372,17 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
             opt.zero_grad(set_to_none=True)
             loss.backward()
             nn.utils.clip_grad_norm_(task.parameters(), 1.0)
+            for group in opt.param_groups:
+                group["lr"] = lr * lr_factor(step, warm, total, halvings)
             opt.step()
-            sched.step()
+            step += 1
             for k, v in {"loss": loss.item(), **stats}.items():
                 sums[k] = sums.get(k, 0.0) + v
         record = {k: v / max(len(batches), 1) for k, v in sums.items()}
+        record["lr"] = opt.param_groups[0]["lr"]
         if val:
-            record["val_mse"] = validation_mse(task.model, val, batch_size, device)
+            record["val_mse"] = _same_on_every_rank(
+                validation_mse(task.model, val, batch_size, device), device, distributed)
             if best is None or record["val_mse"] < best[0]:
                 best = (record["val_mse"], epoch, {k: v.detach().clone()
                                                    for k, v in task.state_dict().items()})
@@ -347,6 +391,11 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
         if log is not None and rank == 0:
             log(f"{desc}: epoch {epoch + 1}/{epochs}, {time.perf_counter() - t0:.0f} s, "
                 + ", ".join(f"{k} {v:.3g}" for k, v in record.items()))
+        if val:
+            state = plateau([r["val_mse"] for r in history], patience)
+            if state["stop"]:
+                break
+            halvings = state["halvings"]
     if best is not None:
         task.load_state_dict(best[2])
         history[best[1]]["selected"] = True
@@ -354,12 +403,29 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
     return history
 
 
-def selection(history: list[dict]) -> dict:
-    """Which epoch the checkpoint holds and on what it was chosen."""
+def _same_on_every_rank(value: float, device: torch.device, distributed: bool) -> float:
+    """Rank 0's value on every rank, so that all ranks stop at the same epoch."""
+    if not distributed:
+        return value
+    t = torch.tensor([value], dtype=torch.float64, device=device)
+    torch.distributed.broadcast(t, src=0)
+    return float(t.item())
+
+
+def selection(history: list[dict], patience: int) -> dict:
+    """Which epoch the checkpoint holds, on what it was chosen, and how training ended:
+    ``epochs_to_plateau`` (epochs up to the best one) and ``capped`` (the cap, not the
+    plateau, ended the run: its best epoch is within the last ``patience``, so it was still
+    improving)."""
     chosen = [k for k, r in enumerate(history) if r.get("selected")]
     if chosen:
-        return {"on": "val", "epoch": chosen[0], "val_mse": history[chosen[0]]["val_mse"]}
-    return {"on": "last epoch (no val split)", "epoch": len(history) - 1, "val_mse": None}
+        k = chosen[0]
+        return {"on": "val", "epoch": k, "val_mse": history[k]["val_mse"],
+                "epochs_trained": len(history), "epochs_to_plateau": k + 1,
+                "patience": patience, "capped": len(history) - 1 - k < patience}
+    return {"on": "last epoch (no val split)", "epoch": len(history) - 1, "val_mse": None,
+            "epochs_trained": len(history), "epochs_to_plateau": None, "patience": None,
+            "capped": None}
 
 
 # --- one run ----------------------------------------------------------------------------------
@@ -410,12 +476,13 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
     history["train"] = fit(task, examples, groups, epochs=cfg.epochs, batch_size=cfg.batch_size,
                            lr=cfg.lr, weight_decay=cfg.weight_decay, seed=cfg.seed,
                            desc=f"{cfg.name}/seed-{cfg.seed}", device=device, progress=progress,
-                           val=val, log=log)
+                           val=val, patience=cfg.patience, log=log)
     model.to("cpu").eval()
     config = {"name": cfg.name, "embedding": cfg.embedding, "regime": cfg.regime,
               "model": kwargs, "target_shape": list(data.target_shape),
               "scale_bins": {"lo": scale_bins.lo, "hi": scale_bins.hi, "n": scale_bins.n},
-              "train": asdict(cfg), "history": history, "selection": selection(history["train"]),
+              "train": asdict(cfg), "history": history,
+              "selection": selection(history["train"], cfg.patience),
               "train_seconds": time.perf_counter() - t0, **identity}
     return model, config
 

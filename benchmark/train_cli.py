@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "loss": "mse, or intensity (intensity-weighted MSE + MSE)",
         "shapenet": "pretrain on a local ShapeNetCore v2 directory, not the procedural corpus",
         "pretrain_meshes": "corpus size (procedural), or a cap on ShapeNet models (0: all)",
+        "epochs": "the cap on training epochs; a run with val objects stops at its plateau",
+        "patience": "stop when the best val MSE is this many epochs old (the learning rate "
+        "is halved at half of it)",
     }
     for f in fields(TrainConfig):
         default = getattr(defaults, f.name)

@@ -129,6 +129,58 @@ def test_face_order_does_not_matter(name):
     torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)
 
 
+@pytest.mark.parametrize("n_layers", [1, 2])
+def test_aggregator_reads_the_full_encoders_cls_row(n_layers):
+    """The last layer computed for the CLS token alone is the full encoder's row 0, with
+    padding, in training and in eval mode (where torch takes its fused inference path)."""
+    from benchmark.models.aggregator import Aggregator
+
+    torch.manual_seed(0)
+    agg = Aggregator(32, n_layers, n_heads=2)
+    emb = torch.randn(4, 30, 32)
+    mask = torch.arange(30)[None] < torch.tensor([[30], [7], [1], [19]])
+    x = torch.cat([agg.cls.expand(4, -1, -1), emb], 1)
+    pad = torch.cat([mask.new_zeros(4, 1), ~mask], 1)
+    for training in (True, False):
+        agg.train(training)
+        full = agg.norm(agg.encoder(x, src_key_padding_mask=pad)[:, 0])
+        torch.testing.assert_close(agg(emb, mask), full, atol=1e-5, rtol=1e-5)
+
+
+def test_graph_node_features_are_the_projected_concatenation():
+    """The folded one-hot sum is the projection of the concatenated token embeddings."""
+    from benchmark.models.features import TOKEN_GROUPS
+
+    g = model("graph").embedding
+    batch = collate([featurize(v, f) for v, f in ragged_meshes()])
+    tokens = batch.tokens[batch.mask]
+    starts = np.cumsum([0] + [n for _, n in TOKEN_GROUPS])
+    concatenated = torch.cat([table(tokens[:, a:b]).flatten(1)
+                              for table, a, b in zip(g.tables, starts[:-1], starts[1:])], 1)
+    torch.testing.assert_close(g.node_features(batch), g.proj(concatenated), atol=1e-5, rtol=1e-5)
+
+
+def test_vq_of_the_packed_faces_is_the_masked_vq_of_the_padded_batch():
+    """The token embedding quantizes the real faces as one sequence: the same codes,
+    commitment loss and codebook updates as the padded batch under its mask."""
+    import copy
+
+    m = model("token").train()
+    batch = collate([featurize(v, f) for v, f in ragged_meshes()])
+    vq = copy.deepcopy(m.embedding.vq)
+    for step in range(3):
+        emb = m.embedding.graph(batch)[0].detach().requires_grad_()  # as in training: the
+        torch.manual_seed(step)  # rotation trick; dead codes are re-seeded from random faces
+        quantized, _, commit = m.embedding(batch)
+        torch.manual_seed(step)
+        q_ref, codes_ref, commit_ref = vq(emb, mask=batch.mask)
+        assert torch.equal(m.embedding.last_codes[batch.mask], codes_ref[batch.mask])
+        torch.testing.assert_close(commit, commit_ref.sum())
+        torch.testing.assert_close(quantized[batch.mask], q_ref[batch.mask])
+    for a, b in zip(m.embedding.vq.state_dict().values(), vq.state_dict().values()):
+        torch.testing.assert_close(a, b)
+
+
 def test_vq_codebook_is_used_and_quantizes_to_codebook_vectors():
     m = model("token")
     m.train()

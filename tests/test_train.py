@@ -36,6 +36,7 @@ from tests.benchmark_fixture import make_dataset
 
 TINY = dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32, codebook_size=16,
             epochs=2, batch_size=4, pretrain_meshes=20, pretrain_epochs=1, pretrain_max_faces=100)
+TINY_LR = TrainConfig().lr
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +48,11 @@ def data_dir(tmp_path_factory):
 def run(data_dir, **kw):
     with BenchmarkData(data_dir) as data:
         return train(TrainConfig(**{**TINY, **kw}), data, progress=False)
+
+
+def states_equal_to(model, state: dict) -> bool:
+    own = model.state_dict()
+    return own.keys() == state.keys() and all(torch.equal(own[k], state[k]) for k in own)
 
 
 def states_equal(a, b) -> bool:
@@ -395,7 +401,75 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     with BenchmarkData(make_dataset(tmp_path / "nv", objects_per_class=3, n_test_per_class=1,
                                     grid=(3, 2, 8))) as data:
         _, config = train(TrainConfig(**TINY), data, progress=False)
-    assert config["selection"] == {"on": "last epoch (no val split)", "epoch": 1, "val_mse": None}
+    assert config["selection"] == {"on": "last epoch (no val split)", "epoch": 1, "val_mse": None,
+                                   "epochs_trained": 2, "epochs_to_plateau": None,
+                                   "patience": None, "capped": None}
+
+
+@pytest.mark.parametrize("curve,patience,stop_after,best,halvings", [
+    ([9, 8, 7, 7.5, 7.2, 7.1, 7.3], 3, 6, 2, 1),  # 3 epochs without a new best after epoch 2
+    ([5, 5, 5, 5], 2, 3, 0, 1),  # a tie is no improvement: the first epoch stays the best
+    ([3, 2, 2.5, 2.6, 1.9, 2, 2.1, 2.2, 2.3], 4, 9, 4, 2),  # halved at each plateau's midpoint
+    ([4, 3, 2, 1], 2, None, 3, 0),  # still improving: never stops
+])
+def test_plateau_stops_at_the_right_epoch(curve, patience, stop_after, best, halvings):
+    from benchmark.train import plateau
+
+    stops = [n for n in range(1, len(curve) + 1) if plateau(curve[:n], patience)["stop"]]
+    assert (stops[0] if stops else None) == stop_after
+    state = plateau(curve[:stop_after or len(curve)], patience)
+    assert (state["best"], state["halvings"]) == (best, halvings)
+
+
+@pytest.mark.parametrize("curve,epochs,trained,capped", [
+    ([5, 3, 4, 6, 7, 8, 9, 10], 8, 4, False),  # plateau: stopped 2 epochs after the best
+    ([5, 4, 3, 2], 4, 4, True),  # the cap ended a run that was still improving
+    ([5, 4, 3, 3.5], 4, 4, True),  # the best is within the last `patience` epochs at the cap
+    ([5, 3, 4, 4.5], 4, 4, False),  # at the cap, but the plateau had been reached
+])
+def test_early_stopping_restores_the_best_epoch_and_flags_the_cap(tmp_path, monkeypatch, curve,
+                                                                  epochs, trained, capped):
+    """On a scripted validation curve (patience 2): training stops at the plateau, the model
+    returned holds the weights of the best epoch, and ``capped`` says whether the cap ended
+    a run that was still improving."""
+    import benchmark.train as train_module
+
+    snapshots = []
+
+    def scripted(model, examples, batch_size, device):
+        snapshots.append({k: v.clone() for k, v in model.state_dict().items()})
+        return float(curve[len(snapshots) - 1])
+
+    monkeypatch.setattr(train_module, "validation_mse", scripted)
+    d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
+                     grid=(3, 2, 8))
+    with BenchmarkData(d) as data:
+        model, config = train(TrainConfig(**{**TINY, "epochs": epochs, "patience": 2}), data,
+                              progress=False)
+    hist, sel = config["history"]["train"], config["selection"]
+    best = int(np.argmin(curve[:trained]))
+    assert len(hist) == len(snapshots) == trained == sel["epochs_trained"]
+    assert [h["val_mse"] for h in hist] == curve[:trained]
+    assert (sel["epoch"], sel["epochs_to_plateau"], sel["capped"]) == (best, best + 1, capped)
+    assert states_equal_to(model, snapshots[best])
+    assert best == trained - 1 or not states_equal_to(model, snapshots[-1])
+    assert hist[best]["selected"] and all("loss" in h and "lr" in h for h in hist)
+
+
+def test_learning_rate_is_halved_at_half_the_patience(tmp_path, monkeypatch):
+    import benchmark.train as train_module
+
+    curve = iter([5.0, 3.0, 4.0, 4.5, 4.2, 4.1, 4.0])
+    monkeypatch.setattr(train_module, "validation_mse", lambda *a: next(curve))
+    d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
+                     grid=(3, 2, 8))
+    with BenchmarkData(d) as data:
+        _, config = train(TrainConfig(**{**TINY, "epochs": 8, "patience": 4}), data,
+                          progress=False)
+    lr = [h["lr"] for h in config["history"]["train"]]
+    assert len(lr) == 6  # stopped once the best (epoch 1) was 4 epochs old
+    assert lr[1] == lr[2] == lr[3] == TINY_LR  # after the warm-up (here one step)
+    assert lr[4] == lr[5] == TINY_LR / 2  # halved once the best was 2 epochs old (epoch 3)
 
 
 def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
@@ -418,4 +492,4 @@ def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
     model, config = run(data_dir, embedding="graph", regime="classification", shapenet=str(root),
                         pretrain_epochs=3)
     assert config["train"]["shapenet"] == str(root) and len(config["history"]["pretrain"]) == 3
-    assert set(config["history"]["pretrain"][0]) == {"loss", "ce", "acc"}
+    assert set(config["history"]["pretrain"][0]) == {"loss", "ce", "acc", "lr"}

@@ -7,7 +7,7 @@ from torch import nn
 from vector_quantize_pytorch import ResidualVQ
 
 from benchmark.models.features import MeshBatch
-from benchmark.models.graph import GraphEmbedding
+from benchmark.models.graph import GraphEmbedding, padded
 
 
 class TokenEmbedding(nn.Module):
@@ -25,7 +25,9 @@ class TokenEmbedding(nn.Module):
         self.last_codes: torch.Tensor | None = None  # (B, L, n_quantizers), -1 on padding
 
     def forward(self, batch: MeshBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        emb, _, _ = self.graph(batch)
-        quantized, codes, commit = self.vq(emb, mask=batch.mask)
-        self.last_codes = codes.detach()
-        return quantized * batch.mask[..., None], batch.mask, commit.sum()
+        """Quantized face embeddings (zero on padding), the mask, the commitment loss. The
+        real faces are quantized packed, as one sequence: the same codes, loss and codebook
+        updates as the padded batch with its mask, without the padding's work."""
+        quantized, codes, commit = self.vq(self.graph.packed(batch)[None])
+        self.last_codes = padded(codes[0].detach(), batch.mask, -1)
+        return padded(quantized[0], batch.mask), batch.mask, commit.sum()
