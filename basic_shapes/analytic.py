@@ -47,6 +47,7 @@ def hidden_params(class_name: str, seed: int) -> dict:
     rng = np.random.default_rng([seed, HIDDEN_STREAM])
     return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in HIDDEN.get(class_name, {}).items()}
 
+
 TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
 """Blender's default torus (radii in the default mesh, before scaling)."""
 
@@ -96,13 +97,16 @@ def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
         raise ValueError(f"unknown primitive class {class_name!r}; known: {', '.join(ALL_KINDS)}")
     s = np.asarray(scale, np.float64)
     if s.shape != (3,) or not np.all(np.isfinite(s)) or not np.all(s > 0):
-        raise ValueError(f"{class_name}: scale must be three positive finite extents, "
-                         f"got {scale!r}")
+        raise ValueError(
+            f"{class_name}: scale must be three positive finite extents, got {scale!r}"
+        )
     params = dict(params or {})
     ranges = HIDDEN.get(class_name, {})
     if set(params) != set(ranges):
-        raise ValueError(f"{class_name}: shape parameters must be {sorted(ranges) or 'none'}, "
-                         f"got {sorted(params)}")
+        raise ValueError(
+            f"{class_name}: shape parameters must be {sorted(ranges) or 'none'}, "
+            f"got {sorted(params)}"
+        )
     for key, (lo, hi) in ranges.items():
         value = params[key]
         if not (isinstance(value, (int, float)) and lo <= value <= hi):
@@ -124,7 +128,7 @@ def _torus_implicit(s):
         q = x / s
         rho = np.sqrt(q[:, 0] ** 2 + q[:, 1] ** 2)
         e = rho - TORUS_MAJOR
-        value = e ** 2 + q[:, 2] ** 2 - TORUS_MINOR ** 2
+        value = e**2 + q[:, 2] ** 2 - TORUS_MINOR**2
         cx, cy = q[:, 0] / rho, q[:, 1] / rho
         gq = np.column_stack([2 * e * cx, 2 * e * cy, 2 * q[:, 2]])
         hq = np.zeros((len(x), 3, 3))
@@ -133,6 +137,7 @@ def _torus_implicit(s):
         hq[:, 0, 1] = hq[:, 1, 0] = 2 * cx * cy * (1 - e / rho)
         hq[:, 2, 2] = 2.0
         return value, gq / s, hq / (s[:, None] * s[None, :])
+
     return f
 
 
@@ -144,8 +149,7 @@ def _starts(axes: tuple) -> tuple:
     perf/generate_throughput.py)."""
     from scipy.spatial import cKDTree
 
-    samples = (_ellipse_points(*axes) if len(axes) == 2
-               else _ellipsoid_grid(np.array(axes), 24))
+    samples = _ellipse_points(*axes) if len(axes) == 2 else _ellipsoid_grid(np.array(axes), 24)
     samples.flags.writeable = False
     return samples, cKDTree(samples)
 
@@ -181,7 +185,7 @@ def _closest_on_implicit(points, starts, implicit):
     x = np.array(starts, np.float64)
     n = len(x)
     value, grad, _ = implicit(x)
-    lam = ((p - x) * grad).sum(axis=1) / (grad ** 2).sum(axis=1)
+    lam = ((p - x) * grad).sum(axis=1) / (grad**2).sum(axis=1)
     scale = np.abs(p).max() + np.abs(x).max() + 1e-300
     active = np.ones(n, bool)
     for _ in range(NEWTON_STEPS):
@@ -206,12 +210,14 @@ def _curve_distance(q: np.ndarray, axes) -> np.ndarray:
     samples, tree = _starts(tuple(float(a) for a in axes))
     start = samples[tree.query(q)[1]]
     scale = np.abs(q).max() + np.abs(start).max() + 1e-300
-    x, value = ellipsoid_closest.closest(q, start, 1.0 / np.asarray(axes, np.float64) ** 2,
-                                         1e-14 * scale, NEWTON_STEPS)
+    x, value = ellipsoid_closest.closest(
+        q, start, 1.0 / np.asarray(axes, np.float64) ** 2, 1e-14 * scale, NEWTON_STEPS
+    )
     ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
     d = np.linalg.norm(q - x, axis=1)
-    return np.where(ok, np.minimum(d, np.linalg.norm(q - start, axis=1)),
-                    np.linalg.norm(q - start, axis=1))
+    return np.where(
+        ok, np.minimum(d, np.linalg.norm(q - start, axis=1)), np.linalg.norm(q - start, axis=1)
+    )
 
 
 def _segment_fit(p, t, a, b, c, ratio=0.0):
@@ -225,7 +231,8 @@ def _segment_fit(p, t, a, b, c, ratio=0.0):
     w = np.clip(((p - apex) * e).sum(-1) / (e * e).sum(-1), 0.0, 1.0)
     x = apex + w[..., None] * e
     dx_dt = (ratio + w * (1.0 - ratio))[..., None] * np.stack(
-        [-a * np.sin(t), b * np.cos(t), np.zeros(np.shape(t))], -1)
+        [-a * np.sin(t), b * np.cos(t), np.zeros(np.shape(t))], -1
+    )
     return x, 2.0 * ((x - p) * dx_dt).sum(-1)
 
 
@@ -236,7 +243,7 @@ def _cone_side_distance(p, a, b, c, ratio=0.0, n_coarse=256, steps=60):
     out = np.empty(len(p))
     t_grid = np.arange(n_coarse) * (2 * np.pi / n_coarse)
     for i in range(0, len(p), 4096):
-        q = p[i:i + 4096]
+        q = p[i : i + 4096]
         x, _ = _segment_fit(q[:, None, :], t_grid[None, :], a, b, c, ratio)
         k = np.argmin(((x - q[:, None, :]) ** 2).sum(-1), axis=1)
         lo, hi = t_grid[k] - 2 * np.pi / n_coarse, t_grid[k] + 2 * np.pi / n_coarse
@@ -245,7 +252,7 @@ def _cone_side_distance(p, a, b, c, ratio=0.0, n_coarse=256, steps=60):
             rising = _segment_fit(q, mid, a, b, c, ratio)[1] > 0
             hi, lo = np.where(rising, mid, hi), np.where(rising, lo, mid)
         x, _ = _segment_fit(q, 0.5 * (lo + hi), a, b, c, ratio)
-        out[i:i + 4096] = np.linalg.norm(q - x, axis=1)
+        out[i : i + 4096] = np.linalg.norm(q - x, axis=1)
     return out
 
 
@@ -287,18 +294,21 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
         a, b, c = h
         rim = _ellipse_distance(p[:, :2], a, b)
         side = np.hypot(rim[0], np.maximum(np.abs(p[:, 2]) - c, 0.0))
-        return np.minimum(side, np.minimum(_disk_distance(p, a, b, c, rim),
-                                           _disk_distance(p, a, b, -c, rim)))
+        return np.minimum(
+            side, np.minimum(_disk_distance(p, a, b, c, rim), _disk_distance(p, a, b, -c, rim))
+        )
     if kind == "cone":
         a, b, c = h
-        best = np.minimum(np.linalg.norm(p - [0.0, 0.0, c], axis=1),
-                          _disk_distance(p, a, b, -c))
+        best = np.minimum(np.linalg.norm(p - [0.0, 0.0, c], axis=1), _disk_distance(p, a, b, -c))
         return np.minimum(best, _cone_side_distance(p, a, b, c))
     if kind == "frustum":
         a, b, c = h
         r = solid.params["top_ratio"]
-        top = (_disk_distance(p, r * a, r * b, c) if r > 0
-               else np.linalg.norm(p - [0.0, 0.0, c], axis=1))
+        top = (
+            _disk_distance(p, r * a, r * b, c)
+            if r > 0
+            else np.linalg.norm(p - [0.0, 0.0, c], axis=1)
+        )
         best = np.minimum(top, _disk_distance(p, a, b, -c))
         return np.minimum(best, _cone_side_distance(p, a, b, c, r))
     if kind == "torus":
@@ -307,8 +317,9 @@ def surface_distance(solid: Solid, points) -> np.ndarray:
         for start in _torus_starts(p, s):
             x, ok = _closest_on_implicit(p, start, _torus_implicit(s))
             far = np.linalg.norm(p - start, axis=1)
-            best = np.minimum(best, np.where(ok, np.minimum(np.linalg.norm(p - x, axis=1), far),
-                                             far))
+            best = np.minimum(
+                best, np.where(ok, np.minimum(np.linalg.norm(p - x, axis=1), far), far)
+            )
         return best
     raise ValueError(f"unknown primitive class {kind!r}")
 
@@ -325,9 +336,14 @@ def _ellipsoid_grid(axes, n):
 
 def _torus_point(s, u, v):
     r = TORUS_MAJOR + TORUS_MINOR * np.cos(v)
-    return np.stack([r * np.cos(u) * s[0], r * np.sin(u) * s[1],
-                     np.broadcast_to(TORUS_MINOR * np.sin(v) * s[2], np.broadcast(u, v).shape)],
-                    -1)
+    return np.stack(
+        [
+            r * np.cos(u) * s[0],
+            r * np.sin(u) * s[1],
+            np.broadcast_to(TORUS_MINOR * np.sin(v) * s[2], np.broadcast(u, v).shape),
+        ],
+        -1,
+    )
 
 
 def _torus_grid(s, n_u, n_v):
@@ -341,12 +357,15 @@ def _torus_starts(p, s, n_u=256, n_v=128, m=9, tries=4):
     coarse grid cell: each of the ``tries`` nearest nodes of an (n_u, n_v) parameter grid,
     refined on an m x m grid over its neighbouring cells."""
     grid = _torus_grid(s, n_u, n_v)
-    g2 = (grid ** 2).sum(axis=1)
+    g2 = (grid**2).sum(axis=1)
     du, dv = 2 * np.pi / n_u, 2 * np.pi / n_v
     offsets = np.linspace(-1.0, 1.0, m)
-    near = np.concatenate([np.argpartition(g2[None, :] - 2.0 * p[i:i + 1024] @ grid.T,
-                                           tries, axis=1)[:, :tries]
-                           for i in range(0, len(p), 1024)])
+    near = np.concatenate(
+        [
+            np.argpartition(g2[None, :] - 2.0 * p[i : i + 1024] @ grid.T, tries, axis=1)[:, :tries]
+            for i in range(0, len(p), 1024)
+        ]
+    )
     for k in near.T:
         u = (k // n_v)[:, None, None] * du + offsets[None, :, None] * du
         v = (k % n_v)[:, None, None] * dv + offsets[None, None, :] * dv
@@ -373,8 +392,9 @@ def _cube_sphere(n):
             lattice.append(pts.reshape(-1, 3))
             g = base + ii * (n[o1] + 1) + jj
             base += ii.size
-            quads.append(np.stack([g[:-1, :-1], g[1:, :-1], g[1:, 1:], g[:-1, 1:]],
-                                  -1).reshape(-1, 4))
+            quads.append(
+                np.stack([g[:-1, :-1], g[1:, :-1], g[1:, 1:], g[:-1, 1:]], -1).reshape(-1, 4)
+            )
     lattice = np.concatenate(lattice)
     keys = (lattice[:, 0] * (n[1] + 1) + lattice[:, 1]) * (n[2] + 1) + lattice[:, 2]
     _uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
@@ -386,9 +406,12 @@ def _cube_sphere(n):
     d02 = ((v[q[:, 0]] - v[q[:, 2]]) ** 2).sum(axis=1)
     d13 = ((v[q[:, 1]] - v[q[:, 3]]) ** 2).sum(axis=1)
     short02 = d02 <= d13
-    tri = np.concatenate([
-        np.where(short02[:, None], q[:, [0, 1, 2]], q[:, [0, 1, 3]]),
-        np.where(short02[:, None], q[:, [0, 2, 3]], q[:, [1, 2, 3]])])
+    tri = np.concatenate(
+        [
+            np.where(short02[:, None], q[:, [0, 1, 2]], q[:, [0, 1, 3]]),
+            np.where(short02[:, None], q[:, [0, 2, 3]], q[:, [1, 2, 3]]),
+        ]
+    )
     return v, _outward(v, tri)
 
 
@@ -420,7 +443,7 @@ def _ellipse_angles(a, b, wavelength, refine, minimum=4, surface=False):
     _edge_length of the local radius of curvature: a multiple of 4, >= minimum * refine."""
     t = np.linspace(0.0, np.pi / 2, 4097)
     speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
-    radius = speed * speed * speed / (a * b)   # not ** 3: numpy's power is CPU-dependent
+    radius = speed * speed * speed / (a * b)  # not ** 3: numpy's power is CPU-dependent
     density = speed / _edge_length(radius, wavelength, refine, surface)
     cum = np.concatenate([[0.0], np.cumsum((density[1:] + density[:-1]) / 2 * np.diff(t))])
     m = max(math.ceil(cum[-1]), math.ceil(minimum * refine / 4))
@@ -439,25 +462,39 @@ def _box_mesh(h):
 def _cylinder_mesh(a, b, c, t):
     n = len(t)
     ring = np.column_stack([a * np.cos(t), b * np.sin(t)])
-    v = np.concatenate([np.column_stack([ring, np.full(n, -c)]),
-                        np.column_stack([ring, np.full(n, c)]),
-                        [[0.0, 0.0, -c], [0.0, 0.0, c]]])
+    v = np.concatenate(
+        [
+            np.column_stack([ring, np.full(n, -c)]),
+            np.column_stack([ring, np.full(n, c)]),
+            [[0.0, 0.0, -c], [0.0, 0.0, c]],
+        ]
+    )
     i = np.arange(n)
     j = (i + 1) % n
-    f = np.concatenate([np.column_stack([i, j, n + j]), np.column_stack([i, n + j, n + i]),
-                        np.column_stack([np.full(n, 2 * n + 1), n + i, n + j]),
-                        np.column_stack([np.full(n, 2 * n), j, i])])
+    f = np.concatenate(
+        [
+            np.column_stack([i, j, n + j]),
+            np.column_stack([i, n + j, n + i]),
+            np.column_stack([np.full(n, 2 * n + 1), n + i, n + j]),
+            np.column_stack([np.full(n, 2 * n), j, i]),
+        ]
+    )
     return v, f
 
 
 def _cone_mesh(a, b, c, t):
     n = len(t)
-    v = np.concatenate([np.column_stack([a * np.cos(t), b * np.sin(t), np.full(n, -c)]),
-                        [[0.0, 0.0, c], [0.0, 0.0, -c]]])
+    v = np.concatenate(
+        [
+            np.column_stack([a * np.cos(t), b * np.sin(t), np.full(n, -c)]),
+            [[0.0, 0.0, c], [0.0, 0.0, -c]],
+        ]
+    )
     i = np.arange(n)
     j = (i + 1) % n
-    f = np.concatenate([np.column_stack([i, j, np.full(n, n)]),
-                        np.column_stack([np.full(n, n + 1), j, i])])
+    f = np.concatenate(
+        [np.column_stack([i, j, np.full(n, n)]), np.column_stack([np.full(n, n + 1), j, i])]
+    )
     return v, f
 
 
@@ -466,7 +503,7 @@ def _frustum_mesh(a, b, c, t, ratio):
     if ratio == 0:
         return _cone_mesh(a, b, c, t)
     v, f = _cylinder_mesh(a, b, c, t)
-    v[len(t):2 * len(t), :2] *= ratio
+    v[len(t) : 2 * len(t), :2] *= ratio
     return v, f
 
 
@@ -477,8 +514,9 @@ def _torus_mesh(s, u, w):
     j = np.arange(nw)[None, :]
     a, b = i * nw + j, ((i + 1) % nu) * nw + j
     c, d = ((i + 1) % nu) * nw + (j + 1) % nw, i * nw + (j + 1) % nw
-    f = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
-                        np.stack([a, c, d], -1).reshape(-1, 3)])
+    f = np.concatenate(
+        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)]
+    )
     return v, f
 
 
@@ -516,8 +554,9 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
     if kind == "cube":
         v, f = _box_mesh(h)
     elif kind == "sphere":
-        unit, f = _cube_sphere(_ellipsoid_cells(
-            h, lambda r: _edge_length(r, wavelength, refinement, surface=True)))
+        unit, f = _cube_sphere(
+            _ellipsoid_cells(h, lambda r: _edge_length(r, wavelength, refinement, surface=True))
+        )
         v = unit * h
     elif kind == "cylinder":
         v, f = _cylinder_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
@@ -525,14 +564,17 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
         v, f = _cone_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
     elif kind == "frustum":
         # the base rim has the largest radii: its angles bound the top rim's edges too
-        v, f = _frustum_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16),
-                             solid.params["top_ratio"])
+        v, f = _frustum_mesh(
+            *h, _ellipse_angles(*h[:2], wavelength, refinement, 16), solid.params["top_ratio"]
+        )
     elif kind == "torus":
         s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         outer = TORUS_MAJOR + TORUS_MINOR
         u = _ellipse_angles(outer * s[0], outer * s[1], wavelength, refinement, 16, True)
-        minor = [_ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8,
-                                 True) for r in (s[0], s[1])]
+        minor = [
+            _ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8, True)
+            for r in (s[0], s[1])
+        ]
         v, f = _torus_mesh(s, u, max(minor, key=len))
     else:
         raise ValueError(f"unknown primitive class {kind!r}")
@@ -562,8 +604,9 @@ def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
         rings = [np.array([[0.0, 0.0, z]])]
         m = count(max(a, b), 1)
         for r in np.arange(1, m + 1) / m:
-            rings.append(np.column_stack([r * a * np.cos(t), r * b * np.sin(t),
-                                          np.full(len(t), z)]))
+            rings.append(
+                np.column_stack([r * a * np.cos(t), r * b * np.sin(t), np.full(len(t), z)])
+            )
         return np.concatenate(rings)
 
     if kind == "cube":
@@ -588,17 +631,34 @@ def surface_samples(solid: Solid, spacing: float) -> np.ndarray:
         if kind == "frustum":
             r = solid.params["top_ratio"]
             k = r + (1.0 - r) * s
-            side = np.stack([k * a * np.cos(t), k * b * np.sin(t),
-                             np.broadcast_to(c - 2 * c * s, (m + 1, len(t)))], -1)
+            side = np.stack(
+                [
+                    k * a * np.cos(t),
+                    k * b * np.sin(t),
+                    np.broadcast_to(c - 2 * c * s, (m + 1, len(t))),
+                ],
+                -1,
+            )
             caps = [disk(a, b, -c)] + ([disk(r * a, r * b, c)] if r > 0 else [])
         elif kind == "cylinder":
-            side = np.stack([np.broadcast_to(a * np.cos(t), (m + 1, len(t))),
-                             np.broadcast_to(b * np.sin(t), (m + 1, len(t))),
-                             np.broadcast_to(-c + 2 * c * s, (m + 1, len(t)))], -1)
+            side = np.stack(
+                [
+                    np.broadcast_to(a * np.cos(t), (m + 1, len(t))),
+                    np.broadcast_to(b * np.sin(t), (m + 1, len(t))),
+                    np.broadcast_to(-c + 2 * c * s, (m + 1, len(t))),
+                ],
+                -1,
+            )
             caps = [disk(a, b, -c), disk(a, b, c)]
         else:
-            side = np.stack([s * a * np.cos(t), s * b * np.sin(t),
-                             np.broadcast_to(c - 2 * c * s, (m + 1, len(t)))], -1)
+            side = np.stack(
+                [
+                    s * a * np.cos(t),
+                    s * b * np.sin(t),
+                    np.broadcast_to(c - 2 * c * s, (m + 1, len(t))),
+                ],
+                -1,
+            )
             caps = [disk(a, b, -c)]
         return np.concatenate([side.reshape(-1, 3)] + caps)
     if kind == "torus":

@@ -57,8 +57,9 @@ def _lap(stage: str, start: float) -> float:
     return now
 
 
-def object_meshes(class_name: str, scale: np.ndarray, seed: int,
-                  n_variants: int, shape: dict | None = None) -> list[MeshRecord]:
+def object_meshes(
+    class_name: str, scale: np.ndarray, seed: int, n_variants: int, shape: dict | None = None
+) -> list[MeshRecord]:
     """The simple mesh (variant 0) and ``n_variants`` verified complex variants of one object.
 
     ``scale`` holds the bbox extents in metres (x, y, z); ``shape`` the object's hidden shape
@@ -90,9 +91,12 @@ def _object_meshes(spec, class_name, scale, seed, n_variants, solid) -> list[Mes
     blender = _state()
     blender.shape = solid.params if solid is not None else {}
     start = time.process_time()
-    simple_params = {"resolution": spec.default_resolution(), "loop_cuts": [],
-                     "decimate": {"kind": "none"}, "triangulate": {"quad": "BEAUTY",
-                                                                   "ngon": "BEAUTY"}}
+    simple_params = {
+        "resolution": spec.default_resolution(),
+        "loop_cuts": [],
+        "decimate": {"kind": "none"},
+        "triangulate": {"quad": "BEAUTY", "ngon": "BEAUTY"},
+    }
     v0, f0 = blender.build(class_name, scale, simple_params, rng=None)
     error = meshcheck.defect(v0, f0, spec.euler)
     if error:
@@ -147,12 +151,14 @@ def _variant(blender, class_name, scale, seed, variant, reference, seen) -> Mesh
                 params["attempt"] = attempt
                 ATTEMPTS["accepted"] += 1
                 return MeshRecord(variant, v, f, distance, params, gap)
-            reason = ("Hausdorff above tolerance" if gap is None
-                      else "primitive distance above tolerance")
+            reason = (
+                "Hausdorff above tolerance" if gap is None else "primitive distance above tolerance"
+            )
         ATTEMPTS[reason.split(" (")[0]] += 1
         rejected[reason] = rejected.get(reason, 0) + 1
-    raise RuntimeError(f"{class_name} seed {seed}: variant {variant} failed {MAX_ATTEMPTS} "
-                       f"attempts ({rejected})")
+    raise RuntimeError(
+        f"{class_name} seed {seed}: variant {variant} failed {MAX_ATTEMPTS} attempts ({rejected})"
+    )
 
 
 def _sample_params(spec: primitives.Primitive, rng: np.random.Generator) -> dict:
@@ -167,12 +173,16 @@ def _sample_params(spec: primitives.Primitive, rng: np.random.Generator) -> dict
         decimate["triangulate"] = bool(rng.integers(2))
     elif decimate["kind"] == "unsubdiv":
         decimate["iterations"] = 1  # two un-subdivide a UV sphere beyond its tolerance (88 %)
-    return {"resolution": resolution,
-            "size": round(float(rng.uniform()), 6),
-            "cut_steps": int(rng.integers(1, MAX_CUT_STEPS + 1)),
-            "decimate": decimate,
-            "triangulate": {"quad": QUAD_METHODS[rng.integers(len(QUAD_METHODS))],
-                            "ngon": NGON_METHODS[rng.integers(len(NGON_METHODS))]}}
+    return {
+        "resolution": resolution,
+        "size": round(float(rng.uniform()), 6),
+        "cut_steps": int(rng.integers(1, MAX_CUT_STEPS + 1)),
+        "decimate": decimate,
+        "triangulate": {
+            "quad": QUAD_METHODS[rng.integers(len(QUAD_METHODS))],
+            "ngon": NGON_METHODS[rng.integers(len(NGON_METHODS))],
+        },
+    }
 
 
 _STATE = None
@@ -207,9 +217,11 @@ class _Blender:
         try:
             import bpy  # first: bmesh and mathutils are only importable once bpy is loaded
         except ImportError as exc:
-            raise ImportError(f"cannot load Blender (bpy): {exc}. If pymeshlab was imported "
-                              "before bpy, its older Embree shadows Blender's; import pymeshlab "
-                              "through basic_shapes.verify, which loads Blender's first") from exc
+            raise ImportError(
+                f"cannot load Blender (bpy): {exc}. If pymeshlab was imported "
+                "before bpy, its older Embree shadows Blender's; import pymeshlab "
+                "through basic_shapes.verify, which loads Blender's first"
+            ) from exc
         import bmesh
         import mathutils
 
@@ -268,10 +280,13 @@ class _Blender:
         mesh.vertices.foreach_get("co", co)
         co = co.reshape(-1, 3)
         extents = co.max(axis=0) - co.min(axis=0)
-        if not np.allclose(extents, spec.extents, rtol=1e-5) or \
-                not np.allclose(co.max(axis=0) + co.min(axis=0), 0, atol=1e-5):
-            raise RuntimeError(f"{spec.operator}{resolution}: bbox extents {extents} are not "
-                               f"the registered {spec.extents} around the origin")
+        if not np.allclose(extents, spec.extents, rtol=1e-5) or not np.allclose(
+            co.max(axis=0) + co.min(axis=0), 0, atol=1e-5
+        ):
+            raise RuntimeError(
+                f"{spec.operator}{resolution}: bbox extents {extents} are not "
+                f"the registered {spec.extents} around the origin"
+            )
         # The UV sphere operator merges duplicate vertices in a way that leaves its faces in a
         # different order (and rotation) in every process: put them in a canonical order.
         polygons = []
@@ -288,8 +303,9 @@ class _Blender:
         return bm
 
     # --- one mesh -------------------------------------------------------------------------
-    def build(self, class_name: str, scale: np.ndarray, params: dict,
-              rng: np.random.Generator | None) -> tuple[np.ndarray, np.ndarray]:
+    def build(
+        self, class_name: str, scale: np.ndarray, params: dict, rng: np.random.Generator | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Vertices (V, 3) float32 and triangles (F, 3) int32 of one mesh.
 
         With ``rng`` (a complex variant) the mesh gets loop cuts and decimation as drawn by
@@ -302,16 +318,18 @@ class _Blender:
         try:
             centre, extents = self.frame(class_name)
             matrix = self.mathutils.Matrix
-            to_scale = matrix.Diagonal((scale / extents).tolist() + [1.0]) @ \
-                matrix.Translation((-centre).tolist())
+            to_scale = matrix.Diagonal((scale / extents).tolist() + [1.0]) @ matrix.Translation(
+                (-centre).tolist()
+            )
             self.bmesh.ops.transform(bm, matrix=to_scale, verts=bm.verts)
             start = _lap("primitive", start)
             if rng is not None and ngon_indices:
                 # n-gons (caps) first, so that every cut ring ends in triangles
                 bm.faces.ensure_lookup_table()
                 method = {"CLIP": "EAR_CLIP"}.get(params["triangulate"]["ngon"], "BEAUTY")
-                self.bmesh.ops.triangulate(bm, faces=[bm.faces[i] for i in ngon_indices],
-                                           ngon_method=method)
+                self.bmesh.ops.triangulate(
+                    bm, faces=[bm.faces[i] for i in ngon_indices], ngon_method=method
+                )
             if rng is not None:
                 self._cut(bm, spec.euler, params, rng)
             start = _lap("loop_cuts", start)
@@ -335,8 +353,11 @@ class _Blender:
         base = 2 * (len(bm.verts) - euler)  # triangles of a closed mesh: 2 (V - chi)
         final = base * (MAX_TRIANGLES / base) ** params["size"]
         decimate = params["decimate"]
-        growth = {"collapse": decimate.get("overshoot"), "unsubdiv": 2.0 ** decimate.get(
-            "iterations", 0), "none": 1.0}[decimate["kind"]]
+        growth = {
+            "collapse": decimate.get("overshoot"),
+            "unsubdiv": 2.0 ** decimate.get("iterations", 0),
+            "none": 1.0,
+        }[decimate["kind"]]
         target = min(final * growth, MAX_TRIANGLES)
         params["target_triangles"] = int(round(final))
         params["loop_cuts"] = cuts_done = []
@@ -351,11 +372,18 @@ class _Blender:
             if room < 1:
                 break
             wanted = (target - triangles) / (steps - step) / per_cut
-            cuts = int(np.clip(round(wanted * rng.uniform(0.5, 1.5)), 1,
-                               min(room, MAX_CUTS_PER_RING)))
+            cuts = int(
+                np.clip(round(wanted * rng.uniform(0.5, 1.5)), 1, min(room, MAX_CUTS_PER_RING))
+            )
             # use_single_edge fans out the triangles where a ring ends (no 180-degree corners)
-            self.bmesh.ops.subdivide_edges(bm, edges=ring, cuts=cuts, use_grid_fill=False,
-                                           use_single_edge=True, use_only_quads=False)
+            self.bmesh.ops.subdivide_edges(
+                bm,
+                edges=ring,
+                cuts=cuts,
+                use_grid_fill=False,
+                use_single_edge=True,
+                use_only_quads=False,
+            )
             cuts_done.append([len(ring), cuts])
         if decimate["kind"] == "collapse":
             decimate["ratio"] = round(min(1.0, final / (2 * (len(bm.verts) - euler))), 6)
@@ -372,8 +400,9 @@ class _Blender:
         mod.use_symmetry = False
         mod.vertex_group = ""
         # a collapse that triangulates leaves nothing for the Triangulate modifier to do
-        self.triangulate.show_viewport = not (mod.show_viewport and mod.use_collapse_triangulate
-                                              and decimate["kind"] == "collapse")
+        self.triangulate.show_viewport = not (
+            mod.show_viewport and mod.use_collapse_triangulate and decimate["kind"] == "collapse"
+        )
         self.triangulate.quad_method = params["triangulate"]["quad"]
         self.triangulate.ngon_method = params["triangulate"]["ngon"]
 

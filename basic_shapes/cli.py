@@ -45,14 +45,19 @@ class _Range(argparse.Action):
 
     def __call__(self, parser, namespace, values, option_string=None):
         if values[0] >= values[1]:
-            parser.error(f"argument {option_string}: LOW {values[0]:g} must be < HIGH "
-                         f"{values[1]:g}")
+            parser.error(
+                f"argument {option_string}: LOW {values[0]:g} must be < HIGH {values[1]:g}"
+            )
         setattr(namespace, self.dest, values)
 
 
 def build_parser() -> ArgumentParser:
-    p = ArgumentParser(prog="basic-shapes", description=__doc__, epilog=EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(
+        prog="basic-shapes",
+        description=__doc__,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -66,33 +71,60 @@ def build_parser() -> ArgumentParser:
         "required: --objects-per-class 4 --variants 9 takes about a minute, the "
         "paper's 1000 x 99 (300,000 meshes) takes hours.",
     )
-    g.add_argument("--data", required=True, metavar="DIR",
-                   help="dataset directory (created; resumed if it exists)")
+    g.add_argument(
+        "--data",
+        required=True,
+        metavar="DIR",
+        help="dataset directory (created; resumed if it exists)",
+    )
     g.add_argument(
         "--classes",
         type=_classes,
         default=GenerateConfig.classes,
         help="comma-separated primitives (default: cube,cylinder,sphere; also cone,torus)",
     )
-    g.add_argument("--objects-per-class", type=number(int, minimum=1), required=True,
-                   help="objects per class (required; the paper: 1000, i.e. hours of work)")
-    g.add_argument("--variants", type=number(int, minimum=0, maximum=999), required=True,
-                   help="complex variants per object, besides the simple mesh (required; the "
-                   "paper: 99)")
-    g.add_argument("--ood-variants", type=number(int, minimum=0, maximum=25),
-                   default=GenerateConfig.ood_variants_per_remesher,
-                   help="out-of-distribution meshes per remesher per test object, variants 900-999 "
-                        "(default: %(default)s; 0 = none)")
-    g.add_argument("--seed", type=number(int, minimum=0, maximum=2**63 - 1), default=0,
-                   help="dataset seed (default: %(default)s)")
+    g.add_argument(
+        "--objects-per-class",
+        type=number(int, minimum=1),
+        required=True,
+        help="objects per class (required; the paper: 1000, i.e. hours of work)",
+    )
+    g.add_argument(
+        "--variants",
+        type=number(int, minimum=0, maximum=999),
+        required=True,
+        help="complex variants per object, besides the simple mesh (required; the paper: 99)",
+    )
+    g.add_argument(
+        "--ood-variants",
+        type=number(int, minimum=0, maximum=25),
+        default=GenerateConfig.ood_variants_per_remesher,
+        help="out-of-distribution meshes per remesher per test object, variants 900-999 "
+        "(default: %(default)s; 0 = none)",
+    )
+    g.add_argument(
+        "--seed",
+        type=number(int, minimum=0, maximum=2**63 - 1),
+        default=0,
+        help="dataset seed (default: %(default)s)",
+    )
     add_cluster_flags(g)
     add_quiet_flag(g)
-    g.add_argument("--objects-per-shard", type=number(int, minimum=1),
-                   default=GenerateConfig.objects_per_shard,
-                   help="objects per HDF5 shard (default: %(default)s)")
-    g.add_argument("--scale-range", type=number(above=0), nargs=2, default=SCALE_RANGE,
-                   metavar=("LOW", "HIGH"), action=_Range,
-                   help="per-axis bbox extent range in metres (default: %(default)s)")
+    g.add_argument(
+        "--objects-per-shard",
+        type=number(int, minimum=1),
+        default=GenerateConfig.objects_per_shard,
+        help="objects per HDF5 shard (default: %(default)s)",
+    )
+    g.add_argument(
+        "--scale-range",
+        type=number(above=0),
+        nargs=2,
+        default=SCALE_RANGE,
+        metavar=("LOW", "HIGH"),
+        action=_Range,
+        help="per-axis bbox extent range in metres (default: %(default)s)",
+    )
     g.add_argument(
         "--min-scale-distance",
         type=number(above=0),
@@ -107,18 +139,29 @@ def build_parser() -> ArgumentParser:
     s.add_argument("--data", required=True, metavar="DIR", help="dataset directory")
     s.add_argument("--object", type=number(int, minimum=0), required=True, help="object id")
     s.add_argument("--out", required=True, help="output PNG")
-    s.add_argument("--count", type=number(int, minimum=0, maximum=99), default=5,
-                   help="complex variants to show (default: %(default)s)")
+    s.add_argument(
+        "--count",
+        type=number(int, minimum=0, maximum=99),
+        default=5,
+        help="complex variants to show (default: %(default)s)",
+    )
 
-    e = sub.add_parser("export", help="write every mesh as a plain OBJ/PLY/STL file, or "
-                       "labelled shards as NetCDF (g2s)")
+    e = sub.add_parser(
+        "export",
+        help="write every mesh as a plain OBJ/PLY/STL file, or labelled shards as NetCDF (g2s)",
+    )
     e.add_argument("--data", required=True, metavar="DIR", help="dataset directory")
-    e.add_argument("--format", choices=("obj", "ply", "stl", "g2s"), default="obj",
-                   help="mesh files, or g2s: one NetCDF per shard, meshes + radar labels in the "
-                   "layout of the paper's group (docs/ARCHITECTURE.md, Formats)")
+    e.add_argument(
+        "--format",
+        choices=("obj", "ply", "stl", "g2s"),
+        default="obj",
+        help="mesh files, or g2s: one NetCDF per shard, meshes + radar labels in the "
+        "layout of the paper's group (docs/ARCHITECTURE.md, Formats)",
+    )
     e.add_argument("--out", required=True, help="output directory")
-    e.add_argument("--object", type=number(int, minimum=0), default=None,
-                   help="only this object id")
+    e.add_argument(
+        "--object", type=number(int, minimum=0), default=None, help="only this object id"
+    )
     return p
 
 
@@ -127,17 +170,24 @@ def _main(argv: list[str]) -> int:
     if args.command == "generate":
         from basic_shapes.generate import generate
 
-        cfg = GenerateConfig(classes=args.classes, objects_per_class=args.objects_per_class,
-                             variants=args.variants, seed=args.seed,
-                             ood_variants_per_remesher=args.ood_variants,
-                             objects_per_shard=args.objects_per_shard,
-                             scale_range=tuple(args.scale_range),
-                             min_scale_distance=args.min_scale_distance)
-        stats = generate(args.data, cfg, workers=args.workers, scheduler=args.scheduler,
-                         progress=not args.quiet)
-        print(f"{args.data}: {stats['shards']} shards ({stats['skipped']} already done), "
-              f"{stats['meshes']} meshes built in {stats['seconds']:.1f} s "
-              f"({stats['meshes_per_second']:.1f} verified meshes/s)")
+        cfg = GenerateConfig(
+            classes=args.classes,
+            objects_per_class=args.objects_per_class,
+            variants=args.variants,
+            seed=args.seed,
+            ood_variants_per_remesher=args.ood_variants,
+            objects_per_shard=args.objects_per_shard,
+            scale_range=tuple(args.scale_range),
+            min_scale_distance=args.min_scale_distance,
+        )
+        stats = generate(
+            args.data, cfg, workers=args.workers, scheduler=args.scheduler, progress=not args.quiet
+        )
+        print(
+            f"{args.data}: {stats['shards']} shards ({stats['skipped']} already done), "
+            f"{stats['meshes']} meshes built in {stats['seconds']:.1f} s "
+            f"({stats['meshes_per_second']:.1f} verified meshes/s)"
+        )
     elif args.command == "info":
         from basic_shapes.info import summary
 

@@ -55,19 +55,25 @@ def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
             head = _read(sock, 8)
             (size,) = struct.unpack("<Q", head)
             if not 0 < size <= MAX_HANDSHAKE_BYTES:
-                raise SchedulerError(f"--scheduler {address}: not a Dask scheduler (it answered "
-                                     f"{head!r}, not a Dask handshake)")
+                raise SchedulerError(
+                    f"--scheduler {address}: not a Dask scheduler (it answered "
+                    f"{head!r}, not a Dask handshake)"
+                )
             if b"pickle-protocol" not in _read(sock, size):
-                raise SchedulerError(f"--scheduler {address}: not a Dask scheduler (its first "
-                                     f"message is not a Dask handshake)")
+                raise SchedulerError(
+                    f"--scheduler {address}: not a Dask scheduler (its first "
+                    f"message is not a Dask handshake)"
+                )
     except SchedulerError:
         raise
     except TimeoutError:
-        raise SchedulerError(f"--scheduler {address}: not a Dask scheduler (no Dask handshake "
-                             f"within {timeout:g} s)") from None
+        raise SchedulerError(
+            f"--scheduler {address}: not a Dask scheduler (no Dask handshake within {timeout:g} s)"
+        ) from None
     except OSError as exc:
-        raise SchedulerError(f"--scheduler {address}: cannot connect "
-                             f"({exc.strerror or exc.__class__.__name__})") from None
+        raise SchedulerError(
+            f"--scheduler {address}: cannot connect ({exc.strerror or exc.__class__.__name__})"
+        ) from None
 
 
 def _read(sock: socket.socket, n: int) -> bytes:
@@ -120,11 +126,16 @@ def finished(client, futures):
                 if client.nthreads():
                     alive = now
                 elif now - alive >= timeout:
-                    where = ("the local Dask cluster" if client.cluster is not None
-                             else f"--scheduler {client.scheduler.address}")
-                    raise NoWorkersError(f"{where}: no Dask worker for {timeout:g} s with "
-                                         f"tasks waiting; start workers (dask worker ADDRESS) "
-                                         f"and rerun: finished work is kept")
+                    where = (
+                        "the local Dask cluster"
+                        if client.cluster is not None
+                        else f"--scheduler {client.scheduler.address}"
+                    )
+                    raise NoWorkersError(
+                        f"{where}: no Dask worker for {timeout:g} s with "
+                        f"tasks waiting; start workers (dask worker ADDRESS) "
+                        f"and rerun: finished work is kept"
+                    )
             time.sleep(0.05)
 
 
@@ -178,8 +189,12 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
 
     if not scheduler and workers is not None and (isinstance(workers, bool) or workers < 0):
         raise ValueError(f"--workers must be >= 0 (0 = in this process), got {workers}")
-    with dask.config.set({"distributed.worker.daemon": False,
-                          "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+    with dask.config.set(
+        {
+            "distributed.worker.daemon": False,
+            "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+        }
+    ):
         if scheduler:
             check_scheduler(scheduler)
             with Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S * 2:g}s") as client:
@@ -189,8 +204,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
         n = 1 if in_process else workers or os.cpu_count() or 1
         release = (lambda: None) if in_process else _hold_sigint()
         try:
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=not in_process,
-                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=not in_process,
+                dashboard_address=":0",
+                silence_logs=logging.CRITICAL,
+            )
         except BaseException:
             release()
             raise

@@ -24,8 +24,9 @@ def export(directory: str | Path, out: str | Path, fmt: str, object_id: int | No
     out = Path(out)
     if object_id is None:
         dataset_fingerprint(directory)  # every shard verified before the first file is written
-    objects = ([find_object(directory, object_id)] if object_id is not None
-               else iter_objects(directory))
+    objects = (
+        [find_object(directory, object_id)] if object_id is not None else iter_objects(directory)
+    )
     n = 0
     for _, obj, meshes in objects:
         folder = out / obj["class"] / f"{obj['id']:06d}"

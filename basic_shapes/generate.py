@@ -70,33 +70,42 @@ class GenerateConfig:
             if getattr(self, name) < lo:
                 raise ValueError(f"{name} must be >= {lo}, got {getattr(self, name)}")
         if self.variants >= OOD_FIRST:
-            raise ValueError(f"variants must be < {OOD_FIRST} (mesh ids reserve 3 digits, "
-                             f"{OOD_FIRST}-999 for OOD meshes), got {self.variants}")
+            raise ValueError(
+                f"variants must be < {OOD_FIRST} (mesh ids reserve 3 digits, "
+                f"{OOD_FIRST}-999 for OOD meshes), got {self.variants}"
+            )
         if not 0 <= self.ood_variants_per_remesher <= OOD_SLOT:
-            raise ValueError(f"ood_variants_per_remesher must be in 0..{OOD_SLOT}, "
-                             f"got {self.ood_variants_per_remesher}")
+            raise ValueError(
+                f"ood_variants_per_remesher must be in 0..{OOD_SLOT}, "
+                f"got {self.ood_variants_per_remesher}"
+            )
         if not 0 <= self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in [0, 1), got {self.test_fraction}")
         if not 0 <= self.val_fraction < 1 - self.test_fraction:
-            raise ValueError(f"val_fraction must be in [0, 1 - test_fraction), "
-                             f"got {self.val_fraction}")
+            raise ValueError(
+                f"val_fraction must be in [0, 1 - test_fraction), got {self.val_fraction}"
+            )
         self._validate_scales()
 
     def _validate_scales(self) -> None:
         """Scale flags are checked before any sampling (no ZeroDivisionError, no NaN counts)."""
         lo, hi = self.scale_range
         if not all(math.isfinite(x) and x > 0 for x in (lo, hi)) or lo >= hi:
-            raise ValueError(f"--scale-range must be finite, positive and LOW < HIGH, "
-                             f"got {lo} {hi}")
+            raise ValueError(
+                f"--scale-range must be finite, positive and LOW < HIGH, got {lo} {hi}"
+            )
         if not (math.isfinite(self.min_scale_distance) and self.min_scale_distance > 0):
-            raise ValueError(f"--min-scale-distance must be a finite number > 0, "
-                             f"got {self.min_scale_distance}")
+            raise ValueError(
+                f"--min-scale-distance must be a finite number > 0, got {self.min_scale_distance}"
+            )
         practical = int(PACKING * capacity(self.scale_range, self.min_scale_distance))
         if self.objects_per_class > practical:
-            raise ScaleError(f"cannot place {self.objects_per_class} dissimilar scales per class "
-                             f"in {list(self.scale_range)} m with --min-scale-distance "
-                             f"{self.min_scale_distance}: at most about {practical} fit; ask for "
-                             f"fewer objects, a wider --scale-range or a smaller distance")
+            raise ScaleError(
+                f"cannot place {self.objects_per_class} dissimilar scales per class "
+                f"in {list(self.scale_range)} m with --min-scale-distance "
+                f"{self.min_scale_distance}: at most about {practical} fit; ask for "
+                f"fewer objects, a wider --scale-range or a smaller distance"
+            )
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -137,20 +146,28 @@ def plan_objects(cfg: GenerateConfig) -> list[ObjectPlan]:
         if cfg.val_fraction > 0 and cfg.objects_per_class - n_test >= 2:
             n_val = max(1, n_val)
         perm = rng.permutation(cfg.objects_per_class).tolist()
-        test, val = set(perm[:n_test]), set(perm[n_test:n_test + n_val])
+        test, val = set(perm[:n_test]), set(perm[n_test : n_test + n_val])
         for k in range(cfg.objects_per_class):
             oid = ci * cfg.objects_per_class + k
             seed = int(_rng(cfg.seed, 1, key, k).integers(0, 2**63 - 1))
-            plans.append(ObjectPlan(oid, name, ci, tuple(float(x) for x in scales[k]), seed,
-                                    "test" if k in test else "val" if k in val else "train",
-                                    hidden_params(name, seed)))
+            plans.append(
+                ObjectPlan(
+                    oid,
+                    name,
+                    ci,
+                    tuple(float(x) for x in scales[k]),
+                    seed,
+                    "test" if k in test else "val" if k in val else "train",
+                    hidden_params(name, seed),
+                )
+            )
     return plans
 
 
 def shard_plans(cfg: GenerateConfig) -> list[list[ObjectPlan]]:
     objs = plan_objects(cfg)
     n = cfg.objects_per_shard
-    return [objs[i:i + n] for i in range(0, len(objs), n)]
+    return [objs[i : i + n] for i in range(0, len(objs), n)]
 
 
 def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
@@ -162,16 +179,32 @@ def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
     objects = []
     for p in plans:
         try:
-            meshes = _with_ood(p, object_meshes(p.class_name, np.array(p.scale), p.seed,
-                                                cfg_json["variants"], p.params), cfg_json)
+            meshes = _with_ood(
+                p,
+                object_meshes(
+                    p.class_name, np.array(p.scale), p.seed, cfg_json["variants"], p.params
+                ),
+                cfg_json,
+            )
         except OSError as exc:  # a MeshLab child that died (killed, out of memory)
             raise OSError(f"{path}: object {p.id} ({p.class_name}): {one_line(exc)}") from None
-        objects.append(ObjectRecord(p.id, p.class_index, np.array(p.scale), p.seed, p.split,
-                                    meshes, params=solid_for(p.class_name, p.scale,
-                                                             p.params).params))
+        objects.append(
+            ObjectRecord(
+                p.id,
+                p.class_index,
+                np.array(p.scale),
+                p.seed,
+                p.split,
+                meshes,
+                params=solid_for(p.class_name, p.scale, p.params).params,
+            )
+        )
     write_shard(path, objects, cfg_json["classes"], cfg_json, cfg_json["toolkit_version"])
-    return {"path": path, "meshes": sum(len(o.meshes) for o in objects),
-            "seconds": time.perf_counter() - t0}
+    return {
+        "path": path,
+        "meshes": sum(len(o.meshes) for o in objects),
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def _with_ood(p: ObjectPlan, meshes: list, cfg_json: dict) -> list:
@@ -185,8 +218,9 @@ def _with_ood(p: ObjectPlan, meshes: list, cfg_json: dict) -> list:
     from basic_shapes.meshcheck import topology_key
 
     seen = {topology_key(m.faces, len(m.vertices)) for m in meshes}
-    return meshes + ood_meshes(p.class_name, np.array(p.scale), p.seed, meshes[0].vertices,
-                               meshes[0].faces, per, seen)
+    return meshes + ood_meshes(
+        p.class_name, np.array(p.scale), p.seed, meshes[0].vertices, meshes[0].faces, per, seen
+    )
 
 
 def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
@@ -200,8 +234,10 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
             diff = sorted(
                 k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k)
             )
-            raise ShardError(f"{out}: holds a dataset with a different config "
-                             f"({', '.join(diff)} differ); use another --data")
+            raise ShardError(
+                f"{out}: holds a dataset with a different config "
+                f"({', '.join(diff)} differ); use another --data"
+            )
         return
     if any(out.glob("shard-*.h5")):
         raise ShardError(f"{out}: holds shards but no {CONFIG_FILE}; use another --data")
@@ -223,9 +259,14 @@ def _is_done(path: Path, cfg: GenerateConfig) -> bool:
         return False
 
 
-def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
-             scheduler: str | None = None, progress: bool = True,
-             shards: list[int] | None = None) -> dict:
+def generate(
+    out: str | Path,
+    cfg: GenerateConfig,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    shards: list[int] | None = None,
+) -> dict:
     """Generate (or finish generating) the dataset in ``out``; returns run statistics.
 
     ``shards``: build only these shard numbers of the plan (a slice of the dataset, each
@@ -249,8 +290,10 @@ def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
     tasks = [(str(out / shard_name(i)), plans) for i, plans in enumerate(shard_plans(cfg))]
     if shards is not None:
         if max(shards, default=0) >= len(tasks):
-            raise ValueError(f"shard {max(shards)} does not exist: the dataset has {len(tasks)} "
-                             f"shards (0..{len(tasks) - 1})")
+            raise ValueError(
+                f"shard {max(shards)} does not exist: the dataset has {len(tasks)} "
+                f"shards (0..{len(tasks) - 1})"
+            )
         tasks = [tasks[i] for i in sorted(set(shards))]
     for path, _ in tasks:  # only our own leftovers: never other files in the directory
         Path(path + ".tmp").unlink(missing_ok=True)
@@ -259,8 +302,14 @@ def generate(out: str | Path, cfg: GenerateConfig, workers: int | None = None,
     results = list(_run(todo, cfg.to_json(), workers, scheduler, progress))
     wall = time.perf_counter() - t0
     meshes = sum(r["meshes"] for r in results)
-    return {"shards": len(tasks), "built": len(todo), "skipped": len(tasks) - len(todo),
-            "meshes": meshes, "seconds": wall, "meshes_per_second": meshes / wall if wall else 0.0}
+    return {
+        "shards": len(tasks),
+        "built": len(todo),
+        "skipped": len(tasks) - len(todo),
+        "meshes": meshes,
+        "seconds": wall,
+        "meshes_per_second": meshes / wall if wall else 0.0,
+    }
 
 
 def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -> str:
@@ -272,9 +321,11 @@ def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -
     where = f"the cluster at {scheduler}" if scheduler else f"{n} local worker(s)"
     hours = meshes / (MESHES_PER_SECOND_PER_WORKER * n) / 3600
     eta = f"{hours:.1f} h" if hours >= 1 else f"{max(1, round(hours * 60))} min"
-    return (f"generate: {objects} objects ({len(cfg.classes)} classes x {cfg.objects_per_class}), "
-            f"{meshes} meshes, {shards} shards on {where}; about {eta} if nothing is done yet "
-            f"(at {MESHES_PER_SECOND_PER_WORKER:.0f} meshes/s per worker)")
+    return (
+        f"generate: {objects} objects ({len(cfg.classes)} classes x {cfg.objects_per_class}), "
+        f"{meshes} meshes, {shards} shards on {where}; about {eta} if nothing is done yet "
+        f"(at {MESHES_PER_SECOND_PER_WORKER:.0f} meshes/s per worker)"
+    )
 
 
 def _run(todo, cfg_json, workers, scheduler, progress):
@@ -282,11 +333,15 @@ def _run(todo, cfg_json, workers, scheduler, progress):
 
     from basic_shapes.remesh import supports
 
-    ood = {c: cfg_json.get("ood_variants_per_remesher", 0) * sum(supports(r, c)
-                                                                 for r in OOD_REMESHERS)
-           for c in cfg_json["classes"]}
-    total = sum(cfg_json["variants"] + 1 + ood[p.class_name] * (p.split == "test")
-                for _, ps in todo for p in ps)
+    ood = {
+        c: cfg_json.get("ood_variants_per_remesher", 0) * sum(supports(r, c) for r in OOD_REMESHERS)
+        for c in cfg_json["classes"]
+    }
+    total = sum(
+        cfg_json["variants"] + 1 + ood[p.class_name] * (p.split == "test")
+        for _, ps in todo
+        for p in ps
+    )
     bar = tqdm(total=total, unit="mesh", disable=not progress or not todo, desc="generate")
     if workers == 0 and scheduler is None:
         for path, plans in todo:
@@ -300,8 +355,12 @@ def _run(todo, cfg_json, workers, scheduler, progress):
     from basic_shapes.cluster import dask_client, finished
 
     with dask_client(workers, scheduler) as client:
-        futures = [client.submit(build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}",
-                                 pure=False) for path, plans in todo]
+        futures = [
+            client.submit(
+                build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}", pure=False
+            )
+            for path, plans in todo
+        ]
         for fut in finished(client, as_completed(futures)):
             r = fut.result()
             bar.update(r["meshes"])

@@ -23,8 +23,10 @@ def _histogram(n_faces: np.ndarray) -> list[str]:
     edges = np.unique(np.geomspace(max(n_faces.min(), 1), n_faces.max() + 1, 9).astype(int))
     counts, _ = np.histogram(n_faces, bins=edges)
     top = max(counts.max(), 1)
-    return [f"    {lo:>7d}-{hi - 1:<7d} {'#' * int(round(BAR * c / top)):<{BAR}s} {c}"
-            for lo, hi, c in zip(edges[:-1], edges[1:], counts)]
+    return [
+        f"    {lo:>7d}-{hi - 1:<7d} {'#' * int(round(BAR * c / top)):<{BAR}s} {c}"
+        for lo, hi, c in zip(edges[:-1], edges[1:], counts)
+    ]
 
 
 def _labels(directory) -> str:
@@ -39,8 +41,18 @@ def _labels(directory) -> str:
 
 
 def summary(directory: str | Path) -> str:
-    per_class = defaultdict(lambda: {"objects": 0, "train": 0, "val": 0, "test": 0, "faces": [],
-                                     "hausdorff": [], "labelled": 0, "ood": 0})
+    per_class = defaultdict(
+        lambda: {
+            "objects": 0,
+            "train": 0,
+            "val": 0,
+            "test": 0,
+            "faces": [],
+            "hausdorff": [],
+            "labelled": 0,
+            "ood": 0,
+        }
+    )
     shards = list_shards(directory)
     mesh_fingerprint = dataset_fingerprint(directory)  # every shard verified before reporting
     config = None
@@ -63,17 +75,21 @@ def summary(directory: str | Path) -> str:
                 per_class[names[c]]["faces"].append(table["n_faces"][sel])
                 complex_ = sel & (table["variant"] > 0)
                 per_class[names[c]]["hausdorff"].append(table["hausdorff"][complex_])
-    lines = [f"dataset {directory}: {len(shards)} shards, seed {config.get('seed', '?')}, "
-             f"{config.get('variants', '?')} complex variants per object",
-             f"mesh fingerprint  {mesh_fingerprint}",
-             f"label fingerprint {_labels(directory)}"]
+    lines = [
+        f"dataset {directory}: {len(shards)} shards, seed {config.get('seed', '?')}, "
+        f"{config.get('variants', '?')} complex variants per object",
+        f"mesh fingerprint  {mesh_fingerprint}",
+        f"label fingerprint {_labels(directory)}",
+    ]
     for name, d in per_class.items():
         faces = np.concatenate(d["faces"])
         h = np.concatenate(d["hausdorff"])
-        lines.append(f"\n{name}: {d['objects']} objects ({d['train']} train / {d['val']} val / "
-                     f"{d['test']} test), {len(faces)} meshes"
-                     + (f" + {d['ood']} out-of-distribution" if d["ood"] else "")
-                     + f", {d['labelled']} objects radar-labelled")
+        lines.append(
+            f"\n{name}: {d['objects']} objects ({d['train']} train / {d['val']} val / "
+            f"{d['test']} test), {len(faces)} meshes"
+            + (f" + {d['ood']} out-of-distribution" if d["ood"] else "")
+            + f", {d['labelled']} objects radar-labelled"
+        )
         lines.append(
             f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}"
         )

@@ -69,9 +69,12 @@ def require_free_space(path: str | os.PathLike, nbytes: int) -> None:
 
     free = shutil.disk_usage(Path(path).parent).free
     if free < nbytes + FREE_MARGIN:
-        raise OSError(errno.ENOSPC, f"No space left on device (about "
-                      f"{(nbytes + FREE_MARGIN) >> 20} MiB needed, {free >> 20} MiB free)",
-                      str(path))
+        raise OSError(
+            errno.ENOSPC,
+            f"No space left on device (about "
+            f"{(nbytes + FREE_MARGIN) >> 20} MiB needed, {free >> 20} MiB free)",
+            str(path),
+        )
 
 
 def _disk_full(exc: BaseException | None) -> int | None:
@@ -135,8 +138,14 @@ def hardware(threads: int | None = None) -> dict:
     text += f", {threads} thread(s)"
     text += f", load {load:.2f}" if load is not None else ""
     text += f"; gpu: {gpu}" if gpu else ""
-    return {"cpu": cpu, "cores": os.cpu_count(), "threads": threads, "load_avg_1m": load,
-            "gpu": gpu, "text": text}
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "threads": threads,
+        "load_avg_1m": load,
+        "gpu": gpu,
+        "text": text,
+    }
 
 
 def _usable_cores() -> int:
@@ -147,6 +156,7 @@ def _usable_cores() -> int:
 
 
 # --- one-line errors and the CLI boundary ----------------------------------------------------
+
 
 def warn(text: str) -> None:
     """One ``warning:`` line on stderr (stdout is kept for results)."""
@@ -170,8 +180,11 @@ def one_line(exc: BaseException) -> str:
 
 def _is_expected(exc: BaseException) -> bool:
     """Errors of the input or the environment (not bugs): they get a plain one-line message."""
-    return isinstance(exc, (ValueError, OSError, MemoryError)) \
-        or type(exc).__name__ in ("KilledWorker", "CancelledError", "FutureCancelledError")
+    return isinstance(exc, (ValueError, OSError, MemoryError)) or type(exc).__name__ in (
+        "KilledWorker",
+        "CancelledError",
+        "FutureCancelledError",
+    )
 
 
 def describe(exc: BaseException) -> str:
@@ -179,12 +192,16 @@ def describe(exc: BaseException) -> str:
     if isinstance(exc, MemoryError):
         return f"out of memory ({one_line(exc)})"
     if type(exc).__name__ == "KilledWorker":
-        return (f"a Dask worker died while running task {getattr(exc, 'task', '?')!r} (out "
-                f"of memory or crashed); see the worker logs")
+        return (
+            f"a Dask worker died while running task {getattr(exc, 'task', '?')!r} (out "
+            f"of memory or crashed); see the worker logs"
+        )
     if _is_expected(exc):
         return one_line(exc)
-    return (f"internal error: {exc.__class__.__name__}: {one_line(exc)} "
-            f"(rerun with --debug for the traceback)")
+    return (
+        f"internal error: {exc.__class__.__name__}: {one_line(exc)} "
+        f"(rerun with --debug for the traceback)"
+    )
 
 
 def debug_requested(argv: list[str]) -> bool:
@@ -246,6 +263,7 @@ def separate_outputs(outputs: dict, inputs: dict) -> None:
     """Refuse (``FlagError``) an output flag whose path is an input's, lies inside an input
     directory (the dataset) or holds an input (a folder that is replaced), or is another
     output's; ``None`` values are ignored. Paths are compared after resolving symlinks."""
+
     def real(path) -> str:
         return os.path.realpath(os.fspath(path))
 
@@ -261,10 +279,11 @@ def separate_outputs(outputs: dict, inputs: dict) -> None:
             raise FlagError(f"{flag} and {seen[out]} name the same path ({path})")
         seen[out] = flag
         for in_flag, in_path in inputs.items():
-            if in_path is not None and (nested(out, real(in_path))
-                                        or nested(real(in_path), out)):
-                raise FlagError(f"{flag} {path} would overwrite the input {in_flag} {in_path}; "
-                                f"write it elsewhere")
+            if in_path is not None and (nested(out, real(in_path)) or nested(real(in_path), out)):
+                raise FlagError(
+                    f"{flag} {path} would overwrite the input {in_flag} {in_path}; "
+                    f"write it elsewhere"
+                )
 
 
 def add_debug_flag(parser: argparse.ArgumentParser) -> None:
@@ -272,30 +291,47 @@ def add_debug_flag(parser: argparse.ArgumentParser) -> None:
     it before parsing, wherever it is), on every tool."""
     from basic_shapes import __version__
 
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
-                        help="print the toolkit version and exit")
-    parser.add_argument("--debug", action="store_true",
-                        help=f"show Python tracebacks (also {DEBUG_ENV}=1)")
+    parser.add_argument(
+        "--version",
+        action="version",
+        version=f"%(prog)s {__version__}",
+        help="print the toolkit version and exit",
+    )
+    parser.add_argument(
+        "--debug", action="store_true", help=f"show Python tracebacks (also {DEBUG_ENV}=1)"
+    )
 
 
 def add_cluster_flags(parser: argparse.ArgumentParser, what: str = "worker processes") -> None:
     """``--workers N`` (0 = in this process) or ``--scheduler ADDR``, never both (docs/CLI.md)."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
-                       help=f"local {what} (default: one per core; 0 = in this process, "
-                       f"for debugging: the same bytes)")
-    group.add_argument("--scheduler", default=None, metavar="ADDR",
-                       help="address of a running Dask scheduler (tcp://host:8786) instead")
+    group.add_argument(
+        "--workers",
+        type=number(int, minimum=0, maximum=1024),
+        default=None,
+        help=f"local {what} (default: one per core; 0 = in this process, "
+        f"for debugging: the same bytes)",
+    )
+    group.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDR",
+        help="address of a running Dask scheduler (tcp://host:8786) instead",
+    )
 
 
 def add_quiet_flag(parser: argparse.ArgumentParser) -> None:
     """``--quiet``: no progress bars or informational lines; results and errors still print."""
-    parser.add_argument("--quiet", action="store_true",
-                        help="no progress bars or progress lines (results and errors still print)")
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bars or progress lines (results and errors still print)",
+    )
 
 
 def number(kind=float, *, minimum=None, maximum=None, above=None, integer_ok=True):
     """An argparse ``type`` for finite numbers in a range, naming the bound it breaks."""
+
     def parse(text: str):
         try:
             value = kind(text)
@@ -311,11 +347,13 @@ def number(kind=float, *, minimum=None, maximum=None, above=None, integer_ok=Tru
         if maximum is not None and value > maximum:
             raise argparse.ArgumentTypeError(f"{text!r} must be <= {maximum:g}")
         return value
+
     parse.__name__ = kind.__name__
     return parse
 
 
 # --- files and bounded JSON --------------------------------------------------------------------
+
 
 def regular_file(path: str | os.PathLike, error=InputError) -> os.stat_result:
     """``stat`` of ``path``, refusing anything but a regular file (a FIFO would hang a read)."""
@@ -336,8 +374,9 @@ _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
 def json_depth(raw: bytes) -> int:
     """Nesting depth of JSON text, without recursion (strings removed, brackets counted)."""
     arr = np.frombuffer(_JSON_STRING.sub(b'""', raw), np.uint8)
-    step = np.isin(arr, (ord("["), ord("{"))).astype(np.int64) \
-        - np.isin(arr, (ord("]"), ord("}"))).astype(np.int64)
+    step = np.isin(arr, (ord("["), ord("{"))).astype(np.int64) - np.isin(
+        arr, (ord("]"), ord("}"))
+    ).astype(np.int64)
     return int(np.cumsum(step).max(initial=0))
 
 
@@ -352,9 +391,14 @@ def _no_constant(name: str):
     raise ValueError(f"{name} is not allowed")
 
 
-def load_json(source: str | bytes | os.PathLike, *, what: str | None = None,
-              max_bytes: int = JSON_MAX_BYTES, max_depth: int = JSON_MAX_DEPTH,
-              error=InputError):
+def load_json(
+    source: str | bytes | os.PathLike,
+    *,
+    what: str | None = None,
+    max_bytes: int = JSON_MAX_BYTES,
+    max_depth: int = JSON_MAX_DEPTH,
+    error=InputError,
+):
     """Parse JSON from a file path (``os.PathLike``) or from text/bytes, bounded.
 
     Refused with ``error`` naming ``what`` (default: the path): more than ``max_bytes``,
@@ -378,8 +422,9 @@ def load_json(source: str | bytes | os.PathLike, *, what: str | None = None,
     if depth > max_depth:
         raise error(f"{what}: JSON nested {depth} deep, more than the {max_depth} allowed")
     try:
-        return json.loads(raw.decode("utf-8"), parse_constant=_no_constant,
-                          parse_float=_finite_float)
+        return json.loads(
+            raw.decode("utf-8"), parse_constant=_no_constant, parse_float=_finite_float
+        )
     except (ValueError, RecursionError) as exc:
         raise error(f"{what}: not valid JSON ({one_line(exc)})") from None
 
@@ -438,8 +483,9 @@ class _HDF5Check:
                 self.fail("", f"holds more than {MAX_HDF5_OBJECTS} objects")
             link = g.get(name, getlink=True)
             if not isinstance(link, h5py.HardLink):
-                self.fail(where, f"is a link ({type(link).__name__}); only plain datasets "
-                          f"are allowed")
+                self.fail(
+                    where, f"is a link ({type(link).__name__}); only plain datasets are allowed"
+                )
             obj = g[name]
             addr = h5py.h5o.get_info(obj.id).addr
             if addr in self.seen:
@@ -474,8 +520,11 @@ class _HDF5Check:
             self.fail(where, "is a virtual dataset (reads other files)")
         plist = d.id.get_create_plist()
         if plist.get_external_count():
-            self.fail(where, "uses external storage (reads other files); only data stored in "
-                      "the file is allowed")
+            self.fail(
+                where,
+                "uses external storage (reads other files); only data stored in "
+                "the file is allowed",
+            )
         layout = plist.get_layout()
         if layout not in (h5d.CONTIGUOUS, h5d.CHUNKED, h5d.COMPACT):
             self.fail(where, f"has an unsupported storage layout ({layout})")
@@ -486,8 +535,11 @@ class _HDF5Check:
         stored = d.id.get_storage_size()
         compressed = h5z.FILTER_DEFLATE in filters
         if stored > self.file_size or need > stored * (MAX_COMPRESSION if compressed else 1):
-            self.fail(where, f"declares {d.shape} ({need} bytes) but the file stores {stored} "
-                      f"bytes for it ({self.file_size} in all)")
+            self.fail(
+                where,
+                f"declares {d.shape} ({need} bytes) but the file stores {stored} "
+                f"bytes for it ({self.file_size} in all)",
+            )
 
 
 def require_dataset(f, name: str, kinds: str, ndim: int, error, path, tail: tuple = ()):
@@ -498,7 +550,9 @@ def require_dataset(f, name: str, kinds: str, ndim: int, error, path, tail: tupl
     d = f.get(name)
     if not isinstance(d, h5py.Dataset):
         raise error(f"{path}: /{name} is missing or not a dataset")
-    if d.dtype.kind not in kinds or d.ndim != ndim or tuple(d.shape[ndim - len(tail):]) != tail:
-        raise error(f"{path}: /{name} is {d.dtype}{d.shape}, expected kind {kinds!r} with "
-                    f"{ndim} dimension(s){' ending in ' + str(tail) if tail else ''}")
+    if d.dtype.kind not in kinds or d.ndim != ndim or tuple(d.shape[ndim - len(tail) :]) != tail:
+        raise error(
+            f"{path}: /{name} is {d.dtype}{d.shape}, expected kind {kinds!r} with "
+            f"{ndim} dimension(s){' ending in ' + str(tail) if tail else ''}"
+        )
     return d

@@ -54,17 +54,26 @@ def _shard_entry(path: Path) -> dict:
         measured = [g[n][()] for n in ("hausdorff", "primitive_distance", "params") if n in g]
         objects = []
         for k in range(s.n_objects):
-            record = [objs["id"][k], objs["class"][k], objs["scale"][k], objs["seed"][k],
-                      np.bytes_(objs["split"][k])]
+            record = [
+                objs["id"][k],
+                objs["class"][k],
+                objs["scale"][k],
+                objs["seed"][k],
+                np.bytes_(objs["split"][k]),
+            ]
             if params is not None:
                 record.append(np.bytes_(params[k]))
             meshes = []
             for i in np.flatnonzero(table["object_index"] == k):
                 v, f = s.mesh(int(i))
-                mesh = {"variant": int(table["variant"][i]), "vertices": _short(v),
-                        "faces": _short(f),
-                        "record": _short(*(np.bytes_(m[i]) if m.dtype.kind == "O" else m[i]
-                                           for m in measured))}
+                mesh = {
+                    "variant": int(table["variant"][i]),
+                    "vertices": _short(v),
+                    "faces": _short(f),
+                    "record": _short(
+                        *(np.bytes_(m[i]) if m.dtype.kind == "O" else m[i] for m in measured)
+                    ),
+                }
                 if int(i) in physics:
                     mesh["physics"] = _short(labels.mesh_response(physics[int(i)]))
                 meshes.append(mesh)
@@ -72,30 +81,40 @@ def _shard_entry(path: Path) -> dict:
             if labels is not None:
                 entry["label"] = _short(labels.response(k))
             objects.append(entry)
-        entry = {"name": path.name, "sha256": file_sha256(path),
-                 "fingerprint": content_fingerprint(s.file),
-                 "label_fingerprint": labels.computed_fingerprint() if labels else None,
-                 "objects": objects}
+        entry = {
+            "name": path.name,
+            "sha256": file_sha256(path),
+            "fingerprint": content_fingerprint(s.file),
+            "label_fingerprint": labels.computed_fingerprint() if labels else None,
+            "objects": objects,
+        }
         stored = (s.fingerprint, labels.fingerprint if labels else None)
         if stored != (entry["fingerprint"], entry["label_fingerprint"]):
             entry["stored_fingerprints_differ"] = True
         return entry
 
 
-def build(directory: str | os.PathLike, version: str | None = None,
-          stack: dict | None = None) -> dict:
+def build(
+    directory: str | os.PathLike, version: str | None = None, stack: dict | None = None
+) -> dict:
     """The manifest of a dataset directory. Its mesh and label fingerprints are those of
     ``shards.dataset_fingerprint`` and ``label_fingerprint``, computed from the content."""
     shards = [_shard_entry(p) for p in list_shards(directory)]
     labelled = all(s["label_fingerprint"] for s in shards)
     config = Path(directory) / "dataset.json"
-    return {"format": FORMAT, "version": version, "stack": stack or {},
-            "config": load_json(config, max_bytes=1 << 16, error=ShardError)
-            if config.exists() else None,
-            "fingerprints": {"mesh": _combined(s["fingerprint"] for s in shards),
-                             "label": _combined(s["label_fingerprint"] for s in shards)
-                             if labelled else None},
-            "shards": shards}
+    return {
+        "format": FORMAT,
+        "version": version,
+        "stack": stack or {},
+        "config": load_json(config, max_bytes=1 << 16, error=ShardError)
+        if config.exists()
+        else None,
+        "fingerprints": {
+            "mesh": _combined(s["fingerprint"] for s in shards),
+            "label": _combined(s["label_fingerprint"] for s in shards) if labelled else None,
+        },
+        "shards": shards,
+    }
 
 
 def _combined(fingerprints) -> str:
@@ -149,11 +168,13 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
                 out.append(f"{obj}: variants {variants_f}, expected {variants_e}")
             else:
                 for me, mf in zip(oe["meshes"], of["meshes"]):
-                    data = [k for k in ("vertices", "faces", "record", "physics")
-                            if me.get(k) != mf.get(k)]
+                    data = [
+                        k
+                        for k in ("vertices", "faces", "record", "physics")
+                        if me.get(k) != mf.get(k)
+                    ]
                     if data:
-                        out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} "
-                                   f"differ")
+                        out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} differ")
             if oe.get("label") != of.get("label"):
                 out.append(f"{obj}: label differs")
         if sf.get("stored_fingerprints_differ"):
@@ -171,7 +192,10 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
 
 def load(path: str | os.PathLike) -> dict:
     manifest = load_json(Path(path), max_bytes=1 << 28, error=ShardError)
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT or \
-            not isinstance(manifest.get("shards"), list):
+    if (
+        not isinstance(manifest, dict)
+        or manifest.get("format") != FORMAT
+        or not isinstance(manifest.get("shards"), list)
+    ):
         raise ShardError(f"{path}: not a dataset manifest of format {FORMAT}")
     return manifest

@@ -51,14 +51,17 @@ def as_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     v = v.astype(np.float64)
     bad = np.flatnonzero(~np.isfinite(v).all(axis=1))
     if len(bad):
-        raise MeshError(f"vertex {bad[0]} is not finite: {v[bad[0]].tolist()} "
-                        f"({len(bad)} non-finite vertices)")
+        raise MeshError(
+            f"vertex {bad[0]} is not finite: {v[bad[0]].tolist()} ({len(bad)} non-finite vertices)"
+        )
     check_coordinates(v)
     f = f.astype(np.int64)
     out = np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))
     if len(out):
-        raise MeshError(f"face {out[0]} refers to vertex {f[out[0]].tolist()}, but the mesh has "
-                        f"{len(v)} vertices (indices are 0-based)")
+        raise MeshError(
+            f"face {out[0]} refers to vertex {f[out[0]].tolist()}, but the mesh has "
+            f"{len(v)} vertices (indices are 0-based)"
+        )
     return v, f
 
 
@@ -66,8 +69,10 @@ def check_coordinates(v: np.ndarray) -> None:
     """Refuse (``MeshError``) coordinates beyond ``MAX_COORDINATE`` in absolute value."""
     largest = float(np.abs(v).max(initial=0.0))
     if largest > MAX_COORDINATE:
-        raise MeshError(f"coordinates too large (up to {largest:.3g} in absolute value, at most "
-                        f"{MAX_COORDINATE:g} allowed): check the units")
+        raise MeshError(
+            f"coordinates too large (up to {largest:.3g} in absolute value, at most "
+            f"{MAX_COORDINATE:g} allowed): check the units"
+        )
 
 
 def bbox_diagonal(vertices: np.ndarray) -> float:
@@ -84,9 +89,11 @@ def twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarra
     several times slower than these products).
     """
     u, w = b - a, c - a
-    return ((u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2
-            + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
-            + (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) ** 2)
+    return (
+        (u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2
+        + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
+        + (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) ** 2
+    )
 
 
 def repeated_vertex(faces: np.ndarray) -> np.ndarray:
@@ -111,7 +118,7 @@ def face_repeats(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     order = np.lexsort(rows.T[::-1])
     sr = rows[order]
     new = np.r_[True, np.any(sr[1:] != sr[:-1], axis=1)]
-    first[order[new]] = True            # lexsort is stable: the first of each group comes first
+    first[order[new]] = True  # lexsort is stable: the first of each group comes first
     group = np.cumsum(new) - 1
     count[order] = np.bincount(group)[group]
     return first, count
@@ -124,8 +131,9 @@ def drop_unreferenced(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarr
     return vertices[used], inverse.reshape(-1, 3)
 
 
-def weld(vertices: np.ndarray, faces: np.ndarray,
-         decimals: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def weld(
+    vertices: np.ndarray, faces: np.ndarray, decimals: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Merge vertices with identical coordinates (after rounding to ``decimals``, if given).
 
     Returns the merged vertices (V', 3), sorted by (x, y, z) of their key, each the first

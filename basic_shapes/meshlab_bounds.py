@@ -58,7 +58,7 @@ def _planes(v, faces):
         for k, (a, c) in enumerate(((i1, i2), (i2, i0), (i0, i1))):
             ex, ey, ez = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
             mx, my, mz = ny * ez - nz * ey, nz * ex - nx * ez, nx * ey - ny * ex
-            out[f, 4 + 4 * k:8 + 4 * k] = mx, my, mz, mx * v[a, 0] + my * v[a, 1] + mz * v[a, 2]
+            out[f, 4 + 4 * k : 8 + 4 * k] = mx, my, mz, mx * v[a, 0] + my * v[a, 1] + mz * v[a, 2]
             out[f, 17 + k] = 1.0 / np.sqrt(ex * ex + ey * ey + ez * ez)
         out[f, 16] = EPS * double_area
     return out
@@ -127,10 +127,12 @@ def _face_cells(vertices, faces, origin, cell, dims):
     count = np.zeros(n_cells + 1, np.int64)
     for f in range(len(faces)):
         for k in range(3):
-            lo = min(vertices[faces[f, 0], k], min(vertices[faces[f, 1], k],
-                                                   vertices[faces[f, 2], k]))
-            hi = max(vertices[faces[f, 0], k], max(vertices[faces[f, 1], k],
-                                                   vertices[faces[f, 2], k]))
+            lo = min(
+                vertices[faces[f, 0], k], min(vertices[faces[f, 1], k], vertices[faces[f, 2], k])
+            )
+            hi = max(
+                vertices[faces[f, 0], k], max(vertices[faces[f, 1], k], vertices[faces[f, 2], k])
+            )
             box[f, k] = min(max(int((lo - origin[k]) / cell), 0), dims[k] - 1)
             box[f, 3 + k] = min(max(int((hi - origin[k]) / cell), 0), dims[k] - 1)
         for i in range(box[f, 0], box[f, 3] + 1):
@@ -186,8 +188,9 @@ def _upper(samples, cells, picked, first, vertices, faces, planes, start, items,
         qx, qy, qz = samples[s, 0], samples[s, 1], samples[s, 2]
         best = first[s]
         for t in range(start[cells[s]], start[cells[s] + 1]):
-            best = min(best, face_range(qx, qy, qz, vertices, faces, planes, items[t], tau,
-                                        best)[1])
+            best = min(
+                best, face_range(qx, qy, qz, vertices, faces, planes, items[t], tau, best)[1]
+            )
         out[i] = best
     return out
 
@@ -199,10 +202,12 @@ def _lower(samples, vertices, faces, planes, tau, slack):
     box = np.empty((len(faces), 6))
     for f in range(len(faces)):
         for k in range(3):
-            box[f, k] = min(vertices[faces[f, 0], k], min(vertices[faces[f, 1], k],
-                                                          vertices[faces[f, 2], k]))
-            box[f, 3 + k] = max(vertices[faces[f, 0], k], max(vertices[faces[f, 1], k],
-                                                              vertices[faces[f, 2], k]))
+            box[f, k] = min(
+                vertices[faces[f, 0], k], min(vertices[faces[f, 1], k], vertices[faces[f, 2], k])
+            )
+            box[f, 3 + k] = max(
+                vertices[faces[f, 0], k], max(vertices[faces[f, 1], k], vertices[faces[f, 2], k])
+            )
     out = np.full(len(samples), np.inf)
     for s in range(len(samples)):
         qx, qy, qz = samples[s, 0], samples[s, 1], samples[s, 2]
@@ -269,7 +274,7 @@ class SampleBounds:
         """
         v = np.ascontiguousarray(vertices, np.float64)
         f = np.ascontiguousarray(faces, np.int64)
-        tau, rho = TAU * self.diagonal ** 2, RHO * self.diagonal
+        tau, rho = TAU * self.diagonal**2, RHO * self.diagonal
         planes = _planes(v, f)
         start, items = _face_cells(v, f, self.origin, self.cell, self.dims)
         first = _first_inside(self.samples, self.cells, planes, start, items, tau)
@@ -280,19 +285,31 @@ class SampleBounds:
         bound = self._raise(bound, picked, upper, v, f, planes)
         keep = upper + rho >= bound
         reach = np.minimum(upper[keep] + 4 * rho, self.cell * self.dims.sum())  # inf: all
-        near = _near_faces(self.samples, picked[keep], reach, self.origin, self.cell, self.dims,
-                           start, items, len(f))
+        near = _near_faces(
+            self.samples,
+            picked[keep],
+            reach,
+            self.origin,
+            self.cell,
+            self.dims,
+            start,
+            items,
+            len(f),
+        )
         return picked[keep], near
 
     def _raise(self, bound, picked, upper, v, f, planes) -> float:
         """``bound`` raised to the largest lower bound of the picked samples of largest upper
         bound, PROBES at a time, while one could still beat it (at most 4 rounds)."""
-        tau, rho = TAU * self.diagonal ** 2, RHO * self.diagonal
-        top = np.argpartition(-upper, min(4 * PROBES, len(upper)) - 1)[:4 * PROBES] \
-            if len(upper) else np.zeros(0, np.int64)
+        tau, rho = TAU * self.diagonal**2, RHO * self.diagonal
+        top = (
+            np.argpartition(-upper, min(4 * PROBES, len(upper)) - 1)[: 4 * PROBES]
+            if len(upper)
+            else np.zeros(0, np.int64)
+        )
         top = top[np.argsort(-upper[top])]
         for first in range(0, len(top), PROBES):
-            probes = top[first:first + PROBES]
+            probes = top[first : first + PROBES]
             if upper[probes[0]] + rho <= bound + 2 * rho:  # nothing left to gain
                 break
             lower = _lower(self.samples[picked[probes]], v, f, planes, tau, rho)

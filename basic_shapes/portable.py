@@ -63,13 +63,20 @@ def matmul(a, b) -> np.ndarray:
         a, b2 = a.astype(np.complex128), b2.astype(np.complex128)
         re = np.zeros((a.shape[0], b2.shape[1]))
         im = np.zeros_like(re)
-        _compiled()[1](np.ascontiguousarray(a.real), np.ascontiguousarray(a.imag),
-                       np.ascontiguousarray(b2.real), np.ascontiguousarray(b2.imag), re, im)
+        _compiled()[1](
+            np.ascontiguousarray(a.real),
+            np.ascontiguousarray(a.imag),
+            np.ascontiguousarray(b2.real),
+            np.ascontiguousarray(b2.imag),
+            re,
+            im,
+        )
         out = re + 1j * im
     else:
         out = np.zeros((a.shape[0], b2.shape[1]))
-        _compiled()[0](np.ascontiguousarray(a, np.float64),
-                       np.ascontiguousarray(b2, np.float64), out)
+        _compiled()[0](
+            np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b2, np.float64), out
+        )
     return out[:, 0] if vector else out
 
 

@@ -84,8 +84,10 @@ class Primitive:
     def resolutions(self) -> list[dict[str, int]]:
         """Every allowed tessellation (one empty dict for a primitive without any)."""
         keys = list(self.resolution)
-        return [dict(zip(keys, values))
-                for values in itertools.product(*(self.resolution[k].values() for k in keys))]
+        return [
+            dict(zip(keys, values))
+            for values in itertools.product(*(self.resolution[k].values() for k in keys))
+        ]
 
     def coarsest_resolution(self) -> dict[str, int]:
         """The allowed tessellation farthest from the smooth surface (smallest counts)."""
@@ -104,39 +106,62 @@ def _uv_sphere_gap(res: dict[str, int]) -> float:
 
 def _torus_gap(res: dict[str, int], major: float = 1.0, minor: float = 0.25) -> float:
     """Minor-circle sagitta plus the major-circle sagitta at the outer radius."""
-    return (minor * _polygon_gap(res["minor_segments"])
-            + (major + minor) * _polygon_gap(res["major_segments"]))
+    return minor * _polygon_gap(res["minor_segments"]) + (major + minor) * _polygon_gap(
+        res["major_segments"]
+    )
 
 
 PRIMITIVES: dict[str, Primitive] = {
     "cube": Primitive(operator="primitive_cube_add", planar=True, extents=(2.0, 2.0, 2.0)),
     "cylinder": Primitive(
-        operator="primitive_cylinder_add", planar=False, extents=(2.0, 2.0, 2.0),
+        operator="primitive_cylinder_add",
+        planar=False,
+        extents=(2.0, 2.0, 2.0),
         resolution={"vertices": Resolution(default=32, lo=24, hi=48, step=4)},
-        gap=lambda r: _polygon_gap(r["vertices"])),
+        gap=lambda r: _polygon_gap(r["vertices"]),
+    ),
     "sphere": Primitive(
-        operator="primitive_uv_sphere_add", planar=False, extents=(2.0, 2.0, 2.0),
-        resolution={"segments": Resolution(default=32, lo=24, hi=48, step=4),
-                    "ring_count": Resolution(default=16, lo=12, hi=24, step=2)},
-        gap=_uv_sphere_gap, decimation={"collapse": 0.7, "unsubdiv": 0.1, "none": 0.2}),
+        operator="primitive_uv_sphere_add",
+        planar=False,
+        extents=(2.0, 2.0, 2.0),
+        resolution={
+            "segments": Resolution(default=32, lo=24, hi=48, step=4),
+            "ring_count": Resolution(default=16, lo=12, hi=24, step=2),
+        },
+        gap=_uv_sphere_gap,
+        decimation={"collapse": 0.7, "unsubdiv": 0.1, "none": 0.2},
+    ),
     "cone": Primitive(
-        operator="primitive_cone_add", planar=False, extents=(2.0, 2.0, 2.0),
+        operator="primitive_cone_add",
+        planar=False,
+        extents=(2.0, 2.0, 2.0),
         resolution={"vertices": Resolution(default=32, lo=24, hi=48, step=4)},
-        gap=lambda r: _polygon_gap(r["vertices"])),
+        gap=lambda r: _polygon_gap(r["vertices"]),
+    ),
     "torus": Primitive(
-        operator="primitive_torus_add", planar=False, extents=(2.5, 2.5, 0.5), convex=False,
+        operator="primitive_torus_add",
+        planar=False,
+        extents=(2.5, 2.5, 0.5),
+        convex=False,
         euler=0,
-        resolution={"major_segments": Resolution(default=48, lo=48, hi=72, step=4),
-                    "minor_segments": Resolution(default=12, lo=12, hi=20, step=4)},
-        gap=_torus_gap, decimation={"collapse": 0.6, "unsubdiv": 0.2, "none": 0.2}),
+        resolution={
+            "major_segments": Resolution(default=48, lo=48, hi=72, step=4),
+            "minor_segments": Resolution(default=12, lo=12, hi=20, step=4),
+        },
+        gap=_torus_gap,
+        decimation={"collapse": 0.6, "unsubdiv": 0.2, "none": 0.2},
+    ),
     # The hidden-parameter track: a cone whose top radius is top_ratio times its base radius.
     # Every side quad is a planar trapezoid whose sagitta shrinks from the base rim's to
     # top_ratio times it, so the cone's gap bounds it for any ratio.
     "frustum": Primitive(
-        operator="primitive_cone_add", planar=False, extents=(2.0, 2.0, 2.0),
+        operator="primitive_cone_add",
+        planar=False,
+        extents=(2.0, 2.0, 2.0),
         resolution={"vertices": Resolution(default=32, lo=24, hi=48, step=4)},
         gap=lambda r: _polygon_gap(r["vertices"]),
-        shape=lambda params: {"radius2": params["top_ratio"]}),
+        shape=lambda params: {"radius2": params["top_ratio"]},
+    ),
 }
 
 DEFAULT_CLASSES = ("cube", "cylinder", "sphere")
@@ -147,5 +172,6 @@ def get(class_name: str) -> Primitive:
     try:
         return PRIMITIVES[class_name]
     except KeyError:
-        raise ValueError(f"unknown primitive class {class_name!r}; known: "
-                         f"{', '.join(sorted(PRIMITIVES))}") from None
+        raise ValueError(
+            f"unknown primitive class {class_name!r}; known: {', '.join(sorted(PRIMITIVES))}"
+        ) from None

@@ -62,8 +62,7 @@ def _plain(info: tarfile.TarInfo) -> tarfile.TarInfo:
     return info
 
 
-def fetch(source: str, manifest: dict, directory: str | os.PathLike,
-          progress: bool = True) -> Path:
+def fetch(source: str, manifest: dict, directory: str | os.PathLike, progress: bool = True) -> Path:
     """Download (or copy) the archive at ``source``, verify it against ``manifest`` and
     unpack it as ``directory``, which must not hold a dataset yet."""
     directory = Path(directory)
@@ -95,11 +94,14 @@ def _download(source: str, target: Path, progress: bool) -> Path:
     from tqdm import tqdm
 
     try:
-        with urllib.request.urlopen(source, timeout=TIMEOUT_S) as response, \
-                open(target, "wb") as out:
+        with (
+            urllib.request.urlopen(source, timeout=TIMEOUT_S) as response,
+            open(target, "wb") as out,
+        ):
             total = int(response.headers.get("Content-Length") or 0) or None
-            with tqdm(total=total, unit="B", unit_scale=True, desc="fetch",
-                      disable=not progress) as bar:
+            with tqdm(
+                total=total, unit="B", unit_scale=True, desc="fetch", disable=not progress
+            ) as bar:
                 for block in iter(lambda: response.read(1 << 20), b""):
                     out.write(block)
                     bar.update(len(block))
@@ -116,13 +118,17 @@ def _unpack(archive: Path, source: str, manifest: dict, staging: Path) -> None:
             names = [m.name for m in members]
             for m in members:
                 if not m.isreg() or not MEMBER.fullmatch(m.name):
-                    raise ReleaseError(f"{source}: unexpected member {m.name!r}; not a release "
-                                       f"archive of {manifest['version']}")
+                    raise ReleaseError(
+                        f"{source}: unexpected member {m.name!r}; not a release "
+                        f"archive of {manifest['version']}"
+                    )
             missing = sorted((set(expected) | {CONFIG_FILE}) - set(names))
             extra = sorted({n for n in names if n.startswith("shard-")} - set(expected))
             if missing or extra or len(set(names)) != len(names):
-                raise ReleaseError(f"{source}: not a release archive of {manifest['version']} "
-                                   f"(missing {missing[:3]}, unexpected {extra[:3]})")
+                raise ReleaseError(
+                    f"{source}: not a release archive of {manifest['version']} "
+                    f"(missing {missing[:3]}, unexpected {extra[:3]})"
+                )
             staging.mkdir(parents=True)
             for m in members:
                 if m.name == MANIFEST_FILE:
@@ -133,9 +139,13 @@ def _unpack(archive: Path, source: str, manifest: dict, staging: Path) -> None:
         raise ReleaseError(f"{source}: not a readable tar archive ({exc})") from None
     for name, sha in expected.items():
         if file_sha256(staging / name) != sha:
-            raise ReleaseError(f"{source}: {name} does not match the sha256 in the manifest of "
-                               f"{manifest['version']} (corrupted or another build)")
+            raise ReleaseError(
+                f"{source}: {name} does not match the sha256 in the manifest of "
+                f"{manifest['version']} (corrupted or another build)"
+            )
     config = load_json(staging / CONFIG_FILE, max_bytes=1 << 16, error=ReleaseError)
     if config != manifest.get("config"):
-        raise ReleaseError(f"{source}: {CONFIG_FILE} is not the generator config of "
-                           f"{manifest['version']} ({json.dumps(config)[:80]})")
+        raise ReleaseError(
+            f"{source}: {CONFIG_FILE} is not the generator config of "
+            f"{manifest['version']} ({json.dumps(config)[:80]})"
+        )

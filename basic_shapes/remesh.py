@@ -41,8 +41,13 @@ from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
 MAX_ATTEMPTS = 32
 """Tries per OOD mesh before giving up (each try draws new parameters)."""
 
-FACE_RANGE = {"cube": (12, 4000), "cylinder": (300, 4000), "sphere": (900, 4000),
-              "cone": (300, 4000), "torus": (1200, 4000)}
+FACE_RANGE = {
+    "cube": (12, 4000),
+    "cylinder": (300, 4000),
+    "sphere": (900, 4000),
+    "cone": (300, 4000),
+    "torus": (1200, 4000),
+}
 """Target triangle counts per class, drawn log-uniformly: the range of the training variants,
 less the coarse end where a remesher's triangles would stray beyond the class tolerance. The
 lower end grows by 1.5x with every rejected try."""
@@ -59,9 +64,11 @@ ON_PLANE = 1e-6
 """Unit-space distance within which a vertex counts as lying on a flat face of the primitive
 (the simple mesh is float32: about 6e-8)."""
 
-SUPPORTED = {"isotropic": ("cube", "cylinder", "sphere", "torus"),
-             "qem": ("cube", "cylinder", "sphere", "torus"),
-             "delaunay": ("cube", "cylinder", "sphere", "cone")}
+SUPPORTED = {
+    "isotropic": ("cube", "cylinder", "sphere", "torus"),
+    "qem": ("cube", "cylinder", "sphere", "torus"),
+    "delaunay": ("cube", "cylinder", "sphere", "cone"),
+}
 """Classes each remesher represents within tolerance. The MeshLab remeshers miss the cone:
 near its apex the side's circles shrink, and their near-isotropic triangles span too wide an
 angle there (measured 0.0043 vs the bound 0.0043 on a 6000-triangle remesh); the hull needs a
@@ -79,9 +86,15 @@ def supports(remesher: str, class_name: str) -> bool:
     return class_name in SUPPORTED[remesher]
 
 
-def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: np.ndarray,
-               simple_faces: np.ndarray, per_remesher: int,
-               seen: set | None = None) -> list[MeshRecord]:
+def ood_meshes(
+    class_name: str,
+    scale: np.ndarray,
+    seed: int,
+    simple_vertices: np.ndarray,
+    simple_faces: np.ndarray,
+    per_remesher: int,
+    seen: set | None = None,
+) -> list[MeshRecord]:
     """``per_remesher`` verified meshes of one object from each remesher that supports its class.
 
     ``simple_*`` is the object's simple mesh (variant 0), the Hausdorff reference; ``seen``
@@ -96,12 +109,14 @@ def ood_meshes(class_name: str, scale: np.ndarray, seed: int, simple_vertices: n
     solid = analytic.solid_for(class_name, scale)
     source = {"isotropic": (simple_vertices, simple_faces)}
     with MeshLabChild() as child:  # one per object: its calls come in a fixed order
-        return _ood_meshes(class_name, scale, seed, per_remesher, spec, reference, seen, tol,
-                           solid, source, child)
+        return _ood_meshes(
+            class_name, scale, seed, per_remesher, spec, reference, seen, tol, solid, source, child
+        )
 
 
-def _ood_meshes(class_name, scale, seed, per_remesher, spec, reference, seen, tol, solid,
-                source, child) -> list[MeshRecord]:
+def _ood_meshes(
+    class_name, scale, seed, per_remesher, spec, reference, seen, tol, solid, source, child
+) -> list[MeshRecord]:
     out = []
     for name in OOD_REMESHERS:
         if not supports(name, class_name):
@@ -117,9 +132,13 @@ def _ood_meshes(class_name, scale, seed, per_remesher, spec, reference, seen, to
             for attempt in range(MAX_ATTEMPTS):
                 rng = np.random.default_rng([seed, variant, attempt])
                 lo, hi = FACE_RANGE[class_name]
-                lo = min(hi, lo * 1.5 ** attempt)  # a rejected try was most likely too coarse
-                params = {"remesher": name, "attempt": attempt, "tolerance": tol,
-                          "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi))))}
+                lo = min(hi, lo * 1.5**attempt)  # a rejected try was most likely too coarse
+                params = {
+                    "remesher": name,
+                    "attempt": attempt,
+                    "tolerance": tol,
+                    "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi)))),
+                }
                 v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng, child)
                 v, f = v.astype(np.float32), f.astype(np.int32)
                 key = meshcheck.topology_key(f, len(v))
@@ -132,16 +151,21 @@ def _ood_meshes(class_name, scale, seed, per_remesher, spec, reference, seen, to
                     if max(distance, params["primitive_distance"]) <= tol:
                         seen.add(key)
                         TRIES[name, "accepted"] += 1
-                        out.append(MeshRecord(variant, v, f, distance, params,
-                                              params["primitive_distance"]))
+                        out.append(
+                            MeshRecord(
+                                variant, v, f, distance, params, params["primitive_distance"]
+                            )
+                        )
                         SECONDS[name] += time.process_time() - start
                         break
                     reason = "Hausdorff above tolerance"
                 rejected[reason] = rejected.get(reason, 0) + 1
                 TRIES[name, reason.split(" (")[0]] += 1
             else:
-                raise RuntimeError(f"{class_name} seed {seed}: {name} mesh {k} failed "
-                                   f"{MAX_ATTEMPTS} attempts ({rejected})")
+                raise RuntimeError(
+                    f"{class_name} seed {seed}: {name} mesh {k} failed "
+                    f"{MAX_ATTEMPTS} attempts ({rejected})"
+                )
     return out
 
 
@@ -185,8 +209,9 @@ def _to_unit(class_name: str, scale: np.ndarray) -> np.ndarray:
     return np.asarray(primitives.get(class_name).extents) / scale
 
 
-def project(class_name: str, scale: np.ndarray, vertices: np.ndarray,
-            faces: np.ndarray) -> np.ndarray:
+def project(
+    class_name: str, scale: np.ndarray, vertices: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
     """Vertices moved onto the scaled primitive's surface (float64), keeping flat faces flat.
 
     Works in unit space, where the primitive is Blender's default one, and scales back, so every
@@ -242,15 +267,19 @@ def _meshlab(vertices: np.ndarray, faces: np.ndarray):
     pm = verify._pymeshlab()
     _openmp_threads()(1)
     ms = pm.MeshSet()
-    ms.add_mesh(pm.Mesh(vertex_matrix=np.asarray(vertices, np.float64),
-                        face_matrix=np.asarray(faces, np.int32)))
+    ms.add_mesh(
+        pm.Mesh(
+            vertex_matrix=np.asarray(vertices, np.float64), face_matrix=np.asarray(faces, np.int32)
+        )
+    )
     return pm, ms
 
 
 def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
     v = np.asarray(vertices, np.float64)
-    return 0.5 * float(np.sqrt(meshcheck.twice_area_squared(*(v[faces[:, i]] for i in range(3))))
-                       .sum())
+    return 0.5 * float(
+        np.sqrt(meshcheck.twice_area_squared(*(v[faces[:, i]] for i in range(3)))).sum()
+    )
 
 
 def _edge_for(area: float, n_faces: float) -> float:
@@ -266,10 +295,19 @@ def _remesh(class_name, scale, vertices, faces, edge, iterations, flips, child):
     and on the OpenMP thread count (measured). ``checksurfdist`` is passed because MeshLab never
     initializes its default (the likely cause of the layout dependence; True is the value the
     recorded builds' child read: a rebuild with it gives their bytes, docs/GENERATOR.md)."""
-    v, f = child.apply("meshing_isotropic_explicit_remeshing", vertices, faces,
-                       iterations=iterations, adaptive=False, targetlen=edge,
-                       featuredeg=FEATURE_DEG, swapflag=flips, smoothflag=False,
-                       reprojectflag=True, checksurfdist=True)
+    v, f = child.apply(
+        "meshing_isotropic_explicit_remeshing",
+        vertices,
+        faces,
+        iterations=iterations,
+        adaptive=False,
+        targetlen=edge,
+        featuredeg=FEATURE_DEG,
+        swapflag=flips,
+        smoothflag=False,
+        reprojectflag=True,
+        checksurfdist=True,
+    )
     return project(class_name, scale, v, f), f
 
 
@@ -281,14 +319,30 @@ def _isotropic(class_name, scale, source, params, rng, child):
     params["iterations"] = int(rng.integers(3, 11))
     params["edge_flips"] = bool(rng.uniform() < 0.75)
     params["feature_deg"] = FEATURE_DEG
-    return _remesh(class_name, scale, vertices, faces, params["edge_length"],
-                   params["iterations"], params["edge_flips"], child)
+    return _remesh(
+        class_name,
+        scale,
+        vertices,
+        faces,
+        params["edge_length"],
+        params["iterations"],
+        params["edge_flips"],
+        child,
+    )
 
 
 def _dense(class_name, scale, vertices, faces, child):
     """The dense isotropic remesh ``qem`` decimates (one per object)."""
-    return _remesh(class_name, scale, vertices, faces,
-                   _edge_for(_area(vertices, faces), DENSE_FACES), 6, True, child)
+    return _remesh(
+        class_name,
+        scale,
+        vertices,
+        faces,
+        _edge_for(_area(vertices, faces), DENSE_FACES),
+        6,
+        True,
+        child,
+    )
 
 
 def _qem(class_name, scale, dense, params, rng, child):
@@ -299,21 +353,35 @@ def _qem(class_name, scale, dense, params, rng, child):
     params["optimal_placement"] = bool(rng.integers(2))
     params["planar_quadric"] = bool(rng.integers(2))
     v, f = child.apply(
-        "meshing_decimation_quadric_edge_collapse", *dense,
-        targetfacenum=params["target_faces"], qualitythr=params["quality_threshold"],
-        preservenormal=True, preservetopology=True, preserveboundary=True,
-        optimalplacement=params["optimal_placement"], planarquadric=params["planar_quadric"],
-        autoclean=True)
+        "meshing_decimation_quadric_edge_collapse",
+        *dense,
+        targetfacenum=params["target_faces"],
+        qualitythr=params["quality_threshold"],
+        preservenormal=True,
+        preservetopology=True,
+        preserveboundary=True,
+        optimalplacement=params["optimal_placement"],
+        planarquadric=params["planar_quadric"],
+        autoclean=True,
+    )
     return project(class_name, scale, v, f), f
 
 
 # --- random points, hull and planar Delaunay --------------------------------------------------
-FLAT_FACES = {"cube": [(a, c) for a in range(3) for c in (-1.0, 1.0)],
-              "cylinder": [(2, -1.0), (2, 1.0)], "sphere": [], "cone": [(2, -1.0)]}
+FLAT_FACES = {
+    "cube": [(a, c) for a in range(3) for c in (-1.0, 1.0)],
+    "cylinder": [(2, -1.0), (2, 1.0)],
+    "sphere": [],
+    "cone": [(2, -1.0)],
+}
 """The primitive's flat faces in unit space, as (axis, coordinate) planes."""
 
-UNIT_AREA = {"cube": 24.0, "cylinder": 6 * math.pi, "sphere": 4 * math.pi,
-             "cone": math.pi * (1 + math.sqrt(5))}
+UNIT_AREA = {
+    "cube": 24.0,
+    "cylinder": 6 * math.pi,
+    "sphere": 4 * math.pi,
+    "cone": math.pi * (1 + math.sqrt(5)),
+}
 
 BULGE = 0.125
 """Box faces are triangulated with their edge points pushed out by up to BULGE x the point
@@ -346,8 +414,8 @@ def _delaunay(class_name, scale, _source, params, rng, _child):
         uv = metric[idx][:, [b, c]]
         if class_name == "cube":  # bulge each edge's points out along a parabola
             ub, uc = u[idx, b], u[idx, c]
-            uv[:, 0] += np.where(np.abs(ub) == 1, ub * BULGE * spacing * (1 - uc ** 2), 0) / k[b]
-            uv[:, 1] += np.where(np.abs(uc) == 1, uc * BULGE * spacing * (1 - ub ** 2), 0) / k[c]
+            uv[:, 0] += np.where(np.abs(ub) == 1, ub * BULGE * spacing * (1 - uc**2), 0) / k[b]
+            uv[:, 1] += np.where(np.abs(uc) == 1, uc * BULGE * spacing * (1 - ub**2), 0) / k[c]
         tris.append(idx[Delaunay(uv).simplices])
     f = np.concatenate(tris)
     p = metric[f]
@@ -373,7 +441,7 @@ def _candidates(class_name: str, n: int, spacing: float, rng) -> np.ndarray:
                     e = np.empty((len(t), 3))
                     e[:, a] = t[:, 0]
                     e[:, [i for i in range(3) if i != a]] = (s1, s2)
-                    edges.append(e[rng.permutation(len(e))[:len(e) // 4]])
+                    edges.append(e[rng.permutation(len(e))[: len(e) // 4]])
         faces = rng.uniform(-inset, inset, (m, 3))
         axis = rng.integers(3, size=m)
         faces[np.arange(m), axis] = rng.choice([-1.0, 1.0], size=m)
@@ -422,7 +490,7 @@ def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
     keep = np.ones(len(points), bool)
     for i in range(len(points)):
         if keep[i]:
-            keep[pairs[starts[i]:starts[i + 1], 1]] = False
+            keep[pairs[starts[i] : starts[i + 1], 1]] = False
     return points[keep]
 
 

@@ -13,8 +13,11 @@ def draw_mesh(ax, v, f, half: float, rng) -> None:
     """One mesh on a 3-D axis, faces in random colours so the topology shows, cube of +-half."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    ax.add_collection3d(Poly3DCollection(v[f], facecolors=rng.uniform(0.15, 1, (len(f), 3)),
-                                         edgecolors="k", linewidths=0.15))
+    ax.add_collection3d(
+        Poly3DCollection(
+            v[f], facecolors=rng.uniform(0.15, 1, (len(f), 3)), edgecolors="k", linewidths=0.15
+        )
+    )
     for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
         setter(-half, half)
     ax.set_box_aspect((1, 1, 1), zoom=1.25)

@@ -35,20 +35,29 @@ def capacity(scale_range=SCALE_RANGE, min_distance=MIN_DISTANCE) -> int:
     side, so at most (W + d)^3 / 6 / d^3 points fit.
     """
     width = math.log(scale_range[1] / scale_range[0])
-    return int((width + min_distance) ** 3 / 6 / min_distance ** 3)
+    return int((width + min_distance) ** 3 / 6 / min_distance**3)
 
 
-def sample_scales(n: int, rng: np.random.Generator, scale_range=SCALE_RANGE,
-                  min_distance=MIN_DISTANCE, max_tries_per_object: int = 1000) -> np.ndarray:
+def sample_scales(
+    n: int,
+    rng: np.random.Generator,
+    scale_range=SCALE_RANGE,
+    min_distance=MIN_DISTANCE,
+    max_tries_per_object: int = 1000,
+) -> np.ndarray:
     """Draw ``n`` pairwise dissimilar scales (n, 3) by rejection sampling, or raise ScaleError."""
     lo, hi = scale_range
     if not 0 < lo < hi or math.sqrt(3) * hi / 2 > MAX_RADIUS:
-        raise ScaleError(f"scale range {scale_range} must satisfy 0 < low < high and fit the "
-                         f"radar window (bounding radius sqrt(3)*high/2 <= {MAX_RADIUS} m)")
+        raise ScaleError(
+            f"scale range {scale_range} must satisfy 0 < low < high and fit the "
+            f"radar window (bounding radius sqrt(3)*high/2 <= {MAX_RADIUS} m)"
+        )
     bound = capacity(scale_range, min_distance)
     if n > bound:
-        raise ScaleError(f"cannot place {n} dissimilar scales in {scale_range} m with minimum "
-                         f"log-distance {min_distance}: at most {bound} fit")
+        raise ScaleError(
+            f"cannot place {n} dissimilar scales in {scale_range} m with minimum "
+            f"log-distance {min_distance}: at most {bound} fit"
+        )
     logs = np.empty((n, 3))
     sorted_logs = np.empty((n, 3))
     placed = 0
@@ -61,9 +70,11 @@ def sample_scales(n: int, rng: np.random.Generator, scale_range=SCALE_RANGE,
             logs[placed] = rng.permutation(cand)
             placed += 1
     if placed < n:
-        raise ScaleError(f"placed only {placed} of {n} dissimilar scales in {scale_range} m "
-                         f"(minimum log-distance {min_distance}); ask for fewer objects or a "
-                         f"smaller --min-scale-distance")
+        raise ScaleError(
+            f"placed only {placed} of {n} dissimilar scales in {scale_range} m "
+            f"(minimum log-distance {min_distance}); ask for fewer objects or a "
+            f"smaller --min-scale-distance"
+        )
     return portable.exp(logs)
 
 

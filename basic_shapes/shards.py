@@ -69,8 +69,13 @@ class ObjectRecord:
     params: dict = field(default_factory=dict)  # hidden shape parameters (analytic.Solid)
 
 
-def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_names: list[str],
-                config: dict, toolkit_version: str) -> None:
+def write_shard(
+    path: str | os.PathLike,
+    objects: list[ObjectRecord],
+    class_names: list[str],
+    config: dict,
+    toolkit_version: str,
+) -> None:
     """Write whole objects to one shard, atomically and byte-deterministically."""
     meshes = [m for o in objects for m in o.meshes]
     nv = np.array([len(m.vertices) for m in meshes], dtype=np.int64)
@@ -91,8 +96,14 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
             _dataset(g, "scale", np.array([o.scale for o in objects], np.float64).reshape(-1, 3))
             _dataset(g, "seed", np.array([o.seed for o in objects], np.uint64))
             _dataset(g, "split", np.array([o.split.encode() for o in objects], "S5"))
-            _dataset(g, "params", np.array([json.dumps(o.params, sort_keys=True).encode()
-                                            for o in objects], dtype=h5py.string_dtype()))
+            _dataset(
+                g,
+                "params",
+                np.array(
+                    [json.dumps(o.params, sort_keys=True).encode() for o in objects],
+                    dtype=h5py.string_dtype(),
+                ),
+            )
             g = f.create_group("meshes")
             obj_index = np.repeat(np.arange(len(objects)), [len(o.meshes) for o in objects])
             _dataset(g, "object_index", obj_index.astype(np.int32))
@@ -101,10 +112,19 @@ def write_shard(path: str | os.PathLike, objects: list[ObjectRecord], class_name
             _dataset(g, "face_offset", np.concatenate([[0], np.cumsum(nf)]).astype(np.int64))
             _dataset(g, "n_faces", nf.astype(np.int32))
             _dataset(g, "hausdorff", np.array([m.hausdorff for m in meshes], np.float64))
-            _dataset(g, "primitive_distance",
-                     np.array([m.primitive_distance for m in meshes], np.float64))
-            _dataset(g, "params", np.array([json.dumps(m.params, sort_keys=True).encode()
-                                            for m in meshes], dtype=h5py.string_dtype()))
+            _dataset(
+                g,
+                "primitive_distance",
+                np.array([m.primitive_distance for m in meshes], np.float64),
+            )
+            _dataset(
+                g,
+                "params",
+                np.array(
+                    [json.dumps(m.params, sort_keys=True).encode() for m in meshes],
+                    dtype=h5py.string_dtype(),
+                ),
+            )
             _dataset(g, "vertices", vertices)
             _dataset(g, "faces", faces)
             f.attrs["fingerprint"] = content_fingerprint(f)
@@ -135,6 +155,7 @@ def content_fingerprint(f: h5py.File) -> str:
 def _readable(method):
     """h5py's errors on a corrupted file (OSError, KeyError, RuntimeError without the file's
     name) become one ShardError naming the shard."""
+
     @functools.wraps(method)
     def read(self, *args, **kwargs):
         try:
@@ -142,17 +163,28 @@ def _readable(method):
         except ShardError:
             raise
         except (OSError, KeyError, RuntimeError, TypeError, ValueError, IndexError) as exc:
-            raise ShardError(f"{self.path}: unreadable, corrupted or truncated "
-                             f"({one_line(exc)})") from None
+            raise ShardError(
+                f"{self.path}: unreadable, corrupted or truncated ({one_line(exc)})"
+            ) from None
+
     return read
 
 
 class Shard:
     """Read access to one shard. Meshes are read lazily, one slice at a time."""
 
-    REQUIRED = ("objects/id", "objects/class", "objects/scale", "objects/split",
-                "meshes/object_index", "meshes/variant", "meshes/vertex_offset",
-                "meshes/face_offset", "meshes/vertices", "meshes/faces")
+    REQUIRED = (
+        "objects/id",
+        "objects/class",
+        "objects/scale",
+        "objects/split",
+        "meshes/object_index",
+        "meshes/variant",
+        "meshes/vertex_offset",
+        "meshes/face_offset",
+        "meshes/vertices",
+        "meshes/faces",
+    )
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
@@ -180,31 +212,44 @@ class Shard:
         if _text_attr(f, "toolkit") != TOOLKIT:
             self._fail("not a basic-shapes shard (no toolkit attribute)")
         if _text_attr(f, "schema_version") != str(SCHEMA_VERSION):
-            self._fail(f"schema version {_text_attr(f, 'schema_version')} is not the supported "
-                       f"{SCHEMA_VERSION}")
+            self._fail(
+                f"schema version {_text_attr(f, 'schema_version')} is not the supported "
+                f"{SCHEMA_VERSION}"
+            )
         missing = [n for n in self.REQUIRED if n not in f]
         if missing:
             self._fail(f"truncated shard, missing {', '.join(missing)}")
         for name in ("generator_config", "fingerprint"):
             if _text_attr(f, name) is None:
                 self._fail(f"missing the {name} attribute")
-        self._config = load_json(_text_attr(f, "generator_config"), error=ShardError,
-                                 what=f"{self.path}: generator_config")
+        self._config = load_json(
+            _text_attr(f, "generator_config"),
+            error=ShardError,
+            what=f"{self.path}: generator_config",
+        )
         if not isinstance(self._config, dict):
             self._fail("generator_config is not a JSON object")
-        self._class_names = load_json(_text_attr(f["objects/class"], "names") or "null",
-                                      error=ShardError, what=f"{self.path}: /objects/class names")
-        if not (isinstance(self._class_names, list) and self._class_names
-                and all(isinstance(c, str) for c in self._class_names)):
+        self._class_names = load_json(
+            _text_attr(f["objects/class"], "names") or "null",
+            error=ShardError,
+            what=f"{self.path}: /objects/class names",
+        )
+        if not (
+            isinstance(self._class_names, list)
+            and self._class_names
+            and all(isinstance(c, str) for c in self._class_names)
+        ):
             self._fail("/objects/class names is not a non-empty JSON list of strings")
         self._validate_tables()
 
     def _validate_tables(self) -> None:
         f, err, path = self.file, ShardError, self.path
         n_obj = len(require_dataset(f, "objects/id", "iu", 1, err, path))
-        for name, kinds, ndim, tail in (("objects/class", "iu", 1, ()),
-                                        ("objects/scale", "f", 2, (3,)),
-                                        ("objects/split", "SO", 1, ())):
+        for name, kinds, ndim, tail in (
+            ("objects/class", "iu", 1, ()),
+            ("objects/scale", "f", 2, (3,)),
+            ("objects/split", "SO", 1, ()),
+        ):
             if len(require_dataset(f, name, kinds, ndim, err, path, tail)) != n_obj:
                 self._fail(f"/{name} has not one row per object ({n_obj})")
         n = len(require_dataset(f, "meshes/variant", "iu", 1, err, path))
@@ -215,8 +260,10 @@ class Shard:
         for name, total in (("vertex_offset", n_v), ("face_offset", n_f)):
             off = require_dataset(f, f"meshes/{name}", "i", 1, err, path)[()]
             if len(off) != n + 1 or off[0] != 0 or off[-1] != total or np.any(np.diff(off) < 0):
-                self._fail(f"/meshes/{name} is not a valid offset table (n+1 = {n + 1} entries "
-                           f"from 0, non-decreasing, ending at {total})")
+                self._fail(
+                    f"/meshes/{name} is not a valid offset table (n+1 = {n + 1} entries "
+                    f"from 0, non-decreasing, ending at {total})"
+                )
         cls = f["objects/class"][()]
         if len(cls) and (cls.min() < 0 or cls.max() >= len(self._class_names)):
             self._fail(f"/objects/class holds an index outside 0..{len(self._class_names) - 1}")
@@ -240,7 +287,7 @@ class Shard:
         n_vertices = np.diff(vo)
         faces = g["faces"]
         for start in range(0, len(faces), chunk):
-            block = faces[start:start + chunk]
+            block = faces[start : start + chunk]
             mesh = np.searchsorted(fo, np.arange(start, start + len(block)), side="right") - 1
             bad = ((block < 0) | (block >= n_vertices[mesh][:, None])).any(axis=1)
             if bad.any():
@@ -253,8 +300,10 @@ class Shard:
     def verify_labels(self) -> None:
         """The labels (/radar) against their stored fingerprint, where there are labels."""
         if self.has_labels and self.radar.computed_fingerprint() != self.radar.fingerprint:
-            self._fail("labels (/radar) do not match their stored fingerprint (edited or "
-                       "corrupted); relabel with radar-sim label")
+            self._fail(
+                "labels (/radar) do not match their stored fingerprint (edited or "
+                "corrupted); relabel with radar-sim label"
+            )
 
     def close(self) -> None:
         self.file.close()
@@ -304,8 +353,8 @@ class Shard:
     def mesh(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """(vertices float32 (V,3), faces int32 (F,3)) of mesh ``i`` of this shard."""
         g = self.file["meshes"]
-        v0, v1 = g["vertex_offset"][i:i + 2]
-        f0, f1 = g["face_offset"][i:i + 2]
+        v0, v1 = g["vertex_offset"][i : i + 2]
+        f0, f1 = g["face_offset"][i : i + 2]
         vertices, faces = g["vertices"][v0:v1], g["faces"][f0:f1]
         if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
             self._fail(f"mesh {i} has a face index outside its {len(vertices)} vertices")
@@ -387,9 +436,14 @@ def label_fingerprint(directory: str | os.PathLike) -> str:
 def _object(s: Shard, objs: dict, k: int, oi: np.ndarray, var: np.ndarray):
     rows = np.flatnonzero(oi == k)
     meshes = [(int(var[i]), *s.mesh(i)) for i in rows]
-    obj = {"id": int(objs["id"][k]), "class": s.class_names[objs["class"][k]],
-           "scale": objs["scale"][k], "split": str(objs["split"][k]), "shard_object_index": k,
-           "hausdorff": s.file["meshes/hausdorff"][rows[0]:rows[-1] + 1]}
+    obj = {
+        "id": int(objs["id"][k]),
+        "class": s.class_names[objs["class"][k]],
+        "scale": objs["scale"][k],
+        "split": str(objs["split"][k]),
+        "shard_object_index": k,
+        "hausdorff": s.file["meshes/hausdorff"][rows[0] : rows[-1] + 1],
+    }
     return obj, meshes
 
 
@@ -449,19 +503,27 @@ def mesh_uid(object_id: int, variant: int) -> int:
 
 
 # --- the /radar group (labels): its only reader and writer -------------------------------------
-RADAR_DIMS = {"object": ("object id (/objects/id)", None), "aspect": ("aspect angle", "degree"),
-              "roll": ("roll angle", "degree"), "range": ("down-range distance", "m"),
-              "frequency": ("frequency", "Hz"), "mesh": ("mesh row (/meshes)", None)}
+RADAR_DIMS = {
+    "object": ("object id (/objects/id)", None),
+    "aspect": ("aspect angle", "degree"),
+    "roll": ("roll angle", "degree"),
+    "range": ("down-range distance", "m"),
+    "frequency": ("frequency", "Hz"),
+    "mesh": ("mesh row (/meshes)", None),
+}
 """Dimension scales of /radar: name -> (long_name, units). Coordinates of every label array."""
-RADAR_ARRAYS = {"response": ("object", "aspect", "roll", "range"),
-                "frequency_response": ("object", "aspect", "roll", "frequency"),
-                "mode": ("object",),
-                "mesh_response": ("mesh", "aspect", "roll", "range"),
-                "mesh_mode": ("mesh",)}
+RADAR_ARRAYS = {
+    "response": ("object", "aspect", "roll", "range"),
+    "frequency_response": ("object", "aspect", "roll", "frequency"),
+    "mode": ("object",),
+    "mesh_response": ("mesh", "aspect", "roll", "range"),
+    "mesh_mode": ("mesh",),
+}
 
 
-def radar_fingerprint(config_json: str, rule_json: str, responses, mesh_index=(),
-                      mesh_responses=()) -> str:
+def radar_fingerprint(
+    config_json: str, rule_json: str, responses, mesh_index=(), mesh_responses=()
+) -> str:
     """sha256 over the radar config, the simulation-mesh rule and the stored label bytes: the
     /radar/response rows in object order, then the per-mesh physics (its mesh rows and
     /radar/mesh_response rows) where stored; complex64, C order. Rows are iterables, so a
@@ -511,8 +573,10 @@ class RadarGroup:
                 expected = tuple(len(coords[d]) for d in dims)
                 d, complex_ = g[name], name.endswith("response")
                 if d.shape != expected or complex_ and d.dtype.kind != "c":
-                    raise ShardError(f"{self.path}: /radar/{name} is {d.dtype}{d.shape}, expected "
-                                     f"{'complex' if complex_ else ''}{expected}")
+                    raise ShardError(
+                        f"{self.path}: /radar/{name} is {d.dtype}{d.shape}, expected "
+                        f"{'complex' if complex_ else ''}{expected}"
+                    )
         n_meshes = len(f["meshes/variant"])
         rows = self.mesh_index
         if len(rows) and (rows.min() < 0 or rows.max() >= n_meshes):
@@ -523,8 +587,9 @@ class RadarGroup:
         try:
             return json.loads(self.group.attrs[name])
         except (KeyError, TypeError, ValueError):
-            raise ShardError(f"{self.path}: /radar attribute {name!r} missing or not "
-                             f"JSON") from None
+            raise ShardError(
+                f"{self.path}: /radar attribute {name!r} missing or not JSON"
+            ) from None
 
     @property
     def config(self) -> dict:
@@ -551,15 +616,23 @@ class RadarGroup:
         """The fingerprint recomputed from the stored content (reads every label once)."""
         rows = (self.group["response"][k] for k in range(len(self.object_ids)))
         mesh_rows = (self.group["mesh_response"][j] for j in range(len(self.mesh_index)))
-        return radar_fingerprint(_text_attr(self.group, "config") or "",
-                                 _text_attr(self.group, "simulation_rule") or "", rows,
-                                 self.mesh_index, mesh_rows)
+        return radar_fingerprint(
+            _text_attr(self.group, "config") or "",
+            _text_attr(self.group, "simulation_rule") or "",
+            rows,
+            self.mesh_index,
+            mesh_rows,
+        )
 
     # labels -----------------------------------------------------------------------------------
     @property
     def coordinates(self) -> dict[str, np.ndarray]:
-        return {"aspect_deg": self.aspect_deg, "roll_deg": self.roll_deg, "range_m": self.range_m,
-                "frequency_hz": self.frequency_hz}
+        return {
+            "aspect_deg": self.aspect_deg,
+            "roll_deg": self.roll_deg,
+            "range_m": self.range_m,
+            "frequency_hz": self.frequency_hz,
+        }
 
     @property
     def modes(self) -> list[str]:
@@ -588,9 +661,19 @@ class RadarGroup:
         return self.group["mesh_response"][j]
 
 
-def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, np.ndarray],
-                object_ids: np.ndarray, modes: list[str], responses, frequency_responses=None,
-                mesh_index=None, mesh_modes=None, mesh_responses=None) -> str:
+def write_radar(
+    f: h5py.File,
+    *,
+    attrs: dict[str, str],
+    coordinates: dict[str, np.ndarray],
+    object_ids: np.ndarray,
+    modes: list[str],
+    responses,
+    frequency_responses=None,
+    mesh_index=None,
+    mesh_modes=None,
+    mesh_responses=None,
+) -> str:
     """Write ``/radar`` into an open shard (replacing any); return its label fingerprint.
 
     ``attrs`` must hold ``config`` and ``simulation_rule`` (JSON); ``coordinates`` the keys
@@ -605,14 +688,19 @@ def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, n
     g = f.create_group("radar")
     for key, value in attrs.items():
         g.attrs[key] = value
-    coords = {"object": np.asarray(object_ids, np.int64),
-              "aspect": coordinates["aspect_deg"], "roll": coordinates["roll_deg"],
-              "range": coordinates["range_m"], "frequency": coordinates["frequency_hz"]}
+    coords = {
+        "object": np.asarray(object_ids, np.int64),
+        "aspect": coordinates["aspect_deg"],
+        "roll": coordinates["roll_deg"],
+        "range": coordinates["range_m"],
+        "frequency": coordinates["frequency_hz"],
+    }
     if mesh_index is not None:
         coords["mesh"] = np.asarray(mesh_index, np.int64)
     for name, data in coords.items():
-        d = _dataset(g, name, np.asarray(data, np.int64 if name in ("object", "mesh")
-                                         else np.float64))
+        d = _dataset(
+            g, name, np.asarray(data, np.int64 if name in ("object", "mesh") else np.float64)
+        )
         d.make_scale(name)
         long_name, units = RADAR_DIMS[name]
         d.attrs["long_name"] = long_name
@@ -622,8 +710,12 @@ def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, n
 
     def array(name: str, rows, dtype):
         dims = RADAR_ARRAYS[name]
-        d = g.create_dataset(name, (len(coords[dims[0]]), *(len(coords[x]) for x in dims[1:])),
-                             dtype, track_times=False)
+        d = g.create_dataset(
+            name,
+            (len(coords[dims[0]]), *(len(coords[x]) for x in dims[1:])),
+            dtype,
+            track_times=False,
+        )
         for axis, dim in enumerate(dims):
             d.dims[axis].attach_scale(g[dim])
         for i, row in enumerate(rows):
@@ -638,10 +730,13 @@ def write_radar(f: h5py.File, *, attrs: dict[str, str], coordinates: dict[str, n
         array("mesh_response", mesh_responses, np.complex64)
         array("mesh_mode", [m.encode() for m in mesh_modes], strings)
     mesh_rows = g["mesh_response"] if mesh_index is not None else ()
-    fingerprint = radar_fingerprint(attrs["config"], attrs["simulation_rule"],
-                                    (response[k] for k in range(len(response))),
-                                    coords.get("mesh", ()),
-                                    (mesh_rows[j] for j in range(len(mesh_rows))))
+    fingerprint = radar_fingerprint(
+        attrs["config"],
+        attrs["simulation_rule"],
+        (response[k] for k in range(len(response))),
+        coords.get("mesh", ()),
+        (mesh_rows[j] for j in range(len(mesh_rows))),
+    )
     g.attrs["label_fingerprint"] = fingerprint
     return fingerprint
 

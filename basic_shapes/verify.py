@@ -85,7 +85,7 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    limit = (spacing ** 2) ** 2  # k = 1 exactly when 2 * area <= spacing^2
+    limit = (spacing**2) ** 2  # k = 1 exactly when 2 * area <= spacing^2
     large = np.flatnonzero(twice_area_squared(a, b, c) > limit)
     parts = [(a + b + c) / 3.0]
     if len(large):
@@ -96,16 +96,22 @@ def face_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.
         for level in np.unique(k):
             sel = k == level
             w = _WEIGHTS[level]
-            parts.append((w[:, 0, None, None] * a[sel] + w[:, 1, None, None] * b[sel]
-                          + w[:, 2, None, None] * c[sel]).reshape(-1, 3))
+            parts.append(
+                (
+                    w[:, 0, None, None] * a[sel]
+                    + w[:, 1, None, None] * b[sel]
+                    + w[:, 2, None, None] * c[sel]
+                ).reshape(-1, 3)
+            )
     return np.concatenate(parts)
 
 
 def _samples(vertices: np.ndarray, faces: np.ndarray, spacing: float, diagonal: float):
     """A mesh's Hausdorff samples: every vertex and its face samples."""
     v = np.asarray(vertices, np.float64)
-    return meshlab_bounds.SampleBounds(np.concatenate([v, face_samples(v, faces, spacing)]),
-                                       diagonal)
+    return meshlab_bounds.SampleBounds(
+        np.concatenate([v, face_samples(v, faces, spacing)]), diagonal
+    )
 
 
 class Reference:
@@ -117,8 +123,9 @@ class Reference:
     fraction of the cost.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray,
-                 solid: analytic.Solid | None = None):
+    def __init__(
+        self, vertices: np.ndarray, faces: np.ndarray, solid: analytic.Solid | None = None
+    ):
         self.diagonal = bbox_diagonal(vertices)
         if not self.diagonal > 0:
             raise ValueError("reference mesh has an empty bounding box")
@@ -134,8 +141,9 @@ class Reference:
         """Two-sided Hausdorff distance to the reference, relative to its bbox diagonal."""
         v = np.asarray(vertices, np.float64)
         radius = SEARCH_RADIUS * self.diagonal
-        to_ref = _one_sided_subset(_samples(v, faces, self.spacing, self.diagonal),
-                                   self._mesh, radius)
+        to_ref = _one_sided_subset(
+            _samples(v, faces, self.spacing, self.diagonal), self._mesh, radius
+        )
         from_ref = _one_sided_subset(self._samples, (v, faces), radius)
         return max(to_ref, from_ref) / self.diagonal
 
@@ -149,8 +157,7 @@ class Reference:
         spacing = solid.diagonal * SURFACE_SPACING * 4
         points = np.concatenate([v, face_samples(v, faces, spacing)])
         to_surface = float(analytic.surface_distance(solid, points).max())
-        from_surface = _one_sided_subset(self._surface, (v, faces),
-                                         SEARCH_RADIUS * solid.diagonal)
+        from_surface = _one_sided_subset(self._surface, (v, faces), SEARCH_RADIUS * solid.diagonal)
         return max(to_surface, from_surface) / solid.diagonal
 
 
@@ -160,8 +167,9 @@ def _one_sided_subset(samples: meshlab_bounds.SampleBounds, mesh, radius: float)
     MeshSet of its own: cheaper than adding and deleting meshes in a kept one)."""
     picked, near = samples.candidates(*mesh)
     ms = _pymeshlab().MeshSet()
-    ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=mesh[0],
-                                  face_matrix=np.asarray(mesh[1], np.int32)[near]))
+    ms.add_mesh(
+        _pymeshlab().Mesh(vertex_matrix=mesh[0], face_matrix=np.asarray(mesh[1], np.int32)[near])
+    )
     ms.add_mesh(_pymeshlab().Mesh(vertex_matrix=samples.samples[picked]))
     return _one_sided(ms, sampled=1, target=0, radius=radius)
 
@@ -175,9 +183,15 @@ def in_wavelengths(relative: float, scale) -> float:
 def _one_sided(ms, sampled: int, target: int, radius: float) -> float:
     """Largest distance from the vertices of mesh ``sampled`` to the faces of ``target``."""
     n = ms.mesh(sampled).vertex_number()
-    r = ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=True,
-                                  sampleedge=False, sampleface=False, samplenum=n,
-                                  maxdist=_pymeshlab().PureValue(radius))
+    r = ms.get_hausdorff_distance(
+        sampledmesh=sampled,
+        targetmesh=target,
+        samplevert=True,
+        sampleedge=False,
+        sampleface=False,
+        samplenum=n,
+        maxdist=_pymeshlab().PureValue(radius),
+    )
     if r["n_samples"] < n:
         return _one_sided(ms, sampled, target, radius=UNLIMITED)
     return float(r["max"])

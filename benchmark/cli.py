@@ -58,41 +58,74 @@ def _delegate(command: str):
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser; the arguments of a delegated subcommand are added only if it is ``command``."""
-    p = ArgumentParser(prog="benchmark", description=__doc__, epilog=EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(
+        prog="benchmark",
+        description=__doc__,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
     e = sub.add_parser(
-        "evaluate", help="score a model or a predictions file on the test split -> results JSON",
+        "evaluate",
+        help="score a model or a predictions file on the test split -> results JSON",
         description="Score a model (run over every test mesh, timed) or a predictions file "
         "(scored without running anyone's code) on the test split; both give identical "
-        "metrics. See docs/BENCHMARK.md for the protocol and the file layouts.")
+        "metrics. See docs/BENCHMARK.md for the protocol and the file layouts.",
+    )
     e.add_argument("--data", required=True, help="labelled dataset directory (shards)")
     src = e.add_mutually_exclusive_group(required=True)
-    src.add_argument("--model", metavar="SPEC", help="module:Class or path/to/file.py:Class "
-                     "(runs its code; prefer --predictions for untrusted submissions)")
+    src.add_argument(
+        "--model",
+        metavar="SPEC",
+        help="module:Class or path/to/file.py:Class "
+        "(runs its code; prefer --predictions for untrusted submissions)",
+    )
     src.add_argument("--predictions", metavar="FILE", help="predictions HDF5 file to score")
     e.add_argument("--out", required=True, help="results JSON to write")
     e.add_argument(
         "--write-predictions", metavar="FILE", help="with --model: keep its predictions file"
     )
-    e.add_argument("--model-arg", metavar="KEY=VALUE", type=_key_value, action="append", default=[],
-                   help="constructor argument for --model, as a string (repeatable)")
-    e.add_argument("--batch-size", type=number(int, minimum=1, maximum=1 << 16), default=16,
-                   help="meshes per predict call (default: %(default)s)")
-    e.add_argument("--name", help="model name for the results (default: the model's `name` "
-                   "attribute, its class name, or the predictions file's stem)")
-    e.add_argument("--params", type=number(int, minimum=0, maximum=10**12),
-                   help="parameter count (default: the model's `params`)")
+    e.add_argument(
+        "--model-arg",
+        metavar="KEY=VALUE",
+        type=_key_value,
+        action="append",
+        default=[],
+        help="constructor argument for --model, as a string (repeatable)",
+    )
+    e.add_argument(
+        "--batch-size",
+        type=number(int, minimum=1, maximum=1 << 16),
+        default=16,
+        help="meshes per predict call (default: %(default)s)",
+    )
+    e.add_argument(
+        "--name",
+        help="model name for the results (default: the model's `name` "
+        "attribute, its class name, or the predictions file's stem)",
+    )
+    e.add_argument(
+        "--params",
+        type=number(int, minimum=0, maximum=10**12),
+        help="parameter count (default: the model's `params`)",
+    )
     e.add_argument(
         "--embedding", help="face embedding, e.g. direct|graph|token (default: the model's)"
     )
     e.add_argument("--regime", help="training regime, e.g. basic|ideal|classification|autoencoder")
-    e.add_argument("--train-seed", type=number(int, minimum=0, maximum=2**64 - 1),
-                   help="seed the model was trained with")
-    e.add_argument("--speed-ms", type=number(float, minimum=0, maximum=1e9), metavar="X",
-                   help="with --predictions: your own ms per mesh, recorded as self-reported "
-                   "(the harness times only --model)")
+    e.add_argument(
+        "--train-seed",
+        type=number(int, minimum=0, maximum=2**64 - 1),
+        help="seed the model was trained with",
+    )
+    e.add_argument(
+        "--speed-ms",
+        type=number(float, minimum=0, maximum=1e9),
+        metavar="X",
+        help="with --predictions: your own ms per mesh, recorded as self-reported "
+        "(the harness times only --model)",
+    )
     add_quiet_flag(e)
     for name, (_, help_text) in DELEGATED.items():
         d = sub.add_parser(name, help=help_text, description=help_text)
@@ -116,23 +149,41 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.write_predictions and not args.model:
         raise SystemExit("benchmark evaluate: error: --write-predictions needs --model")
     if args.speed_ms is not None and not args.predictions:
-        raise SystemExit("benchmark evaluate: error: --speed-ms goes with --predictions "
-                         "(a --model is timed by the harness)")
+        raise SystemExit(
+            "benchmark evaluate: error: --speed-ms goes with --predictions "
+            "(a --model is timed by the harness)"
+        )
     model_file = args.model.rpartition(":")[0] if args.model and ":" in args.model else None
-    separate_outputs({"--out": args.out, "--write-predictions": args.write_predictions},
-                     {"--data": args.data, "--predictions": args.predictions,
-                      "--model": model_file if model_file and Path(model_file).exists() else None})
+    separate_outputs(
+        {"--out": args.out, "--write-predictions": args.write_predictions},
+        {
+            "--data": args.data,
+            "--predictions": args.predictions,
+            "--model": model_file if model_file and Path(model_file).exists() else None,
+        },
+    )
     out = Path(args.out)
-    overrides = {"name": args.name, "params": args.params, "embedding": args.embedding,
-                 "regime": args.regime}
+    overrides = {
+        "name": args.name,
+        "params": args.params,
+        "embedding": args.embedding,
+        "regime": args.regime,
+    }
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         model = load_model(args.model, dict(args.model_arg)) if args.model else None
-        results = evaluate(args.data, model=model, predictions=args.predictions,
-                           write_predictions=args.write_predictions, overrides=overrides,
-                           train_seed=args.train_seed, batch_size=args.batch_size,
-                           progress=not args.quiet, scratch_dir=out.parent,
-                           speed_ms=args.speed_ms)
+        results = evaluate(
+            args.data,
+            model=model,
+            predictions=args.predictions,
+            write_predictions=args.write_predictions,
+            overrides=overrides,
+            train_seed=args.train_seed,
+            batch_size=args.batch_size,
+            progress=not args.quiet,
+            scratch_dir=out.parent,
+            speed_ms=args.speed_ms,
+        )
         write_results(out, results)
     except (ShardError, ModelError, PredictionsError, ResultsError, OSError) as exc:
         raise SystemExit(f"benchmark evaluate: error: {one_line(exc)}") from None

@@ -66,8 +66,9 @@ class SimplifyError(MeshError):
     """Quadric decimation could not meet the face budget (or keep the surface closed)."""
 
 
-def simplify_to(vertices: np.ndarray, faces: np.ndarray, max_faces: int,
-                keep_watertight: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def simplify_to(
+    vertices: np.ndarray, faces: np.ndarray, max_faces: int, keep_watertight: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Quadric decimation (fast-simplification) to at most ``max_faces`` faces.
 
     The decimator may stop above its target (it refuses collapses that flip or squash
@@ -179,8 +180,14 @@ def _revolved_vase(rng, budget):
         wall = rng.uniform(0.03, 0.08)
         floor = rng.uniform(0.05, 0.15) * h
         inner_r = np.maximum(r - wall, 0.02)
-        cavity = np.vstack([[0.0, floor], np.column_stack([inner_r[1:], y[1:]]),
-                            [inner_r[-1], h + 1.0], [0.0, h + 1.0]])
+        cavity = np.vstack(
+            [
+                [0.0, floor],
+                np.column_stack([inner_r[1:], y[1:]]),
+                [inner_r[-1], h + 1.0],
+                [0.0, h + 1.0],
+            ]
+        )
         cavity[1, 1] = max(cavity[1, 1], floor + 1e-3)
         outer = outer - m3d.Manifold.revolve(m3d.CrossSection([cavity]), n)
     return outer
@@ -200,8 +207,9 @@ def _star_prism(rng, budget):
     top = rng.uniform(0.3, 1.0) if rng.random() < 0.4 else 1.0
     # a division per 15 degrees of twist keeps the side walls from self-intersecting
     divisions = int(np.ceil(twist / 15.0))
-    return m3d.Manifold.extrude(m3d.CrossSection([poly]), rng.uniform(0.2, 1.5),
-                                divisions, twist, (top, top))
+    return m3d.Manifold.extrude(
+        m3d.CrossSection([poly]), rng.uniform(0.2, 1.5), divisions, twist, (top, top)
+    )
 
 
 def _torus_ring(rng, budget):
@@ -225,8 +233,13 @@ def _random_primitive(rng, budget, centre):
         n = _segments(rng, 4, 32, int(np.sqrt(2 * budget)), 1)
         solid = m3d.Manifold.sphere(rng.uniform(0.12, 0.35), n)
     else:
-        solid = m3d.Manifold.cylinder(rng.uniform(0.2, 0.8), rng.uniform(0.08, 0.3), -1.0,
-                                      _segments(rng, 4, 40, budget, 4), center=True)
+        solid = m3d.Manifold.cylinder(
+            rng.uniform(0.2, 0.8),
+            rng.uniform(0.08, 0.3),
+            -1.0,
+            _segments(rng, 4, 40, budget, 4),
+            center=True,
+        )
     return solid.rotate(tuple(rng.uniform(0.0, 360.0, 3))).translate(tuple(centre))
 
 
@@ -257,8 +270,10 @@ def _capsule_rounded_box(rng, budget):
         balls = [m3d.Manifold.sphere(r, n).translate((0.0, 0.0, z)) for z in (0.0, length)]
     else:  # rounded box: hull of eight corner spheres
         half = rng.uniform(0.1, 0.5, 3)
-        balls = [m3d.Manifold.sphere(r, n).translate(tuple(half * s))
-                 for s in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T]
+        balls = [
+            m3d.Manifold.sphere(r, n).translate(tuple(half * s))
+            for s in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+        ]
     return m3d.Manifold.batch_hull(balls)
 
 
@@ -402,8 +417,13 @@ def write_corpus_file(
     labels = np.array([c for _, _, c in meshes], dtype=np.int32)
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as h5:
-            for name, data in [("vertices", vertices), ("faces", faces), ("vertex_offset", n_v),
-                               ("face_offset", n_f), ("label", labels)]:
+            for name, data in [
+                ("vertices", vertices),
+                ("faces", faces),
+                ("vertex_offset", n_v),
+                ("face_offset", n_f),
+                ("label", labels),
+            ]:
                 h5.create_dataset(name, data=data, track_times=False)
             h5.attrs["class_names"] = json.dumps(list(class_names))
             h5.attrs["meta"] = json.dumps(meta or {}, sort_keys=True)
@@ -419,8 +439,10 @@ def _corpus_header(h5: h5py.File, path: Path) -> tuple[list[str], dict]:
             f"{path}: corpus version {h5.attrs.get('version')} unsupported (need {CORPUS_VERSION})"
         )
     try:
-        return tuple(load_json(h5.attrs[name], what=f"{path}: {name} attribute",
-                               error=CorpusError) for name in ("class_names", "meta"))
+        return tuple(
+            load_json(h5.attrs[name], what=f"{path}: {name} attribute", error=CorpusError)
+            for name in ("class_names", "meta")
+        )
     except KeyError as exc:
         raise CorpusError(f"{path}: damaged corpus header (no {exc} attribute)") from None
 
@@ -441,12 +463,20 @@ def read_corpus_file(path: str | Path) -> tuple[list[Mesh], list[str], dict]:
         except (OSError, KeyError) as exc:
             raise CorpusError(f"{path}: truncated corpus file ({exc})") from None
     n = len(labels)
-    if (len(vo) != n + 1 or len(fo) != n + 1 or vo[0] != 0 or fo[0] != 0 or vo[-1] != len(vertices)
-            or fo[-1] != len(faces) or (np.diff(vo) < 0).any() or (np.diff(fo) <= 0).any()):
+    if (
+        len(vo) != n + 1
+        or len(fo) != n + 1
+        or vo[0] != 0
+        or fo[0] != 0
+        or vo[-1] != len(vertices)
+        or fo[-1] != len(faces)
+        or (np.diff(vo) < 0).any()
+        or (np.diff(fo) <= 0).any()
+    ):
         raise CorpusError(f"{path}: inconsistent offsets")
     meshes = []
     for i in range(n):
-        v, f = vertices[vo[i]:vo[i + 1]], faces[fo[i]:fo[i + 1]]
+        v, f = vertices[vo[i] : vo[i + 1]], faces[fo[i] : fo[i + 1]]
         if f.min() < 0 or f.max() >= len(v) or not 0 <= labels[i] < len(names):
             raise CorpusError(f"{path}: mesh {i} has out-of-range face indices or class")
         meshes.append((v, f, int(labels[i])))
@@ -456,16 +486,22 @@ def read_corpus_file(path: str | Path) -> tuple[list[Mesh], list[str], dict]:
 GENERATOR_VERSION = 1  # bump when a family changes, so cached corpus files get rebuilt
 
 
-def build_corpus_file(path: str | Path, n_meshes: int, seed: int, max_faces: int = 800,
-                      progress: bool = False) -> Path:
+def build_corpus_file(
+    path: str | Path, n_meshes: int, seed: int, max_faces: int = 800, progress: bool = False
+) -> Path:
     """Cache ``procedural_corpus`` in an HDF5 file, so training reruns start instantly.
 
     A corpus file already built with the same arguments is kept as is; one built with other
     arguments is rebuilt; any other existing file is an error (never overwritten).
     """
     path = Path(path)
-    meta = {"source": "procedural", "generator_version": GENERATOR_VERSION, "n_meshes": n_meshes,
-            "seed": seed, "max_faces": max_faces}
+    meta = {
+        "source": "procedural",
+        "generator_version": GENERATOR_VERSION,
+        "n_meshes": n_meshes,
+        "seed": seed,
+        "max_faces": max_faces,
+    }
     if path.exists():
         with _open(path) as h5:
             names, old = _corpus_header(h5, path)
@@ -545,8 +581,13 @@ def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return v, f.astype(np.int32)
 
 
-def load_shapenet(path: str | Path, max_faces: int = 800, limit: int | None = None, seed: int = 0,
-                  progress: bool = False) -> list[Mesh]:
+def load_shapenet(
+    path: str | Path,
+    max_faces: int = 800,
+    limit: int | None = None,
+    seed: int = 0,
+    progress: bool = False,
+) -> list[Mesh]:
     """Meshes ``(vertices, faces, class_index)`` of a local ShapeNetCore v2 directory.
 
     Class indices follow ``shapenet_class_names(path)`` (synset ids in sorted order). With

@@ -130,15 +130,25 @@ class BenchmarkData:
                 elif s.class_names != names:
                     raise ShardError(f"{path}: class names {s.class_names} differ from {names}")
                 o, m = s.objects(), s.mesh_table()
-                objects.append({"shard": np.full(len(o["id"]), k, np.int32),
-                                "row": np.arange(len(o["id"]), dtype=np.int64), "id": o["id"],
-                                "class_index": o["class"].astype(np.int64),
-                                "scale": o["scale"], "split": o["split"]})
-                meshes.append({"shard": np.full(len(m["variant"]), k, np.int32),
-                               "row": np.arange(len(m["variant"]), dtype=np.int64),
-                               "object": m["object_index"].astype(np.int64) + n_obj,
-                               "variant": m["variant"].astype(np.int64),
-                               "n_faces": m["n_faces"].astype(np.int64)})
+                objects.append(
+                    {
+                        "shard": np.full(len(o["id"]), k, np.int32),
+                        "row": np.arange(len(o["id"]), dtype=np.int64),
+                        "id": o["id"],
+                        "class_index": o["class"].astype(np.int64),
+                        "scale": o["scale"],
+                        "split": o["split"],
+                    }
+                )
+                meshes.append(
+                    {
+                        "shard": np.full(len(m["variant"]), k, np.int32),
+                        "row": np.arange(len(m["variant"]), dtype=np.int64),
+                        "object": m["object_index"].astype(np.int64) + n_obj,
+                        "variant": m["variant"].astype(np.int64),
+                        "n_faces": m["n_faces"].astype(np.int64),
+                    }
+                )
                 n_obj += len(o["id"])
         self.objects = {key: np.concatenate([o[key] for o in objects]) for key in objects[0]}
         self.meshes = {key: np.concatenate([m[key] for m in meshes]) for key in meshes[0]}
@@ -146,22 +156,31 @@ class BenchmarkData:
         self.target_shape = tuple(len(grid[n]) for n in GRID_NAMES)
         self.scale_bins = ScaleBins.for_config(config)
         self._check_index()
-        self.meshes["uid"] = np.array([mesh_uid(i, v) for i, v in zip(
-            self.objects["id"][self.meshes["object"]], self.meshes["variant"])], np.int64)
+        self.meshes["uid"] = np.array(
+            [
+                mesh_uid(i, v)
+                for i, v in zip(self.objects["id"][self.meshes["object"]], self.meshes["variant"])
+            ],
+            np.int64,
+        )
         order = np.lexsort((self.meshes["variant"], self.meshes["object"]))
         self.meshes["ood"] = is_ood_variant(self.meshes["variant"])
         self._by_object, self._ood_by_object = (  # OOD meshes never reach meshes_of/mesh_rows
-            np.split(rows, np.cumsum(np.bincount(self.meshes["object"][rows],
-                                                 minlength=n_obj))[:-1])
-            for rows in (order[~self.meshes["ood"][order]], order[self.meshes["ood"][order]]))
+            np.split(
+                rows, np.cumsum(np.bincount(self.meshes["object"][rows], minlength=n_obj))[:-1]
+            )
+            for rows in (order[~self.meshes["ood"][order]], order[self.meshes["ood"][order]])
+        )
         self._handles: dict[int, Shard] = {}
         self._pid = os.getpid()
 
     @staticmethod
     def _read_grid(s: Shard) -> dict[str, np.ndarray]:
         if not s.has_labels:
-            raise ShardError(f"{s.path}: no radar labels (/radar/response); "
-                             f"run `radar-sim label` on the dataset first")
+            raise ShardError(
+                f"{s.path}: no radar labels (/radar/response); "
+                f"run `radar-sim label` on the dataset first"
+            )
         coords = s.radar.coordinates  # validates the group's shapes
         return {n: coords[n] for n in GRID_NAMES}
 
@@ -241,8 +260,9 @@ class BenchmarkData:
         shard = self._shard(int(self.objects["shard"][obj]))
         t = db_target(shard.radar.response(int(self.objects["row"][obj])))
         if not np.all(np.isfinite(t)):
-            raise ShardError(f"{shard.path}: non-finite radar label for object "
-                             f"{int(self.objects['id'][obj])}")
+            raise ShardError(
+                f"{shard.path}: non-finite radar label for object {int(self.objects['id'][obj])}"
+            )
         return t
 
     def batch(self, rows: np.ndarray, scale_bins: ScaleBins | None = None) -> dict:
@@ -258,11 +278,17 @@ class BenchmarkData:
             try:
                 verts.append(normalize_mesh(v, s))
             except ValueError as exc:
-                raise ShardError(f"{self.paths[self.meshes['shard'][r]]}: mesh_uid "
-                                 f"{self.meshes['uid'][r]}: {exc}") from None
+                raise ShardError(
+                    f"{self.paths[self.meshes['shard'][r]]}: mesh_uid "
+                    f"{self.meshes['uid'][r]}: {exc}"
+                ) from None
             faces.append(np.asarray(f, np.int64))
-        return {"vertices": verts, "faces": faces,
-                "scale_bins": scale_bins.index(scale).reshape(-1, 3), "scale_m": scale}
+        return {
+            "vertices": verts,
+            "faces": faces,
+            "scale_bins": scale_bins.index(scale).reshape(-1, 3),
+            "scale_m": scale,
+        }
 
     def close(self) -> None:
         for s in self._handles.values():
@@ -280,9 +306,11 @@ class BenchmarkData:
 
     def describe(self) -> str:
         n_val, n_test = (len(self.object_rows(s)) for s in ("val", "test"))
-        return (f"{self.directory}: {len(self.paths)} shards, {len(self.objects['id'])} objects "
-                f"({n_val} val, {n_test} test), {len(self.meshes['uid'])} meshes, classes "
-                f"{json.dumps(self.class_names)}, target grid {self.target_shape}")
+        return (
+            f"{self.directory}: {len(self.paths)} shards, {len(self.objects['id'])} objects "
+            f"({n_val} val, {n_test} test), {len(self.meshes['uid'])} meshes, classes "
+            f"{json.dumps(self.class_names)}, target grid {self.target_shape}"
+        )
 
 
 class BasicShapes:
@@ -300,17 +328,26 @@ class BasicShapes:
     ``collate_meshes`` (or PyG's ``DataLoader`` on the ``to_pyg`` view).
     """
 
-    def __init__(self, root: BenchmarkData | str | os.PathLike, split: str = "train",
-                 variants: str = "simple", scale_bins: ScaleBins | None = None,
-                 transform=None):
+    def __init__(
+        self,
+        root: BenchmarkData | str | os.PathLike,
+        split: str = "train",
+        variants: str = "simple",
+        scale_bins: ScaleBins | None = None,
+        transform=None,
+    ):
         self.data = root if isinstance(root, BenchmarkData) else BenchmarkData(root)
         self.split, self.variants = split, variants
         self.rows = self.data.mesh_rows(split, variants)
-        if variants == "all" and split == "test":   # scored, never trained on
-            self.rows = np.concatenate([self.rows, *(self.data.ood_meshes_of(o) for o in
-                                                     self.data.object_rows(split))])
-            self.rows = self.rows[np.lexsort((self.data.meshes["variant"][self.rows],
-                                              self.data.meshes["object"][self.rows]))]
+        if variants == "all" and split == "test":  # scored, never trained on
+            self.rows = np.concatenate(
+                [self.rows, *(self.data.ood_meshes_of(o) for o in self.data.object_rows(split))]
+            )
+            self.rows = self.rows[
+                np.lexsort(
+                    (self.data.meshes["variant"][self.rows], self.data.meshes["object"][self.rows])
+                )
+            ]
         self.scale_bins = scale_bins or self.data.scale_bins
         self.transform = transform
         self._last: tuple[int, np.ndarray] | None = None  # consecutive meshes share a target
@@ -319,8 +356,10 @@ class BasicShapes:
         return len(self.rows)
 
     def __repr__(self) -> str:
-        return (f"BasicShapes({self.data.directory}, split={self.split!r}, "
-                f"variants={self.variants!r}, n={len(self)})")
+        return (
+            f"BasicShapes({self.data.directory}, split={self.split!r}, "
+            f"variants={self.variants!r}, n={len(self)})"
+        )
 
     def object_of(self, i: int) -> int:
         """Global object row of item ``i`` (items of one object are consecutive)."""
@@ -338,16 +377,18 @@ class BasicShapes:
         obj = self.object_of(i)
         variant = int(self.data.meshes["variant"][row])
         b = self.data.batch(np.array([row]), self.scale_bins)
-        item = {"vertices": torch.from_numpy(b["vertices"][0]),
-                "faces": torch.from_numpy(b["faces"][0]),
-                "scale_bins": torch.from_numpy(b["scale_bins"][0]),
-                "scale_m": torch.from_numpy(b["scale_m"][0].astype(np.float32)),
-                "target": torch.from_numpy(self.target(obj)),
-                "class_index": torch.tensor(int(self.data.objects["class_index"][obj])),
-                "object_id": torch.tensor(int(self.data.objects["id"][obj])),
-                "mesh_uid": torch.tensor(int(self.data.meshes["uid"][row])),
-                "variant": torch.tensor(variant),
-                "remesher": ood_remesher(variant) or ""}
+        item = {
+            "vertices": torch.from_numpy(b["vertices"][0]),
+            "faces": torch.from_numpy(b["faces"][0]),
+            "scale_bins": torch.from_numpy(b["scale_bins"][0]),
+            "scale_m": torch.from_numpy(b["scale_m"][0].astype(np.float32)),
+            "target": torch.from_numpy(self.target(obj)),
+            "class_index": torch.tensor(int(self.data.objects["class_index"][obj])),
+            "object_id": torch.tensor(int(self.data.objects["id"][obj])),
+            "mesh_uid": torch.tensor(int(self.data.meshes["uid"][row])),
+            "variant": torch.tensor(variant),
+            "remesher": ood_remesher(variant) or "",
+        }
         return self.transform(item) if self.transform else item
 
     @staticmethod
@@ -357,12 +398,18 @@ class BasicShapes:
         scalars as (1,)-shaped attributes."""
         from torch_geometric.data import Data
 
-        return Data(pos=item["vertices"], face=item["faces"].t().contiguous(),
-                    y=item["target"].unsqueeze(0), scale_bins=item["scale_bins"].unsqueeze(0),
-                    scale_m=item["scale_m"].unsqueeze(0),
-                    class_index=item["class_index"].view(1), object_id=item["object_id"].view(1),
-                    mesh_uid=item["mesh_uid"].view(1), variant=item["variant"].view(1),
-                    remesher=item["remesher"])
+        return Data(
+            pos=item["vertices"],
+            face=item["faces"].t().contiguous(),
+            y=item["target"].unsqueeze(0),
+            scale_bins=item["scale_bins"].unsqueeze(0),
+            scale_m=item["scale_m"].unsqueeze(0),
+            class_index=item["class_index"].view(1),
+            object_id=item["object_id"].view(1),
+            mesh_uid=item["mesh_uid"].view(1),
+            variant=item["variant"].view(1),
+            remesher=item["remesher"],
+        )
 
 
 def collate_meshes(items: list[dict]) -> dict:

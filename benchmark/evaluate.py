@@ -34,8 +34,9 @@ from benchmark.protocol import (
 MODEL_FIELDS = ("name", "params", "embedding", "regime")
 
 
-def speed_block(ms_per_mesh: float | None, threads: int | None = None,
-                self_reported: bool = False) -> dict:
+def speed_block(
+    ms_per_mesh: float | None, threads: int | None = None, self_reported: bool = False
+) -> dict:
     """Results ``speed``: ms per mesh and how it was measured; a speed given by a submitter
     (``self_reported``) carries no machine description, since none was measured."""
     if ms_per_mesh is None:
@@ -43,9 +44,15 @@ def speed_block(ms_per_mesh: float | None, threads: int | None = None,
     if self_reported:
         return {"ms_per_mesh": float(ms_per_mesh), "hardware": None, "self_reported": True}
     hw = hardware(threads)
-    return {"ms_per_mesh": float(ms_per_mesh), "hardware": hw["text"], "cpu": hw["cpu"],
-            "threads": hw["threads"], "load_avg_1m": hw["load_avg_1m"], "gpu": hw["gpu"],
-            "self_reported": False}
+    return {
+        "ms_per_mesh": float(ms_per_mesh),
+        "hardware": hw["text"],
+        "cpu": hw["cpu"],
+        "threads": hw["threads"],
+        "load_avg_1m": hw["load_avg_1m"],
+        "gpu": hw["gpu"],
+        "self_reported": False,
+    }
 
 
 def face_count_batches(data: BenchmarkData, rows: np.ndarray, batch_size: int) -> list:
@@ -53,11 +60,17 @@ def face_count_batches(data: BenchmarkData, rows: np.ndarray, batch_size: int) -
     largest mesh: in the test split's stored order that padding is 2.5x the faces and 3.8x
     the attention work of the meshes themselves (cpu-v1), in face-count order 1.01x."""
     order = rows[np.argsort(np.asarray(data.meshes["n_faces"])[rows], kind="stable")]
-    return [order[s:s + batch_size] for s in range(0, len(order), batch_size)]
+    return [order[s : s + batch_size] for s in range(0, len(order), batch_size)]
 
 
-def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLike,
-                       batch_size: int = 16, who: str = "model", progress: bool = True) -> float:
+def predict_test_split(
+    model: Model,
+    data: BenchmarkData,
+    path: str | os.PathLike,
+    batch_size: int = 16,
+    who: str = "model",
+    progress: bool = True,
+) -> float:
     """Run ``model.predict`` over every test mesh (the OOD meshes included), write a
     predictions file; return ms per mesh.
 
@@ -67,8 +80,13 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
     """
     rows = scored_mesh_rows(data)  # refuses a dataset without a test split
     elapsed = 0.0
-    with PredictionsWriter(path, data.fingerprint, len(rows), data.target_shape,
-                           label_fingerprint=data.label_fingerprint) as writer:
+    with PredictionsWriter(
+        path,
+        data.fingerprint,
+        len(rows),
+        data.target_shape,
+        label_fingerprint=data.label_fingerprint,
+    ) as writer:
         with tqdm(total=len(rows), desc="predict", unit="mesh", disable=not progress) as bar:
             for chunk in face_count_batches(data, rows, batch_size):
                 batch = data.batch(chunk)
@@ -78,8 +96,10 @@ def predict_test_split(model: Model, data: BenchmarkData, path: str | os.PathLik
                 except (Exception, SystemExit) as exc:  # sys.exit(0) in a model is no success
                     raise ModelError(f"{who}: predict failed: {why(exc)}") from exc
                 elapsed += time.perf_counter() - t0
-                writer.write(data.meshes["uid"][chunk],
-                             check_prediction(out, len(chunk), data.target_shape, who))
+                writer.write(
+                    data.meshes["uid"][chunk],
+                    check_prediction(out, len(chunk), data.target_shape, who),
+                )
                 bar.update(len(chunk))
     return 1000.0 * elapsed / max(len(rows), 1)
 
@@ -93,12 +113,19 @@ def model_info(model: Model | None, overrides: dict) -> dict:
     return info
 
 
-def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
-             predictions: str | os.PathLike | None = None,
-             write_predictions: str | os.PathLike | None = None, overrides: dict | None = None,
-             train_seed: int | None = None, batch_size: int = 16, progress: bool = True,
-             scratch_dir: str | os.PathLike | None = None,
-             speed_ms: float | None = None) -> dict:
+def evaluate(
+    data_dir: str | os.PathLike,
+    *,
+    model: Model | None = None,
+    predictions: str | os.PathLike | None = None,
+    write_predictions: str | os.PathLike | None = None,
+    overrides: dict | None = None,
+    train_seed: int | None = None,
+    batch_size: int = 16,
+    progress: bool = True,
+    scratch_dir: str | os.PathLike | None = None,
+    speed_ms: float | None = None,
+) -> dict:
     """Results record for exactly one of ``model`` or ``predictions``.
 
     A model's predictions go to ``write_predictions`` if given, else to a temporary file in
@@ -111,8 +138,9 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
         raise ValueError("a self-reported speed goes with a predictions file and is >= 0")
     overrides = dict(overrides or {})
     with BenchmarkData(data_dir) as data:
-        speed = speed_block(speed_ms, self_reported=True) if speed_ms is not None \
-            else speed_block(None)
+        speed = (
+            speed_block(speed_ms, self_reported=True) if speed_ms is not None else speed_block(None)
+        )
         if model is not None:
             with contextlib.ExitStack() as stack:
                 path = (
@@ -138,8 +166,14 @@ def evaluate(data_dir: str | os.PathLike, *, model: Model | None = None,
             "train": train_seed,
         }
         per_object = metrics.pop("per_object")
-        results = make_results(data.fingerprint, metrics, model_info(model, overrides), speed,
-                               seeds, label_fingerprint=data.label_fingerprint)
+        results = make_results(
+            data.fingerprint,
+            metrics,
+            model_info(model, overrides),
+            speed,
+            seeds,
+            label_fingerprint=data.label_fingerprint,
+        )
         results["per_object"] = per_object
         return results
 
@@ -158,13 +192,20 @@ def format_metrics(results: dict) -> str:
     its skill against the strongest reference, and its speed."""
     m = results["metrics"]
     keys = METRIC_NAMES + OOD_METRIC_NAMES
-    head = (f"{'':20} " + " ".join(f"{t:>24}" for t in ("simple", "complex", "variation",
-                                                          "OOD complex", "OOD variation"))
-            + f" {'objects':>7}")
+    head = (
+        f"{'':20} "
+        + " ".join(
+            f"{t:>24}" for t in ("simple", "complex", "variation", "OOD complex", "OOD variation")
+        )
+        + f" {'objects':>7}"
+    )
 
     def line(label, block):
-        return (f"{label:20} " + " ".join(f"{_ci(block.get(k), block.get(k + '_ci')):>24}"
-                                          for k in keys) + f" {block['n_objects']:>7}")
+        return (
+            f"{label:20} "
+            + " ".join(f"{_ci(block.get(k), block.get(k + '_ci')):>24}" for k in keys)
+            + f" {block['n_objects']:>7}"
+        )
 
     lines = [head, line(str(results["model"]["name"])[:20], m)]
     lines += [line(f"  {c}"[:20], b) for c, b in m["per_class"].items()]
@@ -174,17 +215,21 @@ def format_metrics(results: dict) -> str:
     sk = m.get("skill")
     if sk:
         for k, v in sk["vs_reference"].items():
-            lines.append(f"vs strongest reference ({sk['reference']}), {k}: {v['diff']:+.2f} "
-                         f"[{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] dB², skill {v['skill']:.3f}: "
-                         f"{VERDICT_WORDS[v['verdict']]}")
+            lines.append(
+                f"vs strongest reference ({sk['reference']}), {k}: {v['diff']:+.2f} "
+                f"[{v['ci'][0]:+.2f}, {v['ci'][1]:+.2f}] dB², skill {v['skill']:.3f}: "
+                f"{VERDICT_WORDS[v['verdict']]}"
+            )
         if sk["explained_by_class"] and not m.get("no_skill"):
             lines.append("no better than the per-class mean: its skill is explained by the class")
     t = m.get("no_skill_test")
     if t:
         gain = _ci(t["gain_vs_train_mean"], t["gain_vs_train_mean_ci"])
-        lines.append(f"gain over the training mean {gain} dB², correlation "
-                     f"{t['correlation']:.3f}; no skill: "
-                     f"{'YES' if m['no_skill'] else 'no'}")
+        lines.append(
+            f"gain over the training mean {gain} dB², correlation "
+            f"{t['correlation']:.3f}; no skill: "
+            f"{'YES' if m['no_skill'] else 'no'}"
+        )
     sp = results["speed"]
     if sp["ms_per_mesh"] is not None:
         where = "self-reported" if sp.get("self_reported") else f"on {sp['hardware']}"
@@ -211,48 +256,58 @@ class Evaluator:
 
     @property
     def expected_input_format(self) -> str:
-        return (f"==== Expected input format of Evaluator({str(self.root)!r})\n"
-                f"{{'mesh_uid': mesh_uid, 'target_db': target_db}}\n"
-                f"- mesh_uid: int64 array (M,), every test-split mesh exactly once, any order "
-                f"(M = {len(self.test_mesh_uid)}; BasicShapes(root, split='test', "
-                f"variants='all') yields every one, out-of-distribution meshes included, as "
-                f"item['mesh_uid']; Evaluator.test_mesh_uid holds them all)\n"
-                f"- target_db: real array (M, {', '.join(map(str, self.target_shape))}): the "
-                f"predicted dB response of each mesh (aspect, roll, range bin), row i for "
-                f"mesh_uid[i]; values below -80 dB are scored as -80 dB\n"
-                f"numpy arrays or torch tensors (moved to the CPU)")
+        return (
+            f"==== Expected input format of Evaluator({str(self.root)!r})\n"
+            f"{{'mesh_uid': mesh_uid, 'target_db': target_db}}\n"
+            f"- mesh_uid: int64 array (M,), every test-split mesh exactly once, any order "
+            f"(M = {len(self.test_mesh_uid)}; BasicShapes(root, split='test', "
+            f"variants='all') yields every one, out-of-distribution meshes included, as "
+            f"item['mesh_uid']; Evaluator.test_mesh_uid holds them all)\n"
+            f"- target_db: real array (M, {', '.join(map(str, self.target_shape))}): the "
+            f"predicted dB response of each mesh (aspect, roll, range bin), row i for "
+            f"mesh_uid[i]; values below -80 dB are scored as -80 dB\n"
+            f"numpy arrays or torch tensors (moved to the CPU)"
+        )
 
     @property
     def expected_output_format(self) -> str:
-        return ("==== Expected output format\n"
-                "{'simple_mse', 'complex_mse', 'variation_mse' (dB², None without complex "
-                "meshes), 'ood_complex_mse', 'ood_variation_mse' (None without OOD meshes), "
-                "each with '<name>_ci' [lo, hi] (95%, bootstrap over test objects), "
-                "'n_objects', 'n_meshes', 'per_class', 'per_remesher', 'no_skill', "
-                "'no_skill_test', "
-                "'references', 'skill'} (docs/BENCHMARK.md, \"Results JSON\")")
+        return (
+            "==== Expected output format\n"
+            "{'simple_mse', 'complex_mse', 'variation_mse' (dB², None without complex "
+            "meshes), 'ood_complex_mse', 'ood_variation_mse' (None without OOD meshes), "
+            "each with '<name>_ci' [lo, hi] (95%, bootstrap over test objects), "
+            "'n_objects', 'n_meshes', 'per_class', 'per_remesher', 'no_skill', "
+            "'no_skill_test', "
+            "'references', 'skill'} (docs/BENCHMARK.md, \"Results JSON\")"
+        )
 
     def eval(self, input_dict: dict) -> dict:
         from benchmark.protocol import PredictionsError, write_predictions
 
         missing = {"mesh_uid", "target_db"} - set(input_dict)
         if missing:
-            raise PredictionsError(f"Evaluator: input lacks {', '.join(sorted(missing))}; "
-                                   f"see expected_input_format")
+            raise PredictionsError(
+                f"Evaluator: input lacks {', '.join(sorted(missing))}; see expected_input_format"
+            )
         arrays = {}
         for k in ("mesh_uid", "target_db"):
             v = input_dict[k]
             v = v.detach().cpu().numpy() if hasattr(v, "detach") else np.asarray(v)
             arrays[k] = v
         if arrays["mesh_uid"].dtype.kind not in "iu" or arrays["target_db"].dtype.kind not in "fiu":
-            raise PredictionsError("Evaluator: mesh_uid must be integers and target_db real "
-                                   "numbers")
+            raise PredictionsError(
+                "Evaluator: mesh_uid must be integers and target_db real numbers"
+            )
         with tempfile.TemporaryDirectory() as tmp, BenchmarkData(self.root) as data:
             path = Path(tmp) / "predictions.h5"
             try:
-                write_predictions(path, self.fingerprint, arrays["mesh_uid"].astype(np.int64),
-                                  arrays["target_db"].astype(np.float32),
-                                  label_fingerprint=data.label_fingerprint)
+                write_predictions(
+                    path,
+                    self.fingerprint,
+                    arrays["mesh_uid"].astype(np.int64),
+                    arrays["target_db"].astype(np.float32),
+                    label_fingerprint=data.label_fingerprint,
+                )
                 with Predictions(path, data) as preds:
                     return score(data, preds)
             except PredictionsError as exc:  # name the caller's input, not our scratch file

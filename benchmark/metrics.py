@@ -70,8 +70,9 @@ def remesher_key(metric: str, remesher: str) -> str:
 
 def ood_keys() -> tuple[str, ...]:
     """Every OOD per-object array name: the two metrics, then per remesher (slot order)."""
-    return OOD_METRIC_NAMES + tuple(remesher_key(m, r) for r in OOD_REMESHERS
-                                    for m in OOD_METRIC_NAMES)
+    return OOD_METRIC_NAMES + tuple(
+        remesher_key(m, r) for r in OOD_REMESHERS for m in OOD_METRIC_NAMES
+    )
 
 
 def clip_prediction(pred) -> np.ndarray:
@@ -87,8 +88,9 @@ def mse(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean((a - b) ** 2))
 
 
-def object_errors(target: np.ndarray, simple: np.ndarray,
-                  complex_: np.ndarray) -> tuple[float, float | None, float | None]:
+def object_errors(
+    target: np.ndarray, simple: np.ndarray, complex_: np.ndarray
+) -> tuple[float, float | None, float | None]:
     """(simple, complex, variation) MSE of one object; ``complex_`` is (C, ...), C may be 0.
 
     Predictions are clipped at the floor here, the one place every score passes through.
@@ -98,12 +100,16 @@ def object_errors(target: np.ndarray, simple: np.ndarray,
     if len(complex_) == 0:
         return s, None, None
     complex_ = [clip_prediction(c) for c in complex_]
-    return (s, float(np.mean([mse(target, c) for c in complex_])),
-            float(np.mean([mse(simple, c) for c in complex_])))
+    return (
+        s,
+        float(np.mean([mse(target, c) for c in complex_])),
+        float(np.mean([mse(simple, c) for c in complex_])),
+    )
 
 
-def ood_errors(target: np.ndarray, simple: np.ndarray, ood: np.ndarray,
-               remeshers: list[str]) -> dict[str, float]:
+def ood_errors(
+    target: np.ndarray, simple: np.ndarray, ood: np.ndarray, remeshers: list[str]
+) -> dict[str, float]:
     """OOD Complex and Variation MSE of one object (module docstring), overall and per
     remesher, keyed as ``ood_keys``; NaN where the object has no such mesh."""
     out = dict.fromkeys(ood_keys(), np.nan)
@@ -136,9 +142,16 @@ class Scorer:
         self.ids: list[int] = []
         self.n_meshes = 0
 
-    def add(self, class_index: int, target: np.ndarray, simple: np.ndarray,
-            complex_: np.ndarray, object_id: int | None = None, ood: np.ndarray = (),
-            ood_remeshers: list[str] = ()) -> None:
+    def add(
+        self,
+        class_index: int,
+        target: np.ndarray,
+        simple: np.ndarray,
+        complex_: np.ndarray,
+        object_id: int | None = None,
+        ood: np.ndarray = (),
+        ood_remeshers: list[str] = (),
+    ) -> None:
         """One test object: its label, the predictions on its simple mesh, its complex meshes
         (C, ...) and its OOD meshes (K, ...), with the remesher of each OOD mesh."""
         errors = object_errors(target, simple, complex_)
@@ -155,18 +168,28 @@ class Scorer:
     def per_object(self) -> dict:
         """Per-object arrays (NaN where an object lacks a metric): what intervals resample."""
         r = np.array([[np.nan if x is None else x for x in row] for row in self.rows], np.float64)
-        return {"object_id": np.array(self.ids, np.int64), "class_index": r[:, 0].astype(np.int64),
-                **{name: r[:, k] for k, name in enumerate(METRIC_NAMES, start=1)},
-                "truth_spread": r[:, 4], "prediction_spread": r[:, 5], "co_spread": r[:, 6],
-                **{k: np.array([o[k] for o in self.ood], np.float64) for k in ood_keys()}}
+        return {
+            "object_id": np.array(self.ids, np.int64),
+            "class_index": r[:, 0].astype(np.int64),
+            **{name: r[:, k] for k, name in enumerate(METRIC_NAMES, start=1)},
+            "truth_spread": r[:, 4],
+            "prediction_spread": r[:, 5],
+            "co_spread": r[:, 6],
+            **{k: np.array([o[k] for o in self.ood], np.float64) for k in ood_keys()},
+        }
 
     def result(self) -> dict:
         if not self.rows:
             raise ValueError("no objects were scored")
         po = self.per_object()
         cls = po["class_index"]
-        out = {**metric_block(po, cls), "n_meshes": self.n_meshes, **skill_test(po, cls),
-               "per_class": {}, "per_remesher": per_remesher(po, cls)}
+        out = {
+            **metric_block(po, cls),
+            "n_meshes": self.n_meshes,
+            **skill_test(po, cls),
+            "per_class": {},
+            "per_remesher": per_remesher(po, cls),
+        }
         for c, name in enumerate(self.class_names):
             sel = cls == c
             if sel.any():
@@ -198,8 +221,10 @@ def per_remesher(po: dict, strata: np.ndarray) -> dict:
     for r in OOD_REMESHERS:
         key = remesher_key(OOD_METRIC_NAMES[0], r)
         if key in po and not np.all(np.isnan(po[key])):
-            out[r] = {**_means(po, strata, {m: remesher_key(m, r) for m in OOD_METRIC_NAMES}),
-                      "n_objects": int(np.sum(~np.isnan(po[key])))}
+            out[r] = {
+                **_means(po, strata, {m: remesher_key(m, r) for m in OOD_METRIC_NAMES}),
+                "n_objects": int(np.sum(~np.isnan(po[key]))),
+            }
     return out
 
 
@@ -213,23 +238,41 @@ def skill_test(po: dict, strata: np.ndarray) -> dict:
     ci = interval(gain, strata)
     A, B, C = float(np.mean(a)), float(np.mean(b)), float(np.mean(c))
     corr = C / np.sqrt(A * B) if A > 0 and B > 0 else 0.0
-    return {"no_skill": bool(ci is None or ci[0] <= 0),
-            "no_skill_test": {"gain_vs_train_mean": float(np.mean(gain)),
-                              "gain_vs_train_mean_ci": ci, "truth_spread": A,
-                              "prediction_spread": B, "co_spread": C,
-                              "correlation": float(corr)}}
+    return {
+        "no_skill": bool(ci is None or ci[0] <= 0),
+        "no_skill_test": {
+            "gain_vs_train_mean": float(np.mean(gain)),
+            "gain_vs_train_mean_ci": ci,
+            "truth_spread": A,
+            "prediction_spread": B,
+            "co_spread": C,
+            "correlation": float(corr),
+        },
+    }
 
 
-def score_arrays(class_index: np.ndarray, targets: np.ndarray, simple: np.ndarray,
-                 complex_: np.ndarray, class_names: list[str],
-                 train_mean: np.ndarray | None = None, ood: np.ndarray | None = None,
-                 ood_remeshers: list[str] = ()) -> dict:
+def score_arrays(
+    class_index: np.ndarray,
+    targets: np.ndarray,
+    simple: np.ndarray,
+    complex_: np.ndarray,
+    class_names: list[str],
+    train_mean: np.ndarray | None = None,
+    ood: np.ndarray | None = None,
+    ood_remeshers: list[str] = (),
+) -> dict:
     """Metrics for in-memory arrays: targets/simple (N, ...), complex_ (N, C, ...), ood
     (N, K, ...) with ``ood_remeshers`` the remesher of each of the K OOD meshes."""
     scorer = Scorer(class_names, train_mean)
     for k, (c, t, s, cx) in enumerate(zip(class_index, targets, simple, complex_)):
-        scorer.add(c, t, s, cx, ood=() if ood is None else ood[k], ood_remeshers=(
-            () if ood is None else ood_remeshers))
+        scorer.add(
+            c,
+            t,
+            s,
+            cx,
+            ood=() if ood is None else ood[k],
+            ood_remeshers=(() if ood is None else ood_remeshers),
+        )
     return scorer.result()
 
 

@@ -65,9 +65,13 @@ def png(fig) -> bytes:
     return buf.getvalue()
 
 
-def speed_vs_error(points: list[Point], references: dict[str, float] | None = None,
-                   simulator: tuple[float, float] | None = None, title: str | None = None,
-                   xlabel: str = "ms per mesh (log scale; lower is faster)"):
+def speed_vs_error(
+    points: list[Point],
+    references: dict[str, float] | None = None,
+    simulator: tuple[float, float] | None = None,
+    title: str | None = None,
+    xlabel: str = "ms per mesh (log scale; lower is faster)",
+):
     """The figure of ms per mesh (log) against Complex MSE (symlog, from 0 = the physics):
     ``references`` name -> Complex MSE as dashed lines (they cost nothing to run: a model
     must be below them), ``simulator`` (ms, MSE) as a star."""
@@ -78,20 +82,37 @@ def speed_vs_error(points: list[Point], references: dict[str, float] | None = No
     width = MARGIN_IN["left"] + AXES_IN[0] + MARGIN_IN["right"]
     height = MARGIN_IN["bottom"] + axes_h + MARGIN_IN["top"]
     fig = plt.figure(figsize=(width, height))
-    ax = fig.add_axes((MARGIN_IN["left"] / width, MARGIN_IN["bottom"] / height,
-                       AXES_IN[0] / width, axes_h / height))
+    ax = fig.add_axes(
+        (
+            MARGIN_IN["left"] / width,
+            MARGIN_IN["bottom"] / height,
+            AXES_IN[0] / width,
+            axes_h / height,
+        )
+    )
     labels = []  # (x, y, text, colour) in data coordinates
     for p in points:
         if p.ci:
-            ax.errorbar([p.x], [p.y], yerr=[[p.y - p.ci[0]], [p.ci[1] - p.y]], fmt="none",
-                        ecolor="0.65", zorder=2)
-        ax.scatter([p.x], [p.y], s=p.size, marker=p.marker, zorder=3,
-                   facecolors="none" if p.hollow else p.colour,
-                   edgecolors="tab:red" if p.hollow else p.colour)
+            ax.errorbar(
+                [p.x],
+                [p.y],
+                yerr=[[p.y - p.ci[0]], [p.ci[1] - p.y]],
+                fmt="none",
+                ecolor="0.65",
+                zorder=2,
+            )
+        ax.scatter(
+            [p.x],
+            [p.y],
+            s=p.size,
+            marker=p.marker,
+            zorder=3,
+            facecolors="none" if p.hollow else p.colour,
+            edgecolors="tab:red" if p.hollow else p.colour,
+        )
         labels.append((p.x, p.y, literal(p.label) + (" (no skill)" if p.hollow else ""), "0.1"))
     if simulator is not None:
-        ax.scatter([simulator[0]], [simulator[1]], s=140, marker="*", color="tab:orange",
-                   zorder=4)
+        ax.scatter([simulator[0]], [simulator[1]], s=140, marker="*", color="tab:orange", zorder=4)
         labels.append((*simulator, "physics simulator", "tab:orange"))
     ax.set_xscale("log")
     ax.set_yscale("symlog", linthresh=1.0)  # spans 0 (the physics) to no-skill hundreds
@@ -121,18 +142,28 @@ def _label_column(ax, labels: list[tuple], gap: float) -> None:
     ax.figure.canvas.draw()  # final limits and transforms
     to_axes = ax.transAxes.inverted()
     xmax = ax.get_xlim()[1]
-    wanted = [float(to_axes.transform(ax.transData.transform((xmax if x is None else x, y)))[1])
-              for x, y, _, _ in labels]
+    wanted = [
+        float(to_axes.transform(ax.transData.transform((xmax if x is None else x, y)))[1])
+        for x, y, _, _ in labels
+    ]
     # bottom to top; points within a line height of each other left to right, so their
     # leader lines do not cross
-    order = sorted(range(len(labels)),
-                   key=lambda i: (round(wanted[i] / gap), labels[i][0] or float("inf"), wanted[i]))
+    order = sorted(
+        range(len(labels)),
+        key=lambda i: (round(wanted[i] / gap), labels[i][0] or float("inf"), wanted[i]),
+    )
     labels, wanted = [labels[i] for i in order], [wanted[i] for i in order]
     for (x, y, text, colour), want, pos in zip(labels, wanted, spread(wanted, gap, 0.0, 1.0)):
         on_edge = x is None  # a reference line: lead to where it meets the right edge
-        ax.annotate(text, xy=(1.0, want) if on_edge else (x, y),
-                    xycoords="axes fraction" if on_edge else "data",
-                    xytext=(1.04, pos), textcoords="axes fraction", va="center",
-                    fontsize=FONT_PT - on_edge, color=colour, annotation_clip=False,
-                    arrowprops=dict(arrowstyle="-", color="0.75", lw=0.5, shrinkA=0,
-                                    shrinkB=2))
+        ax.annotate(
+            text,
+            xy=(1.0, want) if on_edge else (x, y),
+            xycoords="axes fraction" if on_edge else "data",
+            xytext=(1.04, pos),
+            textcoords="axes fraction",
+            va="center",
+            fontsize=FONT_PT - on_edge,
+            color=colour,
+            annotation_clip=False,
+            arrowprops=dict(arrowstyle="-", color="0.75", lw=0.5, shrinkA=0, shrinkB=2),
+        )

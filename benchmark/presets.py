@@ -17,8 +17,12 @@ ROWS: tuple[tuple[str, str], ...] = (
     *[(e, "ideal") for e in EMBEDDINGS],
     *[(e, "basic") for e in REGISTRY if e not in EMBEDDINGS],
 )
-PRETRAINING = {"basic": "none", "classification": "classification", "autoencoder": "autoencoder",
-               "ideal": "none"}
+PRETRAINING = {
+    "basic": "none",
+    "classification": "classification",
+    "autoencoder": "autoencoder",
+    "ideal": "none",
+}
 
 
 @dataclass(frozen=True)
@@ -35,9 +39,17 @@ class Preset:
     findings: bool = True  # False: too small to decide any claim (the table says why)
 
 
-SMALL_MODEL = dict(dim=32, embed_layers=2, agg_layers=1, n_heads=2, decoder_hidden=256,
-                   codebook_size=64, pretrain_meshes=1500, pretrain_epochs=8,
-                   pretrain_max_faces=400)
+SMALL_MODEL = dict(
+    dim=32,
+    embed_layers=2,
+    agg_layers=1,
+    n_heads=2,
+    decoder_hidden=256,
+    codebook_size=64,
+    pretrain_meshes=1500,
+    pretrain_epochs=8,
+    pretrain_max_faces=400,
+)
 """CPU-sized models: complex meshes reach ~4000 faces; one aggregator layer (computed for the
 CLS token alone, so linear in the faces), two heads, one thread per job with two jobs at once
 (two threads per job ran 10-50x slower per step whenever other work shared the 2 cores)."""
@@ -51,31 +63,69 @@ cores even if every run reaches the cap, about 3.5 without contention."""
 PRESETS = {
     # For the test suite: every row on a few objects, with models too small to learn much.
     "tiny": Preset(
-        dataset="tiny-v1", workers=0,
-        train=dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32,
-                   codebook_size=16, epochs=2, batch_size=8, pretrain_meshes=20,
-                   pretrain_epochs=1, pretrain_max_faces=100),
-        expected="about a minute on 2 CPU cores", seeds=(0,), findings=False),
+        dataset="tiny-v1",
+        workers=0,
+        train=dict(
+            dim=16,
+            embed_layers=1,
+            agg_layers=1,
+            n_heads=2,
+            decoder_hidden=32,
+            codebook_size=16,
+            epochs=2,
+            batch_size=8,
+            pretrain_meshes=20,
+            pretrain_epochs=1,
+            pretrain_max_faces=100,
+        ),
+        expected="about a minute on 2 CPU cores",
+        seeds=(0,),
+        findings=False,
+    ),
     # The demo's dataset with the CPU models: a quick look, too few test objects for findings.
     "small": Preset(
-        dataset="demo-v1", workers=None, jobs=2,
+        dataset="demo-v1",
+        workers=None,
+        jobs=2,
         train=dict(SMALL_MODEL, **PLATEAU, batch_size=8),
-        expected="about 10 minutes on 2 CPU cores", seeds=(0,), findings=False),
+        expected="about 10 minutes on 2 CPU cores",
+        seeds=(0,),
+        findings=False,
+    ),
     # The CPU benchmark (docs/RESULTS.md): 150 test objects, 3 seeds, paired intervals.
     "cpu": Preset(
-        dataset="cpu-v1", workers=None, jobs=2, train=dict(SMALL_MODEL, **PLATEAU, batch_size=16),
+        dataset="cpu-v1",
+        workers=None,
+        jobs=2,
+        train=dict(SMALL_MODEL, **PLATEAU, batch_size=16),
         expected="estimated at most 8 hours on 2 CPU cores, less where runs plateau before "
-                 "the cap (resumable: rerun to continue)"),
+        "the cap (resumable: rerun to continue)",
+    ),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
-        dataset="paper-v1", workers=None,
-        train=dict(dim=256, embed_layers=5, agg_layers=6, n_heads=8, decoder_hidden=1024,
-                   codebook_size=512, epochs=100, patience=10, batch_size=32, pretrain_meshes=20000,
-                   pretrain_epochs=30, pretrain_max_faces=800, lr=3e-4, pretrain_lr=3e-4),
+        dataset="paper-v1",
+        workers=None,
+        train=dict(
+            dim=256,
+            embed_layers=5,
+            agg_layers=6,
+            n_heads=8,
+            decoder_hidden=1024,
+            codebook_size=512,
+            epochs=100,
+            patience=10,
+            batch_size=32,
+            pretrain_meshes=20000,
+            pretrain_epochs=30,
+            pretrain_max_faces=800,
+            lr=3e-4,
+            pretrain_lr=3e-4,
+        ),
         launcher="torchrun",
         expected="estimated (not measured) 3-4 hours of training and evaluation on one "
-                 "H100-class GPU, divided roughly by N with torchrun on N GPUs; generating and "
-                 "labelling the 300,000 meshes is about 30 CPU-minutes (a Dask cluster)"),
+        "H100-class GPU, divided roughly by N with torchrun on N GPUs; generating and "
+        "labelling the 300,000 meshes is about 30 CPU-minutes (a Dask cluster)",
+    ),
 }
 
 

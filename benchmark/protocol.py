@@ -117,8 +117,10 @@ def check_prediction(out, n: int, target_shape: tuple[int, ...], who: str) -> np
             f"{who}: predict returned {type(out).__name__}, not an array ({why(exc)})"
         ) from None
     if arr.shape != (n, *target_shape) or arr.dtype.kind not in "fiu":
-        raise ModelError(f"{who}: predict returned {arr.dtype}{arr.shape}, expected a real "
-                         f"array of shape {(n, *target_shape)}")
+        raise ModelError(
+            f"{who}: predict returned {arr.dtype}{arr.shape}, expected a real "
+            f"array of shape {(n, *target_shape)}"
+        )
     arr = arr.astype(np.float32)
     if not np.all(np.isfinite(arr)):
         raise ModelError(f"{who}: predict returned non-finite values")
@@ -162,7 +164,7 @@ class NearestScaleModel:
 
     def predict(self, batch: dict) -> np.ndarray:
         d = np.linalg.norm(np.log(batch["scale_m"])[:, None] - self.log_scale[None], axis=-1)
-        nearest = np.argsort(d, axis=1, kind="stable")[:, :self.k]
+        nearest = np.argsort(d, axis=1, kind="stable")[:, : self.k]
         return self.targets[nearest].mean(axis=1, dtype=np.float64).astype(np.float32)
 
 
@@ -170,16 +172,25 @@ class NearestScaleModel:
 def scored_mesh_rows(data: BenchmarkData, ood: bool = True) -> np.ndarray:
     """Global rows of every mesh a predictions file must cover: per test object its regular
     meshes (simple first), then (``ood``) its out-of-distribution meshes."""
-    rows = [np.concatenate([data.meshes_of(o), data.ood_meshes_of(o)]) if ood
-            else data.meshes_of(o) for o in data.test_objects()]
+    rows = [
+        np.concatenate([data.meshes_of(o), data.ood_meshes_of(o)]) if ood else data.meshes_of(o)
+        for o in data.test_objects()
+    ]
     return np.concatenate(rows)
 
 
 class PredictionsWriter:
     """Write a predictions file row block by row block; the file appears only when complete."""
 
-    def __init__(self, path: str | os.PathLike, dataset_fingerprint: str, n_meshes: int,
-                 target_shape: tuple[int, ...], *, label_fingerprint: str):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        dataset_fingerprint: str,
+        n_meshes: int,
+        target_shape: tuple[int, ...],
+        *,
+        label_fingerprint: str,
+    ):
         self.path, self.fingerprint = Path(path), dataset_fingerprint
         self.label_fingerprint = label_fingerprint
         self.n, self.shape, self.filled = n_meshes, tuple(target_shape), 0
@@ -193,19 +204,26 @@ class PredictionsWriter:
         self.file.attrs["dataset_fingerprint"] = self.fingerprint
         self.file.attrs["label_fingerprint"] = self.label_fingerprint
         self.uid = self.file.create_dataset("mesh_uid", (self.n,), np.int64, track_times=False)
-        self.target = self.file.create_dataset("target_db", (self.n, *self.shape), np.float32,
-                                               chunks=(1, *self.shape), track_times=False)
+        self.target = self.file.create_dataset(
+            "target_db",
+            (self.n, *self.shape),
+            np.float32,
+            chunks=(1, *self.shape),
+            track_times=False,
+        )
         return self
 
     def write(self, uids: np.ndarray, target_db: np.ndarray) -> None:
         k, target_db = len(uids), np.asarray(target_db)
         if target_db.shape != (k, *self.shape):
-            raise PredictionsError(f"{self.path}: {k} mesh uids but predictions of shape "
-                                   f"{target_db.shape}, expected {(k, *self.shape)}")
+            raise PredictionsError(
+                f"{self.path}: {k} mesh uids but predictions of shape "
+                f"{target_db.shape}, expected {(k, *self.shape)}"
+            )
         if self.filled + k > self.n:
             raise PredictionsError(f"{self.path}: more than the declared {self.n} rows written")
-        self.uid[self.filled:self.filled + k] = np.asarray(uids, np.int64)
-        self.target[self.filled:self.filled + k] = np.asarray(target_db, np.float32)
+        self.uid[self.filled : self.filled + k] = np.asarray(uids, np.int64)
+        self.target[self.filled : self.filled + k] = np.asarray(target_db, np.float32)
         self.filled += k
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -220,12 +238,23 @@ class PredictionsWriter:
             raise exc
 
 
-def write_predictions(path: str | os.PathLike, dataset_fingerprint: str, mesh_uid: np.ndarray,
-                      target_db: np.ndarray, *, label_fingerprint: str) -> None:
+def write_predictions(
+    path: str | os.PathLike,
+    dataset_fingerprint: str,
+    mesh_uid: np.ndarray,
+    target_db: np.ndarray,
+    *,
+    label_fingerprint: str,
+) -> None:
     """Write a whole predictions file at once (for third parties with arrays in memory)."""
     target_db = np.asarray(target_db)
-    with PredictionsWriter(path, dataset_fingerprint, len(mesh_uid), target_db.shape[1:],
-                           label_fingerprint=label_fingerprint) as w:
+    with PredictionsWriter(
+        path,
+        dataset_fingerprint,
+        len(mesh_uid),
+        target_db.shape[1:],
+        label_fingerprint=label_fingerprint,
+    ) as w:
         w.write(mesh_uid, target_db)
 
 
@@ -255,11 +284,15 @@ class Predictions:
                 f"predictions format version {_attr(f, 'version')} is not {PREDICTIONS_VERSION}"
             )
         if _attr(f, "dataset_fingerprint") != data.fingerprint:
-            self._fail(f"made for dataset {str(_attr(f, 'dataset_fingerprint'))[:64]}, not for "
-                       f"{data.directory} ({data.fingerprint})")
+            self._fail(
+                f"made for dataset {str(_attr(f, 'dataset_fingerprint'))[:64]}, not for "
+                f"{data.directory} ({data.fingerprint})"
+            )
         if _attr(f, "label_fingerprint") != data.label_fingerprint:
-            self._fail(f"made for labels {_attr(f, 'label_fingerprint')}, not for the labels of "
-                       f"{data.directory} ({data.label_fingerprint}): relabelled since?")
+            self._fail(
+                f"made for labels {_attr(f, 'label_fingerprint')}, not for the labels of "
+                f"{data.directory} ({data.label_fingerprint}): relabelled since?"
+            )
         for name in ("mesh_uid", "target_db"):
             if not isinstance(f.get(name), h5py.Dataset):
                 self._fail(f"/{name} is missing or not a plain dataset")
@@ -281,17 +314,23 @@ class Predictions:
         regular = data.meshes["uid"][scored_mesh_rows(data, ood=False)]
         missing = np.setdiff1d(regular, self.sorted_uids)
         if len(missing):
-            self._fail(f"missing {len(missing)} of {len(regular)} test meshes (first mesh_uid "
-                       f"{missing[0]})")
+            self._fail(
+                f"missing {len(missing)} of {len(regular)} test meshes (first mesh_uid "
+                f"{missing[0]})"
+            )
         missing = np.setdiff1d(test, self.sorted_uids)
         if len(missing):
-            self._fail(f"missing {len(missing)} of {len(test) - len(regular)} out-of-distribution "
-                       f"test meshes (variants 900-999, first mesh_uid {missing[0]}); predict "
-                       f"them too (BenchmarkData.ood_meshes_of lists them)")
+            self._fail(
+                f"missing {len(missing)} of {len(test) - len(regular)} out-of-distribution "
+                f"test meshes (variants 900-999, first mesh_uid {missing[0]}); predict "
+                f"them too (BenchmarkData.ood_meshes_of lists them)"
+            )
         extra = np.setdiff1d(self.sorted_uids, test)
         if len(extra):
-            self._fail(f"{len(extra)} rows are not test-split meshes of the dataset "
-                       f"(first mesh_uid {extra[0]})")
+            self._fail(
+                f"{len(extra)} rows are not test-split meshes of the dataset "
+                f"(first mesh_uid {extra[0]})"
+            )
 
     def read(self, uids: np.ndarray) -> np.ndarray:
         """Predictions (len(uids), *target_shape) float32 for these mesh uids, in that order."""
@@ -309,9 +348,11 @@ class Predictions:
         # is linear magnitude |A| (or intensity), the most common unit slip
         linear = (out.reshape(len(out), -1) >= 0).all(axis=1)
         if linear.any():
-            self._fail(f"every predicted value for mesh_uid {uids[np.flatnonzero(linear)[0]]} "
-                       f"is >= 0: these look like linear magnitudes, not dB; store "
-                       f"20*log10(max(|A|, 1e-4)) (docs/BENCHMARK.md)")
+            self._fail(
+                f"every predicted value for mesh_uid {uids[np.flatnonzero(linear)[0]]} "
+                f"is >= 0: these look like linear magnitudes, not dB; store "
+                f"20*log10(max(|A|, 1e-4)) (docs/BENCHMARK.md)"
+            )
         return out
 
     def content_sha256(self, chunk: int = 64) -> str:
@@ -321,7 +362,7 @@ class Predictions:
         h = hashlib.sha256(f"{PREDICTIONS_FORMAT}-{PREDICTIONS_VERSION}".encode())
         h.update(self.sorted_uids.astype("<i8").tobytes())
         for start in range(0, len(self.sorted_uids), chunk):
-            block = self.read(self.sorted_uids[start:start + chunk]) + np.float32(0)  # -0 -> 0
+            block = self.read(self.sorted_uids[start : start + chunk]) + np.float32(0)  # -0 -> 0
             h.update(block.astype("<f4").tobytes())
         return h.hexdigest()
 
@@ -353,9 +394,15 @@ def score(data: BenchmarkData, predictions: Predictions, per_object: bool = Fals
     for obj in data.test_objects():
         rows, ood = data.meshes_of(obj), data.ood_meshes_of(obj)
         pred = predictions.read(data.meshes["uid"][np.concatenate([rows, ood])])
-        scorer.add(data.objects["class_index"][obj], data.target(obj), pred[0],
-                   pred[1:len(rows)], int(data.objects["id"][obj]), ood=pred[len(rows):],
-                   ood_remeshers=[ood_remesher(v) for v in data.meshes["variant"][ood]])
+        scorer.add(
+            data.objects["class_index"][obj],
+            data.target(obj),
+            pred[0],
+            pred[1 : len(rows)],
+            int(data.objects["id"][obj]),
+            ood=pred[len(rows) :],
+            ood_remeshers=[ood_remesher(v) for v in data.meshes["variant"][ood]],
+        )
     metrics = scorer.result()
     po = scorer.per_object()
     metrics["references"] = {n: references.summary(s) for n, s in ref_scorers.items()}
@@ -381,13 +428,26 @@ def score_predictions(data_dir: str | os.PathLike, predictions_path: str | os.Pa
 
 
 # --- results JSON -----------------------------------------------------------------------------
-def make_results(dataset_fingerprint: str, metrics: dict, model: dict, speed: dict,
-                 seeds: dict, *, label_fingerprint: str) -> dict:
+def make_results(
+    dataset_fingerprint: str,
+    metrics: dict,
+    model: dict,
+    speed: dict,
+    seeds: dict,
+    *,
+    label_fingerprint: str,
+) -> dict:
     """A results record (docs/ARCHITECTURE.md, "Results JSON"), validated."""
-    results = {"benchmark_version": __version__, "dataset_fingerprint": dataset_fingerprint,
-               "label_fingerprint": label_fingerprint,
-               "model": model, "metrics": metrics, "speed": speed, "seeds": seeds,
-               "created": utc_timestamp()}
+    results = {
+        "benchmark_version": __version__,
+        "dataset_fingerprint": dataset_fingerprint,
+        "label_fingerprint": label_fingerprint,
+        "model": model,
+        "metrics": metrics,
+        "speed": speed,
+        "seeds": seeds,
+        "created": utc_timestamp(),
+    }
     validate_results(results, "results")
     return results
 

@@ -44,8 +44,9 @@ def _conditional_spread(n: np.ndarray, w: np.ndarray, k: int) -> float:
     function of the azimuth (the side of a cylinder or of an elliptic cone), large when
     the normals cover an area of the sphere (ellipsoid, torus)."""
     u, v = n[:, (k + 1) % 3], n[:, (k + 2) % 3]
-    b = np.minimum(((np.arctan2(v, u) + np.pi) / (2 * np.pi) * AZIMUTH_BINS).astype(int),
-                   AZIMUTH_BINS - 1)
+    b = np.minimum(
+        ((np.arctan2(v, u) + np.pi) / (2 * np.pi) * AZIMUTH_BINS).astype(int), AZIMUTH_BINS - 1
+    )
     wsum = np.bincount(b, w, AZIMUTH_BINS)
     m1 = np.bincount(b, w * n[:, k], AZIMUTH_BINS)
     m2 = np.bincount(b, w * n[:, k] ** 2, AZIMUTH_BINS)
@@ -84,10 +85,15 @@ def normal_descriptor(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     across = ~along & (an.min(axis=1) < AXIS_TOL)
     rest = ~along
     spread = min(_conditional_spread(n[rest], w[rest], k) for k in range(3)) if rest.any() else 0.0
-    hist = [np.histogram(an[:, k], bins=HIST_BINS, range=(0, 1 + 1e-9), weights=w)[0]
-            for k in range(3)]
-    return np.concatenate([[w[along].sum(), w[across].sum(), min(4 * spread, 0.5), 3 * inward],
-                           0.1 * np.concatenate(hist)])
+    hist = [
+        np.histogram(an[:, k], bins=HIST_BINS, range=(0, 1 + 1e-9), weights=w)[0] for k in range(3)
+    ]
+    return np.concatenate(
+        [
+            [w[along].sum(), w[across].sum(), min(4 * spread, 0.5), 3 * inward],
+            0.1 * np.concatenate(hist),
+        ]
+    )
 
 
 class MeshClassifier:
@@ -137,8 +143,11 @@ class References:
     def nearest(self, obj: int, class_index: int | None = None) -> np.ndarray:
         """The ``K_NEAREST`` training objects nearest to test object ``obj`` in log scale (of a
         class, if given; ties broken by row order)."""
-        pool = np.arange(len(self.train)) if class_index is None else \
-            np.flatnonzero(self.train_class == class_index)
+        pool = (
+            np.arange(len(self.train))
+            if class_index is None
+            else np.flatnonzero(self.train_class == class_index)
+        )
         if not len(pool):
             pool = np.arange(len(self.train))
         x = np.log(self.data.objects["scale"][obj].astype(np.float64))
@@ -158,10 +167,12 @@ class References:
         inferred = [self.classifier.predict(*self.data.mesh(int(r))) for r in rows]
         class_nn = {k: self._mean_target(self.nearest(obj, k)) for k in set(inferred)}
         shape = (n, *self.mean.shape)
-        return {"train-mean": np.broadcast_to(self.mean, shape),
-                "class-mean": np.broadcast_to(self.class_mean.get(c, self.mean), shape),
-                "nearest-scale": np.broadcast_to(scale_nn, (n, *scale_nn.shape)),
-                "class-scale-nn": np.stack([class_nn[k] for k in inferred])}
+        return {
+            "train-mean": np.broadcast_to(self.mean, shape),
+            "class-mean": np.broadcast_to(self.class_mean.get(c, self.mean), shape),
+            "nearest-scale": np.broadcast_to(scale_nn, (n, *scale_nn.shape)),
+            "class-scale-nn": np.stack([class_nn[k] for k in inferred]),
+        }
 
     def score(self) -> dict[str, Scorer]:
         """A filled ``Scorer`` per reference, over the test split."""
@@ -173,8 +184,9 @@ class References:
             ood = self.data.ood_meshes_of(int(obj))
             remeshers = [ood_remesher(v) for v in self.data.meshes["variant"][ood]]
             for name, pred in self.predictions(int(obj)).items():
-                scorers[name].add(c, target, pred[0], pred[1:n], oid, ood=pred[n:],
-                                  ood_remeshers=remeshers)
+                scorers[name].add(
+                    c, target, pred[0], pred[1:n], oid, ood=pred[n:], ood_remeshers=remeshers
+                )
         return scorers
 
 
@@ -194,9 +206,11 @@ def summary(scorer: Scorer) -> dict:
     """A reference's row: the metrics with intervals (OOD ones included, also per remesher)
     and its no-skill flag, overall only."""
     po = scorer.per_object()
-    return {**metric_block(po, po["class_index"]),
-            "no_skill": skill_test(po, po["class_index"])["no_skill"],
-            "per_remesher": per_remesher(po, po["class_index"])}
+    return {
+        **metric_block(po, po["class_index"]),
+        "no_skill": skill_test(po, po["class_index"])["no_skill"],
+        "per_remesher": per_remesher(po, po["class_index"]),
+    }
 
 
 def strongest(rows: dict[str, dict]) -> str:
@@ -217,8 +231,11 @@ def compare(model_po: dict, ref_po: dict) -> dict:
         if p is None:
             continue
         ref = float(np.nanmean(ref_po[m]))
-        out[m] = {**p, "skill": 1.0 - float(np.nanmean(model_po[m])) / ref if ref > 0 else None,
-                  "verdict": verdict(p["ci"])}
+        out[m] = {
+            **p,
+            "skill": 1.0 - float(np.nanmean(model_po[m])) / ref if ref > 0 else None,
+            "verdict": verdict(p["ci"]),
+        }
     return out
 
 
@@ -228,8 +245,12 @@ def skill(model_po: dict, scorers: dict[str, Scorer], rows: dict[str, dict]) -> 
     vs_best = compare(model_po, scorers[best].per_object())
     vs_class = compare(model_po, scorers["class-mean"].per_object())
     key = "complex_mse" if "complex_mse" in vs_class else "simple_mse"
-    return {"reference": best, "vs_reference": vs_best, "vs_class_mean": vs_class,
-            "explained_by_class": vs_class[key]["verdict"] != "holds"}
+    return {
+        "reference": best,
+        "vs_reference": vs_best,
+        "vs_class_mean": vs_class,
+        "explained_by_class": vs_class[key]["verdict"] != "holds",
+    }
 
 
 def hidden_parameters(data: BenchmarkData) -> tuple[list[str], np.ndarray]:
@@ -239,8 +260,9 @@ def hidden_parameters(data: BenchmarkData) -> tuple[list[str], np.ndarray]:
     for s, r in zip(data.objects["shard"], data.objects["row"]):
         shard = data._shard(int(s))
         raw = shard.file["objects/params"][int(r)] if "objects/params" in shard.file else b"{}"
-        params.append(load_json(raw, what=f"{shard.path}: /objects/params[{int(r)}]",
-                                error=ShardError))
+        params.append(
+            load_json(raw, what=f"{shard.path}: /objects/params[{int(r)}]", error=ShardError)
+        )
     keys = sorted({k for p in params for k in p})
     values = np.array([[p.get(k, 0.0) for k in keys] for p in params], np.float64)
     return keys, values.reshape(len(params), len(keys))
@@ -277,9 +299,15 @@ class OracleReference:
             n = len(data.meshes_of(int(obj)))
             ood = data.ood_meshes_of(int(obj))
             c, oid = int(data.objects["class_index"][obj]), int(data.objects["id"][obj])
-            scorer.add(c, data.target(int(obj)), pred, np.broadcast_to(pred, (n - 1, *pred.shape)),
-                       oid, ood=np.broadcast_to(pred, (len(ood), *pred.shape)),
-                       ood_remeshers=[ood_remesher(v) for v in data.meshes["variant"][ood]])
+            scorer.add(
+                c,
+                data.target(int(obj)),
+                pred,
+                np.broadcast_to(pred, (n - 1, *pred.shape)),
+                oid,
+                ood=np.broadcast_to(pred, (len(ood), *pred.shape)),
+                ood_remeshers=[ood_remesher(v) for v in data.meshes["variant"][ood]],
+            )
         return scorer
 
 
@@ -293,6 +321,8 @@ def oracle_row(data: BenchmarkData, scorers: dict[str, Scorer]) -> dict | None:
         return None
     oracle = OracleReference(References(data))
     scorer = oracle.score()
-    return {**summary(scorer), "hidden": oracle.keys,
-            "vs_class_scale_nn": compare(scorer.per_object(),
-                                         scorers["class-scale-nn"].per_object())}
+    return {
+        **summary(scorer),
+        "hidden": oracle.keys,
+        "vs_class_scale_nn": compare(scorer.per_object(), scorers["class-scale-nn"].per_object()),
+    }

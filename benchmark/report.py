@@ -36,8 +36,11 @@ def reference_rows(data) -> tuple[dict, dict, dict | None]:
     from benchmark import references
 
     _, scorers = references.reference_scores(data)
-    return (scorers, {n: references.summary(sc) for n, sc in scorers.items()},
-            references.oracle_row(data, scorers))
+    return (
+        scorers,
+        {n: references.summary(sc) for n, sc in scorers.items()},
+        references.oracle_row(data, scorers),
+    )
 
 
 def dataset_info(data, directory) -> dict:
@@ -63,8 +66,10 @@ def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
 
     results_dir = out / "results"
     if not results_dir.is_dir():
-        raise ReportError(f"{results_dir}: no such directory (expected the results/ folder "
-                          f"of a `benchmark reproduce --out`)")
+        raise ReportError(
+            f"{results_dir}: no such directory (expected the results/ folder "
+            f"of a `benchmark reproduce --out`)"
+        )
     records: dict[str, dict[int, dict]] = {}
     for embedding, regime in ROWS:
         name = f"{embedding}-{regime}"
@@ -74,19 +79,28 @@ def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
                 continue
             results = load_results(path)
             if (results["model"]["name"], results["seeds"].get("train")) != (name, seed):
-                raise ReportError(f"{path}: holds the results of {results['model']['name']} "
-                                  f"seed {results['seeds'].get('train')}, not {name} seed {seed}")
-            if (results["dataset_fingerprint"], results["label_fingerprint"]) \
-                    != (data.fingerprint, data.label_fingerprint):
-                raise ReportError(f"{path}: scored on another dataset or other labels than "
-                                  f"{data.directory} (fingerprints differ)")
+                raise ReportError(
+                    f"{path}: holds the results of {results['model']['name']} "
+                    f"seed {results['seeds'].get('train')}, not {name} seed {seed}"
+                )
+            if (results["dataset_fingerprint"], results["label_fingerprint"]) != (
+                data.fingerprint,
+                data.label_fingerprint,
+            ):
+                raise ReportError(
+                    f"{path}: scored on another dataset or other labels than "
+                    f"{data.directory} (fingerprints differ)"
+                )
             if "per_object" not in results:
                 raise ReportError(f"{path}: no per_object errors (made by an older harness)")
             records.setdefault(name, {})[seed] = {
-                "results": results, "train_seconds": _train_seconds(out, name, seed, preset_name)}
+                "results": results,
+                "train_seconds": _train_seconds(out, name, seed, preset_name),
+            }
     if not records:
-        raise ReportError(f"{results_dir}: no results.json of any row for seeds "
-                          f"{','.join(map(str, seeds))}")
+        raise ReportError(
+            f"{results_dir}: no results.json of any row for seeds {','.join(map(str, seeds))}"
+        )
     return records
 
 
@@ -100,17 +114,26 @@ def _train_seconds(out: Path, name: str, seed: int, preset_name: str) -> float |
     wrong = [(k, v) for k, v in PRESETS[preset_name].train.items() if trained.get(k) != v]
     if wrong:  # results of another preset would be tabled (and decided) as this one's
         key, want = wrong[0]
-        raise ReportError(f"{path}: trained with {key}={trained.get(key)!r}, not the "
-                          f"{preset_name} preset's {want!r}; is --preset right?")
+        raise ReportError(
+            f"{path}: trained with {key}={trained.get(key)!r}, not the "
+            f"{preset_name} preset's {want!r}; is --preset right?"
+        )
     value = config.get("train_seconds")
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0:
         raise ReportError(f"{path}: train_seconds must be a number >= 0, got {value!r}")
     return value
 
 
-def build_table(preset_name: str, seeds: list[int], records: dict, dataset: dict,
-                ref_scorers: dict, ref_rows: dict, provenance: dict,
-                oracle: dict | None = None) -> dict:
+def build_table(
+    preset_name: str,
+    seeds: list[int],
+    records: dict,
+    dataset: dict,
+    ref_scorers: dict,
+    ref_rows: dict,
+    provenance: dict,
+    oracle: dict | None = None,
+) -> dict:
     """table.json: the rows of ``records``, the references (and the oracle of a dataset with
     hidden shape parameters, ``reference_rows``) and (presets large enough to decide them) the
     findings. ``dataset``: fingerprint and description; ``provenance``: command, hardware,
@@ -120,10 +143,17 @@ def build_table(preset_name: str, seeds: list[int], records: dict, dataset: dict
 
     preset = PRESETS[preset_name]
     rows = table_rows(records, ref_scorers, ref_rows)
-    table = {"preset": preset_name, **provenance, "preset_config": asdict(preset),
-             "dataset": dataset, "seeds": seeds,
-             "references": ref_rows, "strongest_reference": references.strongest(ref_rows),
-             "rows": rows, "findings": findings(rows) if preset.findings else []}
+    table = {
+        "preset": preset_name,
+        **provenance,
+        "preset_config": asdict(preset),
+        "dataset": dataset,
+        "seeds": seeds,
+        "references": ref_rows,
+        "strongest_reference": references.strongest(ref_rows),
+        "rows": rows,
+        "findings": findings(rows) if preset.findings else [],
+    }
     if oracle is not None:
         table["oracle"] = oracle
     if not preset.findings:
@@ -146,17 +176,21 @@ def _mean_per_object(seed_results: list[dict]) -> dict:
         if r["per_object"]["object_id"] != first["object_id"]:
             raise ValueError("seeds of a row were scored on different test objects")
     out = {"object_id": np.array(first["object_id"]), "class_index": np.array(first["class_index"])}
-    keys = METRICS + (ood_keys() if all("ood_complex_mse" in r["per_object"]
-                                        for r in seed_results) else ())
+    keys = METRICS + (
+        ood_keys() if all("ood_complex_mse" in r["per_object"] for r in seed_results) else ()
+    )
     for m in keys:
-        arr = np.array([[np.nan if x is None else x for x in r["per_object"][m]]
-                        for r in seed_results], np.float64)
+        arr = np.array(
+            [[np.nan if x is None else x for x in r["per_object"][m]] for r in seed_results],
+            np.float64,
+        )
         out[m] = arr.mean(axis=0)
     return out
 
 
-def table_rows(records: dict, ref_scorers: dict | None = None,
-               ref_rows: dict | None = None) -> list[dict]:
+def table_rows(
+    records: dict, ref_scorers: dict | None = None, ref_rows: dict | None = None
+) -> list[dict]:
     """One row per (embedding, regime) with every finished seed: mean ± std across seeds,
     the interval of the seed-mean, per class and (OOD metrics) per remesher, no-skill votes
     and skill vs the references."""
@@ -164,7 +198,7 @@ def table_rows(records: dict, ref_scorers: dict | None = None,
     from benchmark.metrics import metric_block, per_remesher
 
     rows = []
-    for (embedding, regime) in ROWS:
+    for embedding, regime in ROWS:
         name = f"{embedding}-{regime}"
         seeds = sorted(records.get(name, {}))
         if not seeds:
@@ -174,29 +208,45 @@ def table_rows(records: dict, ref_scorers: dict | None = None,
         po = _mean_per_object(res)
         block = metric_block(po, po["class_index"])
         cols = METRICS + OOD_METRICS
-        row = {"name": name, "embedding": embedding, "regime": regime,
-               "pretraining": PRETRAINING[regime],
-               "training_meshes": "all" if regime == "ideal" else "simple", "seeds": seeds,
-               **{k: block.get(k) for k in cols}, **{k + "_ci": block.get(k + "_ci") for k in cols},
-               **{k + "_std": _std([r["metrics"].get(k) for r in res]) for k in cols},
-               "per_remesher": per_remesher(po, po["class_index"]),
-               "per_seed": {str(s): {**{k: r["metrics"].get(k) for k in cols},
-                                     "no_skill": r["metrics"]["no_skill"]}
-                            for s, r in zip(seeds, res)},
-               "no_skill_seeds": sum(bool(r["metrics"]["no_skill"]) for r in res),
-               "params": res[0]["model"]["params"], "ms_per_mesh": res[0]["speed"]["ms_per_mesh"],
-               "speed": res[0]["speed"],
-               "train_seconds": _mean([r.get("train_seconds") for r in recs]),
-               "per_class": {}, "per_object": {k: [None if np.isnan(x) else float(x) for x in v]
-                                               if v.dtype.kind == "f" else v.tolist()
-                                               for k, v in po.items()}}
+        row = {
+            "name": name,
+            "embedding": embedding,
+            "regime": regime,
+            "pretraining": PRETRAINING[regime],
+            "training_meshes": "all" if regime == "ideal" else "simple",
+            "seeds": seeds,
+            **{k: block.get(k) for k in cols},
+            **{k + "_ci": block.get(k + "_ci") for k in cols},
+            **{k + "_std": _std([r["metrics"].get(k) for r in res]) for k in cols},
+            "per_remesher": per_remesher(po, po["class_index"]),
+            "per_seed": {
+                str(s): {
+                    **{k: r["metrics"].get(k) for k in cols},
+                    "no_skill": r["metrics"]["no_skill"],
+                }
+                for s, r in zip(seeds, res)
+            },
+            "no_skill_seeds": sum(bool(r["metrics"]["no_skill"]) for r in res),
+            "params": res[0]["model"]["params"],
+            "ms_per_mesh": res[0]["speed"]["ms_per_mesh"],
+            "speed": res[0]["speed"],
+            "train_seconds": _mean([r.get("train_seconds") for r in recs]),
+            "per_class": {},
+            "per_object": {
+                k: [None if np.isnan(x) else float(x) for x in v]
+                if v.dtype.kind == "f"
+                else v.tolist()
+                for k, v in po.items()
+            },
+        }
         row["no_skill"] = row["no_skill_seeds"] * 2 > len(seeds)
         names = res[0]["metrics"]["per_class"]
         for c, cname in enumerate(names):
             sel = po["class_index"] == c
             if sel.any():
-                row["per_class"][cname] = metric_block({k: v[sel] for k, v in po.items()},
-                                                       po["class_index"][sel])
+                row["per_class"][cname] = metric_block(
+                    {k: v[sel] for k, v in po.items()}, po["class_index"][sel]
+                )
         if ref_scorers is not None:
             row["skill"] = references.skill(po, ref_scorers, ref_rows)
         rows.append(row)
@@ -215,9 +265,10 @@ def _mean(values: list) -> float | None:
 
 def _per_object(row: dict) -> dict:
     po = row["per_object"]
-    return {"class_index": np.array(po["class_index"]),
-            **{m: np.array([np.nan if x is None else x for x in po[m]], np.float64)
-               for m in METRICS}}
+    return {
+        "class_index": np.array(po["class_index"]),
+        **{m: np.array([np.nan if x is None else x for x in po[m]], np.float64) for m in METRICS},
+    }
 
 
 def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
@@ -234,11 +285,20 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
             p = paired(pa[m], pb[m], pa["class_index"])
             if p is None:
                 continue
-            comps.append({"better": "-".join(a), "than": "-".join(b), "metric": m,
-                          "diff": p["diff"], "ci": p["ci"], "half_width": p["half_width"],
-                          "verdict": verdict(p["ci"])})
-    counts = {v: sum(c["verdict"] == v for c in comps)
-              for v in ("holds", "reversed", "inconclusive")}
+            comps.append(
+                {
+                    "better": "-".join(a),
+                    "than": "-".join(b),
+                    "metric": m,
+                    "diff": p["diff"],
+                    "ci": p["ci"],
+                    "half_width": p["half_width"],
+                    "verdict": verdict(p["ci"]),
+                }
+            )
+    counts = {
+        v: sum(c["verdict"] == v for c in comps) for v in ("holds", "reversed", "inconclusive")
+    }
     if not comps:
         overall = None
     elif counts["holds"] == len(comps):
@@ -247,8 +307,13 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
         overall = "reversed"
     else:
         overall = "inconclusive"
-    return {"verdict": overall, **counts, "of": len(comps), "comparisons": comps,
-            "max_half_width": max((c["half_width"] for c in comps), default=None)}
+    return {
+        "verdict": overall,
+        **counts,
+        "of": len(comps),
+        "comparisons": comps,
+        "max_half_width": max((c["half_width"] for c in comps), default=None),
+    }
 
 
 def findings(rows: list[dict]) -> list[dict]:
@@ -257,19 +322,44 @@ def findings(rows: list[dict]) -> list[dict]:
     by = {(r["embedding"], r["regime"]): r for r in rows}
     pre = ("basic", "classification", "autoencoder")
     out = [
-        {"claim": "graph and token embeddings beat direct (same pretraining, all three metrics)",
-         **_decide([((e, r), ("direct", r)) for e in ("graph", "token") for r in pre], by,
-                   METRICS)},
-        {"claim": "autoencoder pretraining beats classification pretraining and none "
-                  "(same embedding, all three metrics)",
-         **_decide([((e, "autoencoder"), (e, r)) for e in EMBEDDINGS
-                    for r in ("classification", "basic")], by, METRICS)},
-        {"claim": "graph + autoencoder is best of the non-Ideal paper rows on all three metrics",
-         **_decide([(("graph", "autoencoder"), (e, r)) for e in EMBEDDINGS for r in pre
-                    if (e, r) != ("graph", "autoencoder")], by, METRICS)},
-        {"claim": "every non-Ideal model falls short of its Ideal model on Variation MSE",
-         **_decide([((e, "ideal"), (e, r)) for e in EMBEDDINGS for r in pre], by,
-                   ("variation_mse",))},
+        {
+            "claim": "graph and token embeddings beat direct (same pretraining, all three metrics)",
+            **_decide(
+                [((e, r), ("direct", r)) for e in ("graph", "token") for r in pre], by, METRICS
+            ),
+        },
+        {
+            "claim": "autoencoder pretraining beats classification pretraining and none "
+            "(same embedding, all three metrics)",
+            **_decide(
+                [
+                    ((e, "autoencoder"), (e, r))
+                    for e in EMBEDDINGS
+                    for r in ("classification", "basic")
+                ],
+                by,
+                METRICS,
+            ),
+        },
+        {
+            "claim": "graph + autoencoder is best of the non-Ideal paper rows on all three metrics",
+            **_decide(
+                [
+                    (("graph", "autoencoder"), (e, r))
+                    for e in EMBEDDINGS
+                    for r in pre
+                    if (e, r) != ("graph", "autoencoder")
+                ],
+                by,
+                METRICS,
+            ),
+        },
+        {
+            "claim": "every non-Ideal model falls short of its Ideal model on Variation MSE",
+            **_decide(
+                [((e, "ideal"), (e, r)) for e in EMBEDDINGS for r in pre], by, ("variation_mse",)
+            ),
+        },
     ]
     return out
 
@@ -286,8 +376,10 @@ def _cell(mean, std, ci, digits: int = 1) -> str:
     return text + (f" [{_num(ci[0], digits)}, {_num(ci[1], digits)}]" if ci else "")
 
 
-NO_FINDINGS = ("No findings: this preset is a smoke test (a few test objects, one seed, models "
-               "too small to learn); its differences are noise and decide nothing.")
+NO_FINDINGS = (
+    "No findings: this preset is a smoke test (a few test objects, one seed, models "
+    "too small to learn); its differences are noise and decide nothing."
+)
 
 
 def _digits(metric: str) -> int:
@@ -297,8 +389,10 @@ def _digits(metric: str) -> int:
 def _metric_cells(r: dict, dagger: str, seeds: bool = True) -> str:
     """The five metric cells of a row (the no-skill dagger after Variation MSE); a record
     made before OOD scoring shows "-" for the OOD ones."""
-    cells = [_cell(r.get(k), r.get(k + "_std") if seeds else None, r.get(k + "_ci"),
-                   _digits(k)) for k in METRICS + OOD_METRICS]
+    cells = [
+        _cell(r.get(k), r.get(k + "_std") if seeds else None, r.get(k + "_ci"), _digits(k))
+        for k in METRICS + OOD_METRICS
+    ]
     cells[2] += dagger
     return " | ".join(cells)
 
@@ -308,23 +402,37 @@ def remesher_table(rows: list[dict], references: dict) -> list[str]:
     row (none when no row has OOD meshes)."""
     from basic_shapes.shards import OOD_REMESHERS
 
-    rows = [{**r, "embedding": f"reference: {n}", "pretraining": "-", "training_meshes": "-"}
-            for n, r in references.items()] + rows
+    rows = [
+        {**r, "embedding": f"reference: {n}", "pretraining": "-", "training_meshes": "-"}
+        for n, r in references.items()
+    ] + rows
     names = [n for n in OOD_REMESHERS if any(n in r.get("per_remesher", {}) for r in rows)]
     if not names:
         return []
-    lines = ["", "### Out-of-distribution meshes per remesher", "",
-             "OOD Complex / OOD Variation MSE (dB²) on each remesher's meshes, mean over seeds "
-             "[95% interval of the seed-mean].", "",
-             "| Embedding | Pretraining | Training meshes | "
-             + " | ".join(f"{n} Complex | {n} Variation" for n in names) + " |",
-             "|---|---|---|" + "---:|---:|" * len(names)]
+    lines = [
+        "",
+        "### Out-of-distribution meshes per remesher",
+        "",
+        "OOD Complex / OOD Variation MSE (dB²) on each remesher's meshes, mean over seeds "
+        "[95% interval of the seed-mean].",
+        "",
+        "| Embedding | Pretraining | Training meshes | "
+        + " | ".join(f"{n} Complex | {n} Variation" for n in names)
+        + " |",
+        "|---|---|---|" + "---:|---:|" * len(names),
+    ]
     for r in rows:
         pr = r.get("per_remesher", {})
-        cells = [_cell(pr.get(n, {}).get(k), None, pr.get(n, {}).get(k + "_ci"), _digits(k))
-                 for n in names for k in OOD_METRICS]
-        lines.append(f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
-                     + " | ".join(cells) + " |")
+        cells = [
+            _cell(pr.get(n, {}).get(k), None, pr.get(n, {}).get(k + "_ci"), _digits(k))
+            for n in names
+            for k in OOD_METRICS
+        ]
+        lines.append(
+            f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
+            + " | ".join(cells)
+            + " |"
+        )
     return lines
 
 
@@ -336,17 +444,23 @@ def oracle_lines(oracle: dict | None) -> list[str]:
     from benchmark.references import K_NEAREST
 
     known = ", ".join(f"`{k}`" for k in oracle["hidden"])
-    lines = ["", f"Oracle (not a model: told the hidden shape parameters {known}): the mean "
-             f"target of the {K_NEAREST} training objects of the class nearest in (log scale, "
-             f"{known}), each divided by its training spread. Its gap to `class-scale-nn` is what "
-             f"a neighbour search gains from the hidden parameters; a model that reads the mesh "
-             f"can gain more (it interpolates the scale better).", "",
-             "| | Simple MSE | Complex MSE | Variation MSE | OOD Complex | OOD Variation |",
-             "|---|---:|---:|---:|---:|---:|",
-             "| oracle | " + _metric_cells(oracle, "", seeds=False) + " |"]
+    lines = [
+        "",
+        f"Oracle (not a model: told the hidden shape parameters {known}): the mean "
+        f"target of the {K_NEAREST} training objects of the class nearest in (log scale, "
+        f"{known}), each divided by its training spread. Its gap to `class-scale-nn` is what "
+        f"a neighbour search gains from the hidden parameters; a model that reads the mesh "
+        f"can gain more (it interpolates the scale better).",
+        "",
+        "| | Simple MSE | Complex MSE | Variation MSE | OOD Complex | OOD Variation |",
+        "|---|---:|---:|---:|---:|---:|",
+        "| oracle | " + _metric_cells(oracle, "", seeds=False) + " |",
+    ]
     for m, p in oracle["vs_class_scale_nn"].items():
-        lines.append(f"| oracle - class-scale-nn, {m.replace('_', ' ')} | Δ {p['diff']:+.1f} "
-                     f"[{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]: {p['verdict']} | | | | |")
+        lines.append(
+            f"| oracle - class-scale-nn, {m.replace('_', ' ')} | Δ {p['diff']:+.1f} "
+            f"[{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]: {p['verdict']} | | | | |"
+        )
     return lines
 
 
@@ -354,56 +468,71 @@ def _provenance(table: dict) -> str:
     """Where the rows come from: the invocation that trained them, or ``benchmark report``."""
     t = table["timing"]
     if t is None:
-        return ("Rebuilt by `benchmark report` from the per-seed results (nothing trained or "
-                "predicted). ms / mesh: `predict` over the test split (first seed) as its "
-                "results record it; each row's `speed.hardware` in table.json names the machine "
-                "and whether it was timed alone. Train s: from the checkpoints' config.json "
-                "where they were kept.")
-    return (f"Hardware: {table['hardware']}; this invocation took "
-            f"{t['total_s'] / 60:.1f} min, {t['rows_trained']} (row, seed) runs "
-            f"trained and {t['rows_reused']} reused from an earlier run "
-            f"(generate {_num(t.get('generate_s'))} s, label "
-            f"{_num(t.get('label_s'))} s, rows + timing "
-            f"{_num(t['rows_s'])} s, {t['jobs']} job(s) x "
-            f"{t['threads_per_job']} thread(s)). ms / mesh: `predict` (first seed) timed with no "
-            f"other job of this run on the CPU, on a sample of the test meshes stratified by "
-            f"face count (its size is in each row's `speed.hardware` in table.json).")
+        return (
+            "Rebuilt by `benchmark report` from the per-seed results (nothing trained or "
+            "predicted). ms / mesh: `predict` over the test split (first seed) as its "
+            "results record it; each row's `speed.hardware` in table.json names the machine "
+            "and whether it was timed alone. Train s: from the checkpoints' config.json "
+            "where they were kept."
+        )
+    return (
+        f"Hardware: {table['hardware']}; this invocation took "
+        f"{t['total_s'] / 60:.1f} min, {t['rows_trained']} (row, seed) runs "
+        f"trained and {t['rows_reused']} reused from an earlier run "
+        f"(generate {_num(t.get('generate_s'))} s, label "
+        f"{_num(t.get('label_s'))} s, rows + timing "
+        f"{_num(t['rows_s'])} s, {t['jobs']} job(s) x "
+        f"{t['threads_per_job']} thread(s)). ms / mesh: `predict` (first seed) timed with no "
+        f"other job of this run on the CPU, on a sample of the test meshes stratified by "
+        f"face count (its size is in each row's `speed.hardware` in table.json)."
+    )
 
 
 def render_markdown(table: dict) -> str:
-    lines = [f"# Basic Shapes reproduction: preset `{table['preset']}`", "",
-             f"Command: `{table['command']}`", "",
-             f"Dataset: version `{table['dataset'].get('version') or 'unregistered'}`, "
-             f"{table['dataset']['description']}  ",
-             f"fingerprint `{table['dataset']['fingerprint']}`  ",
-             _provenance(table), "",
-             f"MSE in dB² on T = 20 log10 max(|profile|, 1e-4), predictions clipped at the same "
-             f"-80 dB floor. Model rows: mean ± std across the training seeds "
-             f"{table['seeds']} [95% interval of the seed-mean: bootstrap over test objects, "
-             f"stratified by class]. `†` marks no skill (not better than the training mean by a "
-             f"paired 95% interval, in most seeds). Skill: 1 - Complex MSE / Complex MSE of the "
-             f"strongest reference; Δ: the paired difference to it with its 95% interval.", "",
-             "OOD Complex / OOD Variation: Complex / Variation MSE on the test objects' "
-             "out-of-distribution meshes (remeshers no training mesh comes from; per remesher "
-             "below).", "",
-             "| Embedding | Pretraining | Training meshes | Simple MSE | Complex MSE | "
-             "Variation MSE | OOD Complex | OOD Variation | Skill | Δ Complex vs ref | Params | "
-             "ms / mesh | Train s |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"# Basic Shapes reproduction: preset `{table['preset']}`",
+        "",
+        f"Command: `{table['command']}`",
+        "",
+        f"Dataset: version `{table['dataset'].get('version') or 'unregistered'}`, "
+        f"{table['dataset']['description']}  ",
+        f"fingerprint `{table['dataset']['fingerprint']}`  ",
+        _provenance(table),
+        "",
+        f"MSE in dB² on T = 20 log10 max(|profile|, 1e-4), predictions clipped at the same "
+        f"-80 dB floor. Model rows: mean ± std across the training seeds "
+        f"{table['seeds']} [95% interval of the seed-mean: bootstrap over test objects, "
+        f"stratified by class]. `†` marks no skill (not better than the training mean by a "
+        f"paired 95% interval, in most seeds). Skill: 1 - Complex MSE / Complex MSE of the "
+        f"strongest reference; Δ: the paired difference to it with its 95% interval.",
+        "",
+        "OOD Complex / OOD Variation: Complex / Variation MSE on the test objects' "
+        "out-of-distribution meshes (remeshers no training mesh comes from; per remesher "
+        "below).",
+        "",
+        "| Embedding | Pretraining | Training meshes | Simple MSE | Complex MSE | "
+        "Variation MSE | OOD Complex | OOD Variation | Skill | Δ Complex vs ref | Params | "
+        "ms / mesh | Train s |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for name, r in table["references"].items():
-        lines.append(f"| reference: {name} | - | - | "
-                     + _metric_cells(r, " †" if r["no_skill"] else "", seeds=False)
-                     + " | - | - | 0 | - | - |")
+        lines.append(
+            f"| reference: {name} | - | - | "
+            + _metric_cells(r, " †" if r["no_skill"] else "", seeds=False)
+            + " | - | - | 0 | - | - |"
+        )
     for r in table["rows"]:
         sk = (r.get("skill") or {}).get("vs_reference", {})
         key = "complex_mse" if "complex_mse" in sk else "simple_mse"
         v = sk.get(key)
         skill = "-" if v is None or v["skill"] is None else f"{v['skill']:+.2f}"
         delta = "-" if v is None else f"{v['diff']:+.1f} [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]"
-        lines.append(f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
-                     + _metric_cells(r, " †" if r["no_skill"] else "")
-                     + f" | {skill} | {delta} | {r['params']:,} | "
-                     f"{_num(r['ms_per_mesh'], 2)} | {_num(r['train_seconds'], 0)} |")
+        lines.append(
+            f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
+            + _metric_cells(r, " †" if r["no_skill"] else "")
+            + f" | {skill} | {delta} | {r['params']:,} | "
+            f"{_num(r['ms_per_mesh'], 2)} | {_num(r['train_seconds'], 0)} |"
+        )
     strongest = table.get("strongest_reference")
     if strongest:
         lines += ["", f"Strongest reference: `{strongest}` (lowest Complex MSE)."]
@@ -414,14 +543,21 @@ def render_markdown(table: dict) -> str:
         lines.append(table.get("no_findings", NO_FINDINGS))
     for f in table["findings"]:
         mark = f["verdict"] or "not tested (rows missing)"
-        hw = "" if f["max_half_width"] is None else \
-            f"; largest paired 95% half-width {f['max_half_width']:.2f} dB²"
-        lines.append(f"- {f['claim']}: **{mark}** ({f['holds']} hold, {f['reversed']} reversed, "
-                     f"{f['inconclusive']} inconclusive of {f['of']}{hw})")
+        hw = (
+            ""
+            if f["max_half_width"] is None
+            else f"; largest paired 95% half-width {f['max_half_width']:.2f} dB²"
+        )
+        lines.append(
+            f"- {f['claim']}: **{mark}** ({f['holds']} hold, {f['reversed']} reversed, "
+            f"{f['inconclusive']} inconclusive of {f['of']}{hw})"
+        )
         for c in f["comparisons"]:
-            lines.append(f"  - {c['better']} < {c['than']} on {c['metric']}: Δ {c['diff']:+.2f} "
-                         f"[{c['ci'][0]:+.2f}, {c['ci'][1]:+.2f}] (±{c['half_width']:.2f}): "
-                         f"{c['verdict']}")
+            lines.append(
+                f"  - {c['better']} < {c['than']} on {c['metric']}: Δ {c['diff']:+.2f} "
+                f"[{c['ci'][0]:+.2f}, {c['ci'][1]:+.2f}] (±{c['half_width']:.2f}): "
+                f"{c['verdict']}"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -431,14 +567,26 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
     from benchmark import plotting
 
     markers = {"basic": "o", "classification": "s", "autoencoder": "^", "ideal": "*"}
-    points = [plotting.Point(r["ms_per_mesh"], r["complex_mse"], r["name"],
-                             ci=r.get("complex_mse_ci"), colour=REGISTRY[r["embedding"]].colour,
-                             marker=markers[r["regime"]],
-                             size=80 if r["regime"] == "ideal" else 45, hollow=r["no_skill"])
-              for r in rows if r["ms_per_mesh"] is not None and r["complex_mse"] is not None]
+    points = [
+        plotting.Point(
+            r["ms_per_mesh"],
+            r["complex_mse"],
+            r["name"],
+            ci=r.get("complex_mse_ci"),
+            colour=REGISTRY[r["embedding"]].colour,
+            marker=markers[r["regime"]],
+            size=80 if r["regime"] == "ideal" else 45,
+            hollow=r["no_skill"],
+        )
+        for r in rows
+        if r["ms_per_mesh"] is not None and r["complex_mse"] is not None
+    ]
     fig = plotting.speed_vs_error(
-        points, {k: v.get("complex_mse") for k, v in (references or {}).items()}, title=title,
-        xlabel="ms per mesh (inference, including featurization; log scale)")
+        points,
+        {k: v.get("complex_mse") for k, v in (references or {}).items()},
+        title=title,
+        xlabel="ms per mesh (inference, including featurization; log scale)",
+    )
     with atomic_path(path) as tmp:
         tmp.write_bytes(plotting.png(fig))
 
@@ -450,7 +598,9 @@ def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
     with atomic_path(out / "table.md") as tmp:
         tmp.write_text(render_markdown(table))
     if with_plot:
-        plot(table["rows"], out / "speed_vs_error.png",
-             f"Basic Shapes, preset {table['preset']}: speed vs error", table["references"])
-
-
+        plot(
+            table["rows"],
+            out / "speed_vs_error.png",
+            f"Basic Shapes, preset {table['preset']}: speed vs error",
+            table["references"],
+        )

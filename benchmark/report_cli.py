@@ -19,17 +19,28 @@ from benchmark.presets import PRESETS, seeds_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", choices=tuple(PRESETS), required=True,
-                        help="the preset the results were made with: its seeds, and whether "
-                        "the table decides the paper's findings (not: "
-                        + ", ".join(k for k, v in PRESETS.items() if not v.findings) + ")")
-    parser.add_argument("--data", required=True,
-                        help="the labelled dataset the results were scored on (reference rows)")
-    parser.add_argument("--out", required=True,
-                        help="a `benchmark reproduce --out` folder: reads results/<row>/seed-<s>/"
-                        "results.json (and checkpoints/<row>/seed-<s>/config.json for the "
-                        "training time, where kept); writes table.md, table.json, "
-                        "speed_vs_error.png")
+    parser.add_argument(
+        "--preset",
+        choices=tuple(PRESETS),
+        required=True,
+        help="the preset the results were made with: its seeds, and whether "
+        "the table decides the paper's findings (not: "
+        + ", ".join(k for k, v in PRESETS.items() if not v.findings)
+        + ")",
+    )
+    parser.add_argument(
+        "--data",
+        required=True,
+        help="the labelled dataset the results were scored on (reference rows)",
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="a `benchmark reproduce --out` folder: reads results/<row>/seed-<s>/"
+        "results.json (and checkpoints/<row>/seed-<s>/config.json for the "
+        "training time, where kept); writes table.md, table.json, "
+        "speed_vs_error.png",
+    )
     parser.add_argument("--seeds", help="comma-separated training seeds (default: the preset's)")
     add_quiet_flag(parser)
 
@@ -45,14 +56,23 @@ def run(args: argparse.Namespace) -> None:
         dataset = report.dataset_info(data, args.data)
         ref_scorers, ref_rows, oracle = report.reference_rows(data)
     if not args.quiet:
-        print(f"{sum(map(len, records.values()))} (row, seed) results of {len(records)} rows "
-              f"in {out / 'results'}")
+        print(
+            f"{sum(map(len, records.values()))} (row, seed) results of {len(records)} rows "
+            f"in {out / 'results'}"
+        )
     command = f"benchmark report --preset {args.preset} --data {args.data} --out {args.out}"
     if args.seeds:
         command += f" --seeds {args.seeds}"
-    table = report.build_table(args.preset, seeds, records, dataset, ref_scorers, ref_rows,
-                               {"command": command, "hardware": None,
-                                "python": platform.python_version(), "timing": None}, oracle)
+    table = report.build_table(
+        args.preset,
+        seeds,
+        records,
+        dataset,
+        ref_scorers,
+        ref_rows,
+        {"command": command, "hardware": None, "python": platform.python_version(), "timing": None},
+        oracle,
+    )
     report.write_outputs(out, table)
     print(report.render_markdown(table))
     print(f"table, JSON and plot in {out}")

@@ -23,11 +23,21 @@ from benchmark.presets import PRESETS, ROWS, Preset, rows_of, seeds_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", choices=tuple(PRESETS), required=True,
-                        help="; ".join(f"{k}: dataset {v.dataset}, {len(v.seeds)} seed(s), "
-                                       f"{v.expected}" for k, v in PRESETS.items()))
-    parser.add_argument("--out", required=True, help="output directory (table.md, table.json, "
-                        "speed_vs_error.png, checkpoints/, results/, data/)")
+    parser.add_argument(
+        "--preset",
+        choices=tuple(PRESETS),
+        required=True,
+        help="; ".join(
+            f"{k}: dataset {v.dataset}, {len(v.seeds)} seed(s), {v.expected}"
+            for k, v in PRESETS.items()
+        ),
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="output directory (table.md, table.json, "
+        "speed_vs_error.png, checkpoints/, results/, data/)",
+    )
     parser.add_argument("--data", help="reuse this labelled dataset instead of generating one")
     parser.add_argument("--seeds", help="comma-separated training seeds (default: the preset's)")
     parser.add_argument(
@@ -36,15 +46,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default: all {len(ROWS)})",
     )
     parser.add_argument("--shapenet", help="pretrain on a local ShapeNetCore v2 directory")
-    parser.add_argument("--nproc", type=number(int, minimum=1, maximum=1024), default=None,
-                        help="GPUs for torchrun (paper preset; default: all visible)")
-    parser.add_argument("--workers", type=number(int, minimum=0, maximum=1024), default=None,
-                        help="runs trained at once in worker processes (default: the preset's; "
-                        "0 or 1 = one at a time in this process; 1 on GPU)")
-    parser.add_argument("--threads", type=number(int, minimum=1, maximum=1024), default=None,
-                        help="torch threads per worker (default: CPU cores / workers)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="retrain runs that are already done")
+    parser.add_argument(
+        "--nproc",
+        type=number(int, minimum=1, maximum=1024),
+        default=None,
+        help="GPUs for torchrun (paper preset; default: all visible)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=number(int, minimum=0, maximum=1024),
+        default=None,
+        help="runs trained at once in worker processes (default: the preset's; "
+        "0 or 1 = one at a time in this process; 1 on GPU)",
+    )
+    parser.add_argument(
+        "--threads",
+        type=number(int, minimum=1, maximum=1024),
+        default=None,
+        help="torch threads per worker (default: CPU cores / workers)",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="retrain runs that are already done"
+    )
     add_quiet_flag(parser)
 
 
@@ -53,8 +76,9 @@ def make_dataset(preset: Preset, directory: Path, quiet: bool) -> dict:
     from benchmark import versions
 
     try:
-        return versions.build(versions.get(preset.dataset), directory, workers=preset.workers,
-                              quiet=quiet)
+        return versions.build(
+            versions.get(preset.dataset), directory, workers=preset.workers, quiet=quiet
+        )
     except versions.VersionError as exc:
         raise SystemExit(f"benchmark reproduce: {exc}") from None
 
@@ -100,25 +124,48 @@ def run(args: argparse.Namespace) -> None:
     t_rows = time.perf_counter()
 
     def write(with_plot: bool = False) -> None:
-        provenance = {"command": _command(args), "hardware": hardware(threads)["text"],
-                      "python": platform.python_version(),
-                      "timing": {**timing, "rows_s": time.perf_counter() - t_rows,
-                                 "total_s": time.perf_counter() - t_start, "jobs": jobs,
-                                 "threads_per_job": threads, "rows_trained": len(todo),
-                                 "rows_reused": len(cfgs) - len(todo)}}
-        report.write_outputs(out, report.build_table(args.preset, seeds, records, dataset,
-                                                     ref_scorers, ref_rows, provenance,
-                                                     oracle),
-                             with_plot)
+        provenance = {
+            "command": _command(args),
+            "hardware": hardware(threads)["text"],
+            "python": platform.python_version(),
+            "timing": {
+                **timing,
+                "rows_s": time.perf_counter() - t_rows,
+                "total_s": time.perf_counter() - t_start,
+                "jobs": jobs,
+                "threads_per_job": threads,
+                "rows_trained": len(todo),
+                "rows_reused": len(cfgs) - len(todo),
+            },
+        }
+        report.write_outputs(
+            out,
+            report.build_table(
+                args.preset, seeds, records, dataset, ref_scorers, ref_rows, provenance, oracle
+            ),
+            with_plot,
+        )
 
     def done(cfg, result) -> None:
         records.setdefault(cfg.name, {})[cfg.seed] = result
         write()
 
-    runner.run_jobs(cfgs, todo, records, data_dir=data_dir, out=out, preset=preset,
-                    fingerprint=fingerprint, corpus=corpus, first_seed=seeds[0], jobs=jobs,
-                    threads=threads, nproc=args.nproc or max(torch.cuda.device_count(), 1),
-                    progress=not args.quiet, done=done)
+    runner.run_jobs(
+        cfgs,
+        todo,
+        records,
+        data_dir=data_dir,
+        out=out,
+        preset=preset,
+        fingerprint=fingerprint,
+        corpus=corpus,
+        first_seed=seeds[0],
+        jobs=jobs,
+        threads=threads,
+        nproc=args.nproc or max(torch.cuda.device_count(), 1),
+        progress=not args.quiet,
+        done=done,
+    )
     for e, r in rows:
         runner.publish_row(out, f"{e}-{r}", seeds)
     write(with_plot=True)

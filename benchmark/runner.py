@@ -32,8 +32,9 @@ _WORKER: dict = {}
 def row_config(preset: Preset, embedding: str, regime: str, seed: int, shapenet: str | None):
     from benchmark.train import TrainConfig
 
-    return TrainConfig(embedding=embedding, regime=regime, seed=seed, shapenet=shapenet,
-                       **preset.train)
+    return TrainConfig(
+        embedding=embedding, regime=regime, seed=seed, shapenet=shapenet, **preset.train
+    )
 
 
 def job_name(cfg) -> str:
@@ -57,12 +58,16 @@ def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
     """The checkpoint config of a (row, seed) trained earlier with this exact config on
     this dataset."""
     try:
-        ck = load_json(checkpoint_dir(out, cfg.name, cfg.seed) / "config.json",
-                       max_bytes=CONFIG_MAX_BYTES)
+        ck = load_json(
+            checkpoint_dir(out, cfg.name, cfg.seed) / "config.json", max_bytes=CONFIG_MAX_BYTES
+        )
     except (OSError, ValueError):
         return None
-    if not isinstance(ck, dict) or ck.get("train") != asdict(cfg) \
-            or ck.get("dataset_fingerprint") != fingerprint:
+    if (
+        not isinstance(ck, dict)
+        or ck.get("train") != asdict(cfg)
+        or ck.get("dataset_fingerprint") != fingerprint
+    ):
         return None
     return ck
 
@@ -77,8 +82,12 @@ def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
         results = load_results(results_path)
     except (OSError, ValueError, ResultsError):
         return None
-    if ck is None or results["dataset_fingerprint"] != fingerprint \
-            or not predictions_path.is_file() or "per_object" not in results:
+    if (
+        ck is None
+        or results["dataset_fingerprint"] != fingerprint
+        or not predictions_path.is_file()
+        or "per_object" not in results
+    ):
         return None
     return {"results": results, "train_seconds": ck.get("train_seconds")}
 
@@ -98,8 +107,9 @@ def resume(cfgs: list, out: Path, fingerprint: str, overwrite: bool) -> tuple[li
 
 
 # --- one run ----------------------------------------------------------------------------------
-def pretraining_corpus(cfgs: list, out: Path, preset: Preset, shapenet: str | None,
-                       progress: bool) -> tuple[str | None, object]:
+def pretraining_corpus(
+    cfgs: list, out: Path, preset: Preset, shapenet: str | None, progress: bool
+) -> tuple[str | None, object]:
     """What the pretrained rows pretrain on, built once for all of them: (the procedural
     corpus file written in ``out``, None), or (None, the config that names ShapeNet)."""
     from benchmark import corpus as corpus_mod
@@ -110,8 +120,11 @@ def pretraining_corpus(cfgs: list, out: Path, preset: Preset, shapenet: str | No
     if shapenet:
         return None, pretrained[0]
     tc = preset.train
-    return str(corpus_mod.build_corpus_file(out / "corpus.h5", tc["pretrain_meshes"], 0,
-                                            tc["pretrain_max_faces"], progress=progress)), None
+    return str(
+        corpus_mod.build_corpus_file(
+            out / "corpus.h5", tc["pretrain_meshes"], 0, tc["pretrain_max_faces"], progress=progress
+        )
+    ), None
 
 
 def _train_flags(cfg) -> list[str]:
@@ -130,12 +143,21 @@ def run_tool(cmd: list[str], what: str) -> None:
     result = subprocess.run(cmd, stderr=subprocess.PIPE, text=True)
     if result.returncode != 0:
         tail = (result.stderr or "").strip().splitlines()
-        raise ValueError(f"{what} failed: "
-                           f"{tail[-1] if tail else 'exit code ' + str(result.returncode)}")
+        raise ValueError(
+            f"{what} failed: {tail[-1] if tail else 'exit code ' + str(result.returncode)}"
+        )
 
 
-def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc: int,
-            progress: bool, log=None) -> dict:
+def run_row(
+    cfg,
+    data_dir: Path,
+    out: Path,
+    preset: Preset,
+    shared: dict,
+    nproc: int,
+    progress: bool,
+    log=None,
+) -> dict:
     """Train (in-process or under torchrun) and evaluate one (row, seed); return its record."""
     from benchmark.models.checkpoint import save_checkpoint
     from benchmark.train import evaluate_checkpoint, train
@@ -146,28 +168,60 @@ def run_row(cfg, data_dir: Path, out: Path, preset: Preset, shared: dict, nproc:
     if trained is not None:  # trained earlier, evaluation missing or interrupted
         train_seconds = trained["train_seconds"]
     elif preset.launcher == "torchrun" and nproc > 1:
-        run_tool([sys.executable, "-m", "torch.distributed.run", f"--nproc_per_node={nproc}",
-                  "-m", "benchmark.cli", "train", "--data", str(data_dir), "--out", str(ckpt),
-                  "--quiet", *_train_flags(cfg)], f"training {job_name(cfg)}")
+        run_tool(
+            [
+                sys.executable,
+                "-m",
+                "torch.distributed.run",
+                f"--nproc_per_node={nproc}",
+                "-m",
+                "benchmark.cli",
+                "train",
+                "--data",
+                str(data_dir),
+                "--out",
+                str(ckpt),
+                "--quiet",
+                *_train_flags(cfg),
+            ],
+            f"training {job_name(cfg)}",
+        )
         train_seconds = load_json(ckpt / "config.json", max_bytes=CONFIG_MAX_BYTES)["train_seconds"]
     else:
         from benchmark.data import BenchmarkData
 
         with BenchmarkData(data_dir) as data:
-            model, config = train(cfg, data, cache=shared["cache"], corpus=shared.get("corpus"),
-                                  device=shared["device"], progress=progress, log=log)
+            model, config = train(
+                cfg,
+                data,
+                cache=shared["cache"],
+                corpus=shared.get("corpus"),
+                device=shared["device"],
+                progress=progress,
+                log=log,
+            )
         save_checkpoint(ckpt, model, config)
         train_seconds = config["train_seconds"]
     results_path, predictions_path = row_files(out, cfg.name, cfg.seed)
-    results = evaluate_checkpoint(ckpt, data_dir, results_path, progress, device=shared["device"],
-                                  predictions=predictions_path)
-    return {"results": results, "train_seconds": train_seconds,
-            "wall_seconds": time.perf_counter() - t0}
+    results = evaluate_checkpoint(
+        ckpt,
+        data_dir,
+        results_path,
+        progress,
+        device=shared["device"],
+        predictions=predictions_path,
+    )
+    return {
+        "results": results,
+        "train_seconds": train_seconds,
+        "wall_seconds": time.perf_counter() - t0,
+    }
 
 
 # --- many runs --------------------------------------------------------------------------------
-def _start_worker(threads: int, fingerprint: str, corpus_path: str | None,
-                  pretrain_cfg=None) -> None:
+def _start_worker(
+    threads: int, fingerprint: str, corpus_path: str | None, pretrain_cfg=None
+) -> None:
     """Process-pool initializer: a torch thread budget, a feature cache and the pretraining
     corpus (the procedural corpus file, or ShapeNet as ``pretrain_cfg`` says), once per worker."""
     import torch
@@ -184,15 +238,36 @@ def _start_worker(threads: int, fingerprint: str, corpus_path: str | None,
 
 
 def _row_job(cfg, data_dir: Path, out: Path, preset: Preset) -> tuple[object, dict]:
-    record = run_row(cfg, data_dir, out, preset, _WORKER, 1, progress=False,
-                     log=lambda line: print(line, flush=True))
+    record = run_row(
+        cfg,
+        data_dir,
+        out,
+        preset,
+        _WORKER,
+        1,
+        progress=False,
+        log=lambda line: print(line, flush=True),
+    )
     return cfg, record
 
 
-def run_jobs(cfgs: list, todo: list, records: dict, *, data_dir: Path, out: Path,
-             preset: Preset, fingerprint: str, corpus: tuple[str | None, object],
-             first_seed: int, jobs: int, threads: int, nproc: int, progress: bool,
-             done) -> None:
+def run_jobs(
+    cfgs: list,
+    todo: list,
+    records: dict,
+    *,
+    data_dir: Path,
+    out: Path,
+    preset: Preset,
+    fingerprint: str,
+    corpus: tuple[str | None, object],
+    first_seed: int,
+    jobs: int,
+    threads: int,
+    nproc: int,
+    progress: bool,
+    done,
+) -> None:
     """Run every config of ``todo`` and call ``done(cfg, record)`` after each (which adds it
     to ``records``); then re-time the first seed (``first_seed``) of every row of ``cfgs``
     that was not timed alone.
@@ -209,14 +284,19 @@ def run_jobs(cfgs: list, todo: list, records: dict, *, data_dir: Path, out: Path
     pooled = jobs > 1 and len(todo) > 1
     if pooled:
         todo = sorted(todo, key=lambda c: (-COST[c.regime] * REGISTRY[c.embedding].cost, c.seed))
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_start_worker,
-                                 initargs=(threads, fingerprint, *corpus)) as pool:
+        with ProcessPoolExecutor(
+            jobs,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_start_worker,
+            initargs=(threads, fingerprint, *corpus),
+        ) as pool:
             futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
             for k, fut in enumerate(as_completed(futures)):
                 cfg, result = fut.result()
-                print(f"{job_name(cfg)}: done ({result['wall_seconds']:.0f} s), "
-                      f"{k + 1}/{len(todo)} runs")
+                print(
+                    f"{job_name(cfg)}: done ({result['wall_seconds']:.0f} s), "
+                    f"{k + 1}/{len(todo)} runs"
+                )
                 done(cfg, result)
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
@@ -227,8 +307,9 @@ def run_jobs(cfgs: list, todo: list, records: dict, *, data_dir: Path, out: Path
             for cfg in todo:
                 result = run_row(cfg, data_dir, out, preset, _WORKER, nproc, progress)
                 if cfg.seed == first_seed:
-                    _mark_timed_alone(out, cfg, result, result["results"]["speed"]["ms_per_mesh"],
-                                      threads)
+                    _mark_timed_alone(
+                        out, cfg, result, result["results"]["speed"]["ms_per_mesh"], threads
+                    )
                 done(cfg, result)
         firsts = [(c, records[c.name][c.seed]) for c in cfgs if c.seed == first_seed]
         time_alone(out, data_dir, firsts, threads, progress=progress)
@@ -237,8 +318,9 @@ def run_jobs(cfgs: list, todo: list, records: dict, *, data_dir: Path, out: Path
         _WORKER.clear()
 
 
-def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads: int,
-                      sample: int | None = None) -> None:
+def _mark_timed_alone(
+    out: Path, cfg, record: dict, ms_per_mesh: float, threads: int, sample: int | None = None
+) -> None:
     """Store a speed measured with no other job of this run on the CPU, and say so (and on
     how many meshes, where it was a sample)."""
     from benchmark.evaluate import speed_block
@@ -250,8 +332,9 @@ def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads:
     write_results(row_files(out, cfg.name, cfg.seed)[0], record["results"])
 
 
-def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
-               progress: bool = True) -> None:
+def time_alone(
+    out: Path, data_dir: Path, jobs: list[tuple], threads: int, progress: bool = True
+) -> None:
     """Re-time the first seed of rows that were evaluated while another job shared the CPU
     (their ms per mesh measured contention, not the model): ``predict`` in the harness's
     batches, one row at a time, after a warm-up batch; I/O excluded, as in the harness.
@@ -267,15 +350,18 @@ def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
     from benchmark.models.checkpoint import CheckpointModel
     from benchmark.protocol import scored_mesh_rows
 
-    todo = [(cfg, r) for cfg, r in jobs
-            if TIMED_ALONE not in (r["results"]["speed"].get("hardware") or "")]
+    todo = [
+        (cfg, r)
+        for cfg, r in jobs
+        if TIMED_ALONE not in (r["results"]["speed"].get("hardware") or "")
+    ]
     if not todo:
         return
     device = "cuda" if torch.cuda.is_available() else "cpu"
     with BenchmarkData(data_dir) as data:
         chunks = face_count_batches(data, scored_mesh_rows(data), 16)
         step = max(1, len(chunks) * 16 // TIMING_MESHES)
-        batches = [data.batch(chunk) for chunk in chunks[step // 2::step]]
+        batches = [data.batch(chunk) for chunk in chunks[step // 2 :: step]]
     n = sum(len(b["faces"]) for b in batches)
     for cfg, record in tqdm(todo, desc="timing", unit="row", disable=not progress):
         model = CheckpointModel(checkpoint_dir(out, cfg.name, cfg.seed), device=device)
@@ -283,8 +369,9 @@ def time_alone(out: Path, data_dir: Path, jobs: list[tuple], threads: int,
         t0 = time.perf_counter()
         for batch in batches:
             model.predict(batch)
-        _mark_timed_alone(out, cfg, record, 1000.0 * (time.perf_counter() - t0) / n, threads,
-                          sample=n)
+        _mark_timed_alone(
+            out, cfg, record, 1000.0 * (time.perf_counter() - t0) / n, threads, sample=n
+        )
 
 
 def publish_row(out: Path, name: str, seeds: list[int]) -> None:

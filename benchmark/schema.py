@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 from basic_shapes.shards import OOD_REMESHERS
 
-MAX_MSE = 1e6          # dB²; the -80 dB floor bounds an honest MSE near 6400 dB²
-MAX_PARAMS = 10**12    # parameters of a model
-MAX_COUNT = 10**9      # objects or meshes
-MAX_MS = 1e9           # milliseconds per mesh
+MAX_MSE = 1e6  # dB²; the -80 dB floor bounds an honest MSE near 6400 dB²
+MAX_PARAMS = 10**12  # parameters of a model
+MAX_COUNT = 10**9  # objects or meshes
+MAX_MS = 1e9  # milliseconds per mesh
 MAX_TEXT = 200
 MAX_NAME = 80
 MAX_CLASSES = 64
@@ -66,18 +66,24 @@ class Field:
             if not isinstance(value, bool):
                 raise SchemaError(f"{where} must be true or false")
         else:
-            if not isinstance(value, str) or not value.strip() or len(value) > self.hi \
-                    or any(ord(c) < 32 for c in value):
-                raise SchemaError(f"{where} must be one printable line of at most "
-                                  f"{self.hi:g} characters")
+            if (
+                not isinstance(value, str)
+                or not value.strip()
+                or len(value) > self.hi
+                or any(ord(c) < 32 for c in value)
+            ):
+                raise SchemaError(
+                    f"{where} must be one printable line of at most {self.hi:g} characters"
+                )
             if self.kind == "hex64" and not re.fullmatch(r"[0-9a-f]{64}", value):
                 raise SchemaError(f"{where} is not a sha256 hex digest")
             if self.kind == "time":
                 try:
                     datetime.datetime.strptime(value, "%Y-%m-%dT%H:%M:%SZ")
                 except ValueError:
-                    raise SchemaError(f"{where} is not a UTC timestamp like "
-                                      f"2026-01-31T12:00:00Z") from None
+                    raise SchemaError(
+                        f"{where} is not a UTC timestamp like 2026-01-31T12:00:00Z"
+                    ) from None
 
 
 def mse(null: bool = True) -> Field:
@@ -91,9 +97,10 @@ def interval(lo: float = 0, hi: float = MAX_MSE) -> Field:
 # --- the tables ----------------------------------------------------------------------------
 METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
 OOD_METRIC_NAMES = ("ood_complex_mse", "ood_variation_mse")  # absent in older records
-OOD_FIELDS = {**{name: Field("number", 0, MAX_MSE, null=True, required=False)
-                 for name in OOD_METRIC_NAMES},
-              **{name + "_ci": interval() for name in OOD_METRIC_NAMES}}
+OOD_FIELDS = {
+    **{name: Field("number", 0, MAX_MSE, null=True, required=False) for name in OOD_METRIC_NAMES},
+    **{name + "_ci": interval() for name in OOD_METRIC_NAMES},
+}
 METRIC_BLOCK = {  # overall, per class and per reference row; intervals absent in old entries
     "simple_mse": mse(null=False),
     "complex_mse": mse(),
@@ -171,8 +178,12 @@ def check_fields(record, table: dict[str, Field], where: str, extra: tuple[str, 
 
 def check_metrics(m, where: str = "metrics") -> dict:
     """The metrics block of a results record or an entry (``benchmark.protocol.score``)."""
-    check_fields(m, {**METRIC_BLOCK, **METRICS}, where,
-                 extra=("per_class", "no_skill_test", "references", "skill", "per_remesher"))
+    check_fields(
+        m,
+        {**METRIC_BLOCK, **METRICS},
+        where,
+        extra=("per_class", "no_skill_test", "references", "skill", "per_remesher"),
+    )
     if m.get("no_skill_test") is not None:
         check_fields(m["no_skill_test"], NO_SKILL_TEST, f"{where}.no_skill_test")
     if "references" in m:
@@ -220,8 +231,9 @@ def check_skill(sk, where: str = "skill") -> dict:
         for metric, comp in block.items():
             check_fields(comp, COMPARISON, f"{where}.{part}.{metric}")
             if comp["verdict"] not in VERDICTS:
-                raise SchemaError(f"{where}.{part}.{metric}.verdict must be one of "
-                                  f"{', '.join(VERDICTS)}")
+                raise SchemaError(
+                    f"{where}.{part}.{metric}.verdict must be one of {', '.join(VERDICTS)}"
+                )
     return sk
 
 
@@ -241,8 +253,9 @@ def check_seeds(seeds, where: str = "seeds") -> dict:
     return seeds
 
 
-PER_OBJECT_OOD = OOD_METRIC_NAMES + tuple(f"{m}:{r}" for r in OOD_REMESHERS
-                                         for m in OOD_METRIC_NAMES)  # metrics.ood_keys
+PER_OBJECT_OOD = OOD_METRIC_NAMES + tuple(
+    f"{m}:{r}" for r in OOD_REMESHERS for m in OOD_METRIC_NAMES
+)  # metrics.ood_keys
 
 
 def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:

@@ -59,22 +59,33 @@ BUCKET = 8  # batches per length bucket: meshes of similar face count are batche
 
 
 BOUNDS = {  # numeric fields of TrainConfig: (minimum, maximum); "above" 0 for rates
-    "dim": (1, 4096), "embed_layers": (1, 64), "agg_layers": (1, 64), "n_heads": (1, 256),
-    "decoder_hidden": (1, 65536), "codebook_size": (2, 65536), "n_quantizers": (1, 64),
-    "epochs": (1, 100_000), "patience": (1, 100_000), "batch_size": (1, 65536),
+    "dim": (1, 4096),
+    "embed_layers": (1, 64),
+    "agg_layers": (1, 64),
+    "n_heads": (1, 256),
+    "decoder_hidden": (1, 65536),
+    "codebook_size": (2, 65536),
+    "n_quantizers": (1, 64),
+    "epochs": (1, 100_000),
+    "patience": (1, 100_000),
+    "batch_size": (1, 65536),
     "lr": ("above", 10.0),
-    "weight_decay": (0.0, 10.0), "pretrain_meshes": (0, 10_000_000),
+    "weight_decay": (0.0, 10.0),
+    "pretrain_meshes": (0, 10_000_000),
     "pretrain_epochs": (0, 100_000),
-    "pretrain_max_faces": (4, 10_000_000), "pretrain_lr": ("above", 10.0),
-    "corpus_seed": (0, 2**63 - 1), "seed": (0, 2**63 - 1)}
+    "pretrain_max_faces": (4, 10_000_000),
+    "pretrain_lr": ("above", 10.0),
+    "corpus_seed": (0, 2**63 - 1),
+    "seed": (0, 2**63 - 1),
+}
 
 
 def _out_of_bounds(name: str, value) -> str | None:
     low, high = BOUNDS[name]
-    if not math.isfinite(value) or value > high or (
-            value <= 0 if low == "above" else value < low):
-        return (f"{name} must be {'> 0' if low == 'above' else f'>= {low}'} and <= {high}, "
-                f"got {value}")
+    if not math.isfinite(value) or value > high or (value <= 0 if low == "above" else value < low):
+        return (
+            f"{name} must be {'> 0' if low == 'above' else f'>= {low}'} and <= {high}, got {value}"
+        )
     return None
 
 
@@ -111,8 +122,10 @@ class TrainConfig:
         if self.regime not in REGIMES:
             raise ValueError(f"unknown regime {self.regime!r}; choose one of {REGIMES}")
         if self.regime in PRETRAINED and self.embedding not in FACE_EMBEDDINGS:
-            raise ValueError(f"the {self.embedding} model has no face embedding to pretrain; "
-                             f"use regime basic or ideal")
+            raise ValueError(
+                f"the {self.embedding} model has no face embedding to pretrain; "
+                f"use regime basic or ideal"
+            )
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; choose one of {LOSSES}")
         for name in BOUNDS:
@@ -127,10 +140,18 @@ class TrainConfig:
         return f"{self.embedding}-{self.regime}"
 
     def model_kwargs(self, n_outputs: int, n_scale_bins: int) -> dict:
-        return {"name": self.embedding, "n_outputs": n_outputs, "n_scale_bins": n_scale_bins,
-                "dim": self.dim, "embed_layers": self.embed_layers, "agg_layers": self.agg_layers,
-                "n_heads": self.n_heads, "decoder_hidden": self.decoder_hidden,
-                "codebook_size": self.codebook_size, "n_quantizers": self.n_quantizers}
+        return {
+            "name": self.embedding,
+            "n_outputs": n_outputs,
+            "n_scale_bins": n_scale_bins,
+            "dim": self.dim,
+            "embed_layers": self.embed_layers,
+            "agg_layers": self.agg_layers,
+            "n_heads": self.n_heads,
+            "decoder_hidden": self.decoder_hidden,
+            "codebook_size": self.codebook_size,
+            "n_quantizers": self.n_quantizers,
+        }
 
 
 # --- examples ---------------------------------------------------------------------------------
@@ -156,9 +177,15 @@ class FeatureCache:
         return self.items[key]
 
 
-def benchmark_examples(data: BenchmarkData, regime: str, probes: bool, scale_bins: ScaleBins,
-                       cache: FeatureCache | None = None, progress: bool = False,
-                       split: str = "train") -> tuple[list[Example], list[np.ndarray]]:
+def benchmark_examples(
+    data: BenchmarkData,
+    regime: str,
+    probes: bool,
+    scale_bins: ScaleBins,
+    cache: FeatureCache | None = None,
+    progress: bool = False,
+    split: str = "train",
+) -> tuple[list[Example], list[np.ndarray]]:
     """Examples of a split for a regime, read through ``BasicShapes`` (the one data path),
     and their grouping by object (one group per object; Ideal groups hold all of an
     object's meshes, the others only the simple one). Validation uses simple meshes."""
@@ -168,15 +195,22 @@ def benchmark_examples(data: BenchmarkData, regime: str, probes: bool, scale_bin
 
     def example(i: int) -> Example:
         item = ds[i]
-        target = cache.get(("target", data.directory, ds.object_of(i)),  # one copy per object
-                           lambda: item["target"].numpy().reshape(-1))
-        return Example(featurize(item["vertices"].numpy(), item["faces"].numpy(), probes=probes),
-                       item["scale_bins"].numpy(), target)
+        target = cache.get(
+            ("target", data.directory, ds.object_of(i)),  # one copy per object
+            lambda: item["target"].numpy().reshape(-1),
+        )
+        return Example(
+            featurize(item["vertices"].numpy(), item["faces"].numpy(), probes=probes),
+            item["scale_bins"].numpy(),
+            target,
+        )
 
-    examples = [cache.get(("mesh", data.directory, int(ds.rows[i]), probes, scale_bins),
-                          lambda i=i: example(i))
-                for i in tqdm(range(len(ds)), desc=f"features ({split})", unit="mesh",
-                              disable=not progress)]
+    examples = [
+        cache.get(
+            ("mesh", data.directory, int(ds.rows[i]), probes, scale_bins), lambda i=i: example(i)
+        )
+        for i in tqdm(range(len(ds)), desc=f"features ({split})", unit="mesh", disable=not progress)
+    ]
     objects = np.array([ds.object_of(i) for i in range(len(ds))], np.int64)
     starts = np.flatnonzero(np.r_[True, objects[1:] != objects[:-1]]) if len(objects) else []
     groups = np.split(np.arange(len(ds)), starts[1:]) if len(objects) else []
@@ -188,16 +222,22 @@ def corpus_meshes(cfg: TrainConfig, progress: bool = False) -> tuple[list, list[
     from benchmark import corpus
 
     if cfg.shapenet:
-        meshes = corpus.load_shapenet(cfg.shapenet, max_faces=cfg.pretrain_max_faces,
-                                      limit=cfg.pretrain_meshes or None, seed=cfg.corpus_seed)
+        meshes = corpus.load_shapenet(
+            cfg.shapenet,
+            max_faces=cfg.pretrain_max_faces,
+            limit=cfg.pretrain_meshes or None,
+            seed=cfg.corpus_seed,
+        )
         return meshes, corpus.shapenet_class_names(cfg.shapenet)
-    meshes = corpus.procedural_corpus(cfg.pretrain_meshes, cfg.corpus_seed,
-                                      max_faces=cfg.pretrain_max_faces, progress=progress)
+    meshes = corpus.procedural_corpus(
+        cfg.pretrain_meshes, cfg.corpus_seed, max_faces=cfg.pretrain_max_faces, progress=progress
+    )
     return meshes, list(corpus.FAMILIES)
 
 
-def corpus_examples(meshes: list, cache: FeatureCache | None = None,
-                    key: tuple = ()) -> list[Example]:
+def corpus_examples(
+    meshes: list, cache: FeatureCache | None = None, key: tuple = ()
+) -> list[Example]:
     cache = cache or FeatureCache()
     zero = np.zeros(3, np.int64)
     return [
@@ -209,16 +249,29 @@ def corpus_examples(meshes: list, cache: FeatureCache | None = None,
 
 
 # --- batching ---------------------------------------------------------------------------------
-def epoch_batches(examples: list[Example], groups: list[np.ndarray], batch_size: int, epoch: int,
-                  seed: int, rank: int = 0, world_size: int = 1) -> list[list[int]]:
+def epoch_batches(
+    examples: list[Example],
+    groups: list[np.ndarray],
+    batch_size: int,
+    epoch: int,
+    seed: int,
+    rank: int = 0,
+    world_size: int = 1,
+) -> list[list[int]]:
     """This rank's batches of example indices for one epoch, deterministic in (seed, epoch).
 
     Objects are shuffled and sharded by a DistributedSampler (one replica when not
     distributed); each object contributes one of its meshes, drawn at random; batches are
     formed within buckets of similar face count and then shuffled.
     """
-    sampler = DistributedSampler(range(len(groups)), num_replicas=world_size, rank=rank,
-                                 shuffle=True, seed=seed, drop_last=False)
+    sampler = DistributedSampler(
+        range(len(groups)),
+        num_replicas=world_size,
+        rank=rank,
+        shuffle=True,
+        seed=seed,
+        drop_last=False,
+    )
     sampler.set_epoch(epoch)
     g = torch.Generator().manual_seed(seed * 100_003 + epoch)
     chosen = []
@@ -229,8 +282,8 @@ def epoch_batches(examples: list[Example], groups: list[np.ndarray], batch_size:
     batches = []
     span = batch_size * BUCKET
     for s in range(0, len(chosen), span):
-        bucket = sorted(chosen[s:s + span], key=lambda i: examples[i].features.n_faces)
-        batches += [bucket[j:j + batch_size] for j in range(0, len(bucket), batch_size)]
+        bucket = sorted(chosen[s : s + span], key=lambda i: examples[i].features.n_faces)
+        batches += [bucket[j : j + batch_size] for j in range(0, len(bucket), batch_size)]
     order = torch.randperm(len(batches), generator=g).tolist()
     return [batches[i] for i in order]
 
@@ -277,8 +330,9 @@ class PretrainTask(nn.Module):
 
 
 @torch.no_grad()
-def validation_mse(model: MeshSimulator, examples: list[Example], batch_size: int,
-                   device: torch.device) -> float:
+def validation_mse(
+    model: MeshSimulator, examples: list[Example], batch_size: int, device: torch.device
+) -> float:
     """Mean over validation objects of the MSE (dB²) of the floored prediction on the
     simple mesh: the benchmark's Simple MSE, which model selection may look at. Batched in
     face-count order (little padding), averaged in the examples' order."""
@@ -287,7 +341,7 @@ def validation_mse(model: MeshSimulator, examples: list[Example], batch_size: in
     order = sorted(range(len(examples)), key=lambda i: examples[i].features.n_faces)
     errors = np.empty(len(examples))
     for s in range(0, len(order), batch_size):
-        idx = order[s:s + batch_size]
+        idx = order[s : s + batch_size]
         batch = make_batch(examples, idx).to(device)
         pred = model(batch)[0].clamp_min(FLOOR_DB)
         errors[idx] = ((pred - batch.target) ** 2).mean(dim=1).cpu().numpy()
@@ -317,7 +371,7 @@ def lr_factor(step: int, warm: int, total: int, halvings: int | None) -> float:
     validation (``halvings`` None: a fixed length), cosine decay to 5% at ``total``."""
     up = min(1.0, (step + 1) / warm)
     if halvings is not None:
-        return up * 0.5 ** halvings
+        return up * 0.5**halvings
     return up * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(step, total) / total)))
 
 
@@ -328,10 +382,23 @@ def make_optimizer(task: nn.Module, lr: float, weight_decay: float) -> torch.opt
     return torch.optim.AdamW(task.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
 
 
-def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, epochs: int,
-        batch_size: int, lr: float, weight_decay: float, seed: int, desc: str,
-        device: torch.device, progress: bool = True,
-        val: list[Example] | None = None, patience: int | None = None, log=None) -> list[dict]:
+def fit(
+    task: nn.Module,
+    examples: list[Example],
+    groups: list[np.ndarray],
+    *,
+    epochs: int,
+    batch_size: int,
+    lr: float,
+    weight_decay: float,
+    seed: int,
+    desc: str,
+    device: torch.device,
+    progress: bool = True,
+    val: list[Example] | None = None,
+    patience: int | None = None,
+    log=None,
+) -> list[dict]:
     """AdamW with linear warm-up, gradient clipping at 1; returns the mean loss and
     statistics of every epoch, and its learning rate.
 
@@ -351,8 +418,10 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
     runner = task
     if distributed:
         runner = nn.parallel.DistributedDataParallel(
-            task, device_ids=[device.index] if device.type == "cuda" else None,
-            find_unused_parameters=isinstance(task, PretrainTask))
+            task,
+            device_ids=[device.index] if device.type == "cuda" else None,
+            find_unused_parameters=isinstance(task, PretrainTask),
+        )
     opt = make_optimizer(task, lr, weight_decay)
     steps_per_epoch = len(epoch_batches(examples, groups, batch_size, 0, seed, rank, world))
     total = max(1, epochs * steps_per_epoch)
@@ -382,15 +451,21 @@ def fit(task: nn.Module, examples: list[Example], groups: list[np.ndarray], *, e
         record["lr"] = opt.param_groups[0]["lr"]
         if val:
             record["val_mse"] = _same_on_every_rank(
-                validation_mse(task.model, val, batch_size, device), device, distributed)
+                validation_mse(task.model, val, batch_size, device), device, distributed
+            )
             if best is None or record["val_mse"] < best[0]:
-                best = (record["val_mse"], epoch, {k: v.detach().clone()
-                                                   for k, v in task.state_dict().items()})
+                best = (
+                    record["val_mse"],
+                    epoch,
+                    {k: v.detach().clone() for k, v in task.state_dict().items()},
+                )
         history.append(record)
         bar.set_postfix({k: f"{v:.3g}" for k, v in record.items()})
         if log is not None and rank == 0:
-            log(f"{desc}: epoch {epoch + 1}/{epochs}, {time.perf_counter() - t0:.0f} s, "
-                + ", ".join(f"{k} {v:.3g}" for k, v in record.items()))
+            log(
+                f"{desc}: epoch {epoch + 1}/{epochs}, {time.perf_counter() - t0:.0f} s, "
+                + ", ".join(f"{k} {v:.3g}" for k, v in record.items())
+            )
         if val:
             state = plateau([r["val_mse"] for r in history], patience)
             if state["stop"]:
@@ -420,12 +495,24 @@ def selection(history: list[dict], patience: int) -> dict:
     chosen = [k for k, r in enumerate(history) if r.get("selected")]
     if chosen:
         k = chosen[0]
-        return {"on": "val", "epoch": k, "val_mse": history[k]["val_mse"],
-                "epochs_trained": len(history), "epochs_to_plateau": k + 1,
-                "patience": patience, "capped": len(history) - 1 - k < patience}
-    return {"on": "last epoch (no val split)", "epoch": len(history) - 1, "val_mse": None,
-            "epochs_trained": len(history), "epochs_to_plateau": None, "patience": None,
-            "capped": None}
+        return {
+            "on": "val",
+            "epoch": k,
+            "val_mse": history[k]["val_mse"],
+            "epochs_trained": len(history),
+            "epochs_to_plateau": k + 1,
+            "patience": patience,
+            "capped": len(history) - 1 - k < patience,
+        }
+    return {
+        "on": "last epoch (no val split)",
+        "epoch": len(history) - 1,
+        "val_mse": None,
+        "epochs_trained": len(history),
+        "epochs_to_plateau": None,
+        "patience": None,
+        "capped": None,
+    }
 
 
 # --- one run ----------------------------------------------------------------------------------
@@ -434,10 +521,17 @@ def seed_everything(seed: int) -> None:
     torch.use_deterministic_algorithms(True, warn_only=True)
 
 
-def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = ScaleBins(),
-          cache: FeatureCache | None = None, corpus: tuple[list, list[str]] | None = None,
-          device: str | torch.device = "cpu", progress: bool = True,
-          log=None) -> tuple[MeshSimulator, dict]:
+def train(
+    cfg: TrainConfig,
+    data: BenchmarkData,
+    *,
+    scale_bins: ScaleBins = ScaleBins(),
+    cache: FeatureCache | None = None,
+    corpus: tuple[list, list[str]] | None = None,
+    device: str | torch.device = "cpu",
+    progress: bool = True,
+    log=None,
+) -> tuple[MeshSimulator, dict]:
     """Train one (embedding, regime); return the model (eval mode) and its checkpoint config.
 
     ``corpus`` = (meshes, class names) overrides the configured pretraining corpus (lets
@@ -445,8 +539,10 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
     """
     device = torch.device(device)
     cache = cache or FeatureCache()
-    identity = {"dataset_fingerprint": data.fingerprint,       # both verified against the
-                "label_fingerprint": data.label_fingerprint}   # content before any training
+    identity = {
+        "dataset_fingerprint": data.fingerprint,  # both verified against the
+        "label_fingerprint": data.label_fingerprint,
+    }  # content before any training
     seed_everything(cfg.seed)
     n_outputs = int(np.prod(data.target_shape))
     kwargs = cfg.model_kwargs(n_outputs, scale_bins.n)
@@ -457,41 +553,78 @@ def train(cfg: TrainConfig, data: BenchmarkData, *, scale_bins: ScaleBins = Scal
         meshes, names = corpus if corpus is not None else corpus_meshes(cfg, progress)
         key = (cfg.shapenet, cfg.pretrain_meshes, cfg.corpus_seed, cfg.pretrain_max_faces)
         examples = corpus_examples(meshes, cache, key)
-        head = ClassificationHead(cfg.dim, len(names)) if cfg.regime == "classification" \
+        head = (
+            ClassificationHead(cfg.dim, len(names))
+            if cfg.regime == "classification"
             else ReconstructionHead(cfg.dim)
+        )
         groups = [np.array([i]) for i in range(len(examples))]
-        history["pretrain"] = fit(PretrainTask(model, head), examples, groups,
-                                  epochs=cfg.pretrain_epochs, batch_size=cfg.batch_size,
-                                  lr=cfg.pretrain_lr, weight_decay=cfg.weight_decay,
-                                  seed=cfg.seed + 1, desc=f"{cfg.name}/seed-{cfg.seed} pretrain",
-                                  device=device, progress=progress, log=log)
-    examples, groups = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes,
-                                          scale_bins, cache, progress)
-    val, _ = benchmark_examples(data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins,
-                                cache, progress, split="val")
+        history["pretrain"] = fit(
+            PretrainTask(model, head),
+            examples,
+            groups,
+            epochs=cfg.pretrain_epochs,
+            batch_size=cfg.batch_size,
+            lr=cfg.pretrain_lr,
+            weight_decay=cfg.weight_decay,
+            seed=cfg.seed + 1,
+            desc=f"{cfg.name}/seed-{cfg.seed} pretrain",
+            device=device,
+            progress=progress,
+            log=log,
+        )
+    examples, groups = benchmark_examples(
+        data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins, cache, progress
+    )
+    val, _ = benchmark_examples(
+        data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins, cache, progress, split="val"
+    )
     model.decoder.set_output_statistics(
         torch.from_numpy(np.stack([examples[g[0]].target for g in groups]))
     )
     task = RegressionTask(model, cfg.loss, data.target_shape)
-    history["train"] = fit(task, examples, groups, epochs=cfg.epochs, batch_size=cfg.batch_size,
-                           lr=cfg.lr, weight_decay=cfg.weight_decay, seed=cfg.seed,
-                           desc=f"{cfg.name}/seed-{cfg.seed}", device=device, progress=progress,
-                           val=val, patience=cfg.patience, log=log)
+    history["train"] = fit(
+        task,
+        examples,
+        groups,
+        epochs=cfg.epochs,
+        batch_size=cfg.batch_size,
+        lr=cfg.lr,
+        weight_decay=cfg.weight_decay,
+        seed=cfg.seed,
+        desc=f"{cfg.name}/seed-{cfg.seed}",
+        device=device,
+        progress=progress,
+        val=val,
+        patience=cfg.patience,
+        log=log,
+    )
     model.to("cpu").eval()
-    config = {"name": cfg.name, "embedding": cfg.embedding, "regime": cfg.regime,
-              "model": kwargs, "target_shape": list(data.target_shape),
-              "scale_bins": {"lo": scale_bins.lo, "hi": scale_bins.hi, "n": scale_bins.n},
-              "train": asdict(cfg), "history": history,
-              "selection": selection(history["train"], cfg.patience),
-              "train_seconds": time.perf_counter() - t0, **identity}
+    config = {
+        "name": cfg.name,
+        "embedding": cfg.embedding,
+        "regime": cfg.regime,
+        "model": kwargs,
+        "target_shape": list(data.target_shape),
+        "scale_bins": {"lo": scale_bins.lo, "hi": scale_bins.hi, "n": scale_bins.n},
+        "train": asdict(cfg),
+        "history": history,
+        "selection": selection(history["train"], cfg.patience),
+        "train_seconds": time.perf_counter() - t0,
+        **identity,
+    }
     return model, config
 
 
 # --- evaluation -----------------------------------------------------------------------------
-def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLike,
-                        results: str | os.PathLike | None = None, progress: bool = True,
-                        device: str | torch.device = "cpu",
-                        predictions: str | os.PathLike | None = None) -> dict:
+def evaluate_checkpoint(
+    checkpoint: str | os.PathLike,
+    data_dir: str | os.PathLike,
+    results: str | os.PathLike | None = None,
+    progress: bool = True,
+    device: str | torch.device = "cpu",
+    predictions: str | os.PathLike | None = None,
+) -> dict:
     """Results record of a checkpoint on the test split (harness ``evaluate``); the
     predictions file is kept at ``predictions`` when given (a leaderboard submission)."""
     from benchmark.evaluate import evaluate
@@ -501,8 +634,13 @@ def evaluate_checkpoint(checkpoint: str | os.PathLike, data_dir: str | os.PathLi
     model = CheckpointModel(checkpoint, device=str(device))
     if predictions:
         Path(predictions).parent.mkdir(parents=True, exist_ok=True)
-    record = evaluate(data_dir, model=model, train_seed=model.config["train"]["seed"],
-                      progress=progress, write_predictions=predictions)
+    record = evaluate(
+        data_dir,
+        model=model,
+        train_seed=model.config["train"]["seed"],
+        progress=progress,
+        write_predictions=predictions,
+    )
     if results:
         Path(results).parent.mkdir(parents=True, exist_ok=True)
         write_results(results, record)

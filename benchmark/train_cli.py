@@ -46,13 +46,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for f in fields(TrainConfig):
         default = getattr(defaults, f.name)
         kind = str if f.name == "shapenet" else type(default)
-        if f.name in BOUNDS:   # refused by the parser (exit 2), before any data is read
+        if f.name in BOUNDS:  # refused by the parser (exit 2), before any data is read
             low, high = BOUNDS[f.name]
-            kind = number(kind, maximum=high, **({"above": 0} if low == "above" else
-                                                 {"minimum": low}))
-        parser.add_argument("--" + f.name.replace("_", "-"), type=kind, default=default,
-                            choices=choices.get(f.name),
-                            help=helps.get(f.name, "") + f" (default: {default})")
+            kind = number(
+                kind, maximum=high, **({"above": 0} if low == "above" else {"minimum": low})
+            )
+        parser.add_argument(
+            "--" + f.name.replace("_", "-"),
+            type=kind,
+            default=default,
+            choices=choices.get(f.name),
+            help=helps.get(f.name, "") + f" (default: {default})",
+        )
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -68,10 +73,12 @@ def check_device(text: str) -> torch.device:
         device = torch.device(text)
     except RuntimeError:
         raise FlagError(f"--device {text!r} is not a torch device (cpu, cuda, cuda:0)") from None
-    if device.type == "cuda" and (not torch.cuda.is_available() or
-                                  (device.index or 0) >= torch.cuda.device_count()):
-        raise FlagError(f"--device {text}: no such CUDA device here "
-                        f"({torch.cuda.device_count()} available)")
+    if device.type == "cuda" and (
+        not torch.cuda.is_available() or (device.index or 0) >= torch.cuda.device_count()
+    ):
+        raise FlagError(
+            f"--device {text}: no such CUDA device here ({torch.cuda.device_count()} available)"
+        )
     if device.type not in ("cpu", "cuda"):
         raise FlagError(f"--device {text}: only cpu and cuda devices are supported")
     return device
@@ -107,9 +114,11 @@ def run(args: argparse.Namespace) -> None:
         raise SystemExit(f"benchmark train: {exc}") from None
     if rank == 0:
         save_checkpoint(args.out, model, config)
-        print(f"{cfg.name}: checkpoint in {args.out} "
-              f"({config['train_seconds']:.1f} s, final train loss "
-              f"{config['history']['train'][-1]['loss']:.3f})")
+        print(
+            f"{cfg.name}: checkpoint in {args.out} "
+            f"({config['train_seconds']:.1f} s, final train loss "
+            f"{config['history']['train'][-1]['loss']:.3f})"
+        )
         if args.results:
             from benchmark.evaluate import format_metrics
 

@@ -51,8 +51,9 @@ def _nanmean_rows(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
         return np.where(n > 0, np.where(ok, v, 0.0).sum(axis=1) / n, np.nan)
 
 
-def interval(values, strata, statistic: Callable | None = None, n_boot: int = N_BOOT,
-             seed: int = SEED) -> list[float] | None:
+def interval(
+    values, strata, statistic: Callable | None = None, n_boot: int = N_BOOT, seed: int = SEED
+) -> list[float] | None:
     """[lo, hi] 95% percentile interval of the mean of ``values`` (NaN = missing), or of
     ``statistic(idx) -> (n_boot,)`` when given; None when nothing can be resampled."""
     strata = np.asarray(strata)
@@ -85,7 +86,7 @@ def paired(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict | None:
 
 
 def verdict(ci: list[float] | None, claimed: str = "lower") -> str:
-    """"holds" when the interval of (claimed better - other) excludes 0 on the claimed side
+    """ "holds" when the interval of (claimed better - other) excludes 0 on the claimed side
     (``lower``: a difference of errors below 0), "reversed" when it excludes 0 on the other
     side, else "inconclusive"."""
     if ci is None:

@@ -27,8 +27,17 @@ from basic_shapes.infra import atomic_path
 
 MANIFESTS = Path(__file__).with_name("manifests")
 # the packages whose code computes stored bytes (pinned in constraints.txt)
-BYTE_PACKAGES = ("numpy", "bpy", "pymeshlab", "numba", "llvmlite", "embreex", "h5py", "scipy",
-                 "trimesh")
+BYTE_PACKAGES = (
+    "numpy",
+    "bpy",
+    "pymeshlab",
+    "numba",
+    "llvmlite",
+    "embreex",
+    "h5py",
+    "scipy",
+    "trimesh",
+)
 
 
 class VersionError(ValueError):
@@ -69,8 +78,9 @@ class DatasetVersion:
         config = RadarConfig.named("xband-v1")
         if not self.radar:
             return config
-        grid = "x".join(str(self.radar.get(k, getattr(config, k)))
-                        for k in ("n_aspect", "n_roll", "n_range"))
+        grid = "x".join(
+            str(self.radar.get(k, getattr(config, k))) for k in ("n_aspect", "n_roll", "n_range")
+        )
         return dataclasses.replace(config, name=f"xband-v1-{grid}", **self.radar)
 
     def grid(self) -> str:
@@ -79,9 +89,16 @@ class DatasetVersion:
 
     def describe(self) -> dict:
         """What the board shows about the version."""
-        return {"name": self.name, "summary": self.summary, "classes": list(self.classes),
-                "objects_per_class": self.objects_per_class, "variants": self.variants,
-                "seed": self.seed, "grid": self.grid(), "radar_config": self.radar_config().name}
+        return {
+            "name": self.name,
+            "summary": self.summary,
+            "classes": list(self.classes),
+            "objects_per_class": self.objects_per_class,
+            "variants": self.variants,
+            "seed": self.seed,
+            "grid": self.grid(),
+            "radar_config": self.radar_config().name,
+        }
 
 
 @functools.cache
@@ -91,42 +108,72 @@ def _manifest(path: Path) -> dict | None:
     return manifest.load(path) if path.exists() else None
 
 
-VERSIONS: dict[str, DatasetVersion] = {v.name: v for v in (
-    DatasetVersion(
-        "tiny-v1", "the test suite's dataset: 2 objects per class, 3 meshes each",
-        objects_per_class=2, variants=2, radar={"n_aspect": 7, "n_roll": 3}),
-    DatasetVersion(
-        "demo-v1", "the README demo: 4 objects per class, 10 meshes each, every mesh labelled",
-        objects_per_class=4, variants=9, radar={"n_aspect": 31, "n_roll": 7},
-        mesh_labels="all"),
-    DatasetVersion(
-        "cpu-v1", "the CPU benchmark: 500 objects per class (150 test objects), 10 meshes "
-        "each plus OOD test meshes, 31 x 7 grid",
-        objects_per_class=500, variants=9, radar={"n_aspect": 31, "n_roll": 7},
-        mesh_labels="sample:1"),
-    DatasetVersion(
-        "hidden-cpu-v1", "the hidden-parameter track: 500 frustums (50 test objects) whose "
-        "top-to-base radius ratio is hidden (class + scale cannot tell it), 10 meshes each, "
-        "31 x 7 grid",
-        objects_per_class=500, variants=9, classes=("frustum",),
-        radar={"n_aspect": 31, "n_roll": 7}, mesh_labels="sample:1"),
-    DatasetVersion(
-        "paper-v1", "the paper's scale: 1000 objects per class, 100 meshes each, full grid",
-        objects_per_class=1000, variants=99),
-)}
+VERSIONS: dict[str, DatasetVersion] = {
+    v.name: v
+    for v in (
+        DatasetVersion(
+            "tiny-v1",
+            "the test suite's dataset: 2 objects per class, 3 meshes each",
+            objects_per_class=2,
+            variants=2,
+            radar={"n_aspect": 7, "n_roll": 3},
+        ),
+        DatasetVersion(
+            "demo-v1",
+            "the README demo: 4 objects per class, 10 meshes each, every mesh labelled",
+            objects_per_class=4,
+            variants=9,
+            radar={"n_aspect": 31, "n_roll": 7},
+            mesh_labels="all",
+        ),
+        DatasetVersion(
+            "cpu-v1",
+            "the CPU benchmark: 500 objects per class (150 test objects), 10 meshes "
+            "each plus OOD test meshes, 31 x 7 grid",
+            objects_per_class=500,
+            variants=9,
+            radar={"n_aspect": 31, "n_roll": 7},
+            mesh_labels="sample:1",
+        ),
+        DatasetVersion(
+            "hidden-cpu-v1",
+            "the hidden-parameter track: 500 frustums (50 test objects) whose "
+            "top-to-base radius ratio is hidden (class + scale cannot tell it), 10 meshes each, "
+            "31 x 7 grid",
+            objects_per_class=500,
+            variants=9,
+            classes=("frustum",),
+            radar={"n_aspect": 31, "n_roll": 7},
+            mesh_labels="sample:1",
+        ),
+        DatasetVersion(
+            "paper-v1",
+            "the paper's scale: 1000 objects per class, 100 meshes each, full grid",
+            objects_per_class=1000,
+            variants=99,
+        ),
+    )
+}
 
 
 def get(name: str) -> DatasetVersion:
     try:
         return VERSIONS[name]
     except KeyError:
-        raise VersionError(f"unknown dataset version {name!r}; known: "
-                           f"{', '.join(VERSIONS)}") from None
+        raise VersionError(
+            f"unknown dataset version {name!r}; known: {', '.join(VERSIONS)}"
+        ) from None
 
 
-def build(version: DatasetVersion, directory: str | Path, *, workers: int | None = None,
-          scheduler: str | None = None, quiet: bool = False,
-          shards: list[int] | None = None) -> dict:
+def build(
+    version: DatasetVersion,
+    directory: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    quiet: bool = False,
+    shards: list[int] | None = None,
+) -> dict:
     """Generate and label ``version`` into ``directory`` (both resume), or only the shards
     numbered ``shards`` (a slice: the same bytes as in a whole build); return timings and the
     comparison with the version's manifest (``check``)."""
@@ -134,17 +181,30 @@ def build(version: DatasetVersion, directory: str | Path, *, workers: int | None
     from radar_sim.label import LabelRequest, label_directory
 
     directory = Path(directory)
-    cfg = GenerateConfig(classes=tuple(version.classes),
-                         objects_per_class=version.objects_per_class,
-                         variants=version.variants, seed=version.seed)
+    cfg = GenerateConfig(
+        classes=tuple(version.classes),
+        objects_per_class=version.objects_per_class,
+        variants=version.variants,
+        seed=version.seed,
+    )
     t0 = time.perf_counter()
-    generate(directory, cfg, workers=workers, scheduler=scheduler, progress=not quiet,
-             shards=shards)
+    generate(
+        directory, cfg, workers=workers, scheduler=scheduler, progress=not quiet, shards=shards
+    )
     t1 = time.perf_counter()
-    label_directory(directory, LabelRequest(version.radar_config(), version.mesh_labels),
-                    workers=workers, scheduler=scheduler, progress=not quiet)
-    return {"version": version.name, "generate_s": round(t1 - t0, 1),
-            "label_s": round(time.perf_counter() - t1, 1), **check(version, directory)}
+    label_directory(
+        directory,
+        LabelRequest(version.radar_config(), version.mesh_labels),
+        workers=workers,
+        scheduler=scheduler,
+        progress=not quiet,
+    )
+    return {
+        "version": version.name,
+        "generate_s": round(t1 - t0, 1),
+        "label_s": round(time.perf_counter() - t1, 1),
+        **check(version, directory),
+    }
 
 
 def check(version: DatasetVersion, directory: str | Path) -> dict:
@@ -160,14 +220,24 @@ def check(version: DatasetVersion, directory: str | Path) -> dict:
         return {**report, "matches_recorded": None, "differences": []}
     names = {s["name"] for s in found["shards"]}
     if len(names) < len(expected["shards"]):
-        expected = {**expected, "shards": [s for s in expected["shards"] if s["name"] in names],
-                    "fingerprints": found["fingerprints"]}    # a slice: shard by shard
+        expected = {
+            **expected,
+            "shards": [s for s in expected["shards"] if s["name"] in names],
+            "fingerprints": found["fingerprints"],
+        }  # a slice: shard by shard
         report["slice"] = sorted(names)
     differences = mf.differences(expected, found)
-    stack_changed = sorted(k for k in set(expected["stack"]) | set(found["stack"])
-                           if expected["stack"].get(k) != found["stack"].get(k))
-    return {**report, "matches_recorded": not differences, "differences": differences,
-            "stack_differs": stack_changed}
+    stack_changed = sorted(
+        k
+        for k in set(expected["stack"]) | set(found["stack"])
+        if expected["stack"].get(k) != found["stack"].get(k)
+    )
+    return {
+        **report,
+        "matches_recorded": not differences,
+        "differences": differences,
+        "stack_differs": stack_changed,
+    }
 
 
 def stack() -> dict:
@@ -176,8 +246,11 @@ def stack() -> dict:
     import platform
     from importlib import metadata
 
-    out = {"python": platform.python_version(), "machine": platform.machine(),
-           "libc": "-".join(platform.libc_ver())}
+    out = {
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "libc": "-".join(platform.libc_ver()),
+    }
     for package in BYTE_PACKAGES:
         try:
             out[package] = metadata.version(package)
@@ -197,9 +270,12 @@ def _generator_config(version: DatasetVersion) -> dict:
     """The generator config ``build`` asks for (toolkit version aside)."""
     from basic_shapes.generate import GenerateConfig
 
-    cfg = GenerateConfig(classes=tuple(version.classes),
-                         objects_per_class=version.objects_per_class,
-                         variants=version.variants, seed=version.seed).to_json()
+    cfg = GenerateConfig(
+        classes=tuple(version.classes),
+        objects_per_class=version.objects_per_class,
+        variants=version.variants,
+        seed=version.seed,
+    ).to_json()
     cfg.pop("toolkit_version")
     return cfg
 
@@ -218,31 +294,53 @@ def identify(directory: str | Path, registry: dict | None = None) -> DatasetVers
     for v in (registry or VERSIONS).values():
         if gen == _generator_config(v) and radar == json.loads(v.radar_config().to_json()):
             return v
-    raise VersionError(f"{directory}: not a registered dataset version (benchmark dataset "
-                       f"--list names them; build one with benchmark dataset NAME --data DIR)")
+    raise VersionError(
+        f"{directory}: not a registered dataset version (benchmark dataset "
+        f"--list names them; build one with benchmark dataset NAME --data DIR)"
+    )
 
 
 def add_arguments(p) -> None:
     from basic_shapes.infra import add_cluster_flags, add_quiet_flag
 
     p.add_argument("name", nargs="?", help="dataset version (see --list)")
-    p.add_argument("--data", metavar="DIR",
-                   help="dataset directory: built into (resumes if it exists), checked, packed "
-                   "or fetched into")
+    p.add_argument(
+        "--data",
+        metavar="DIR",
+        help="dataset directory: built into (resumes if it exists), checked, packed "
+        "or fetched into",
+    )
     p.add_argument("--list", action="store_true", help="list the registered versions and exit")
     what = p.add_mutually_exclusive_group()
-    what.add_argument("--check", action="store_true",
-                      help="only compare DIR with the version's manifest; name the first shard, "
-                      "object and mesh that differ")
-    what.add_argument("--from", dest="source", metavar="PATH_OR_URL",
-                      help="fetch the version's release archive instead of building it; every "
-                      "shard is verified against the committed manifest (no Blender needed)")
-    what.add_argument("--pack", metavar="ARCHIVE",
-                      help="write a built, checked DIR as the version's release archive (.tar)")
-    what.add_argument("--record", action="store_true",
-                      help="maintainers: write the version's manifest from DIR (its first build)")
-    p.add_argument("--shards", metavar="I,J,...", type=_indices,
-                   help="build only these shards of the version (a slice, checked shard by shard)")
+    what.add_argument(
+        "--check",
+        action="store_true",
+        help="only compare DIR with the version's manifest; name the first shard, "
+        "object and mesh that differ",
+    )
+    what.add_argument(
+        "--from",
+        dest="source",
+        metavar="PATH_OR_URL",
+        help="fetch the version's release archive instead of building it; every "
+        "shard is verified against the committed manifest (no Blender needed)",
+    )
+    what.add_argument(
+        "--pack",
+        metavar="ARCHIVE",
+        help="write a built, checked DIR as the version's release archive (.tar)",
+    )
+    what.add_argument(
+        "--record",
+        action="store_true",
+        help="maintainers: write the version's manifest from DIR (its first build)",
+    )
+    p.add_argument(
+        "--shards",
+        metavar="I,J,...",
+        type=_indices,
+        help="build only these shards of the version (a slice, checked shard by shard)",
+    )
     add_cluster_flags(p)
     add_quiet_flag(p)
 
@@ -253,8 +351,9 @@ def _indices(text: str) -> list[int]:
     try:
         values = sorted({int(x) for x in text.split(",")})
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of shard "
-                                         f"numbers") from None
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a comma-separated list of shard numbers"
+        ) from None
     if not values or values[0] < 0:
         raise argparse.ArgumentTypeError(f"{text!r}: shard numbers are 0 or more")
     return values
@@ -266,20 +365,26 @@ def run(args) -> int:
 
     if args.list or not args.name:
         for v in VERSIONS.values():
-            recorded = (f"mesh {v.fingerprints['mesh'][:8]} label {v.fingerprints['label'][:8]}"
-                        if v.fingerprints else "no manifest recorded")
+            recorded = (
+                f"mesh {v.fingerprints['mesh'][:8]} label {v.fingerprints['label'][:8]}"
+                if v.fingerprints
+                else "no manifest recorded"
+            )
             print(f"{v.name:13s} {v.grid():42s} {recorded}\n{'':13s} {v.summary}")
         return 0
     if not args.data:
-        raise VersionError("--data DIR is required (the directory to build, check, pack or "
-                           "fetch into)")
+        raise VersionError(
+            "--data DIR is required (the directory to build, check, pack or fetch into)"
+        )
     version = get(args.name)
     if args.record:
         found = mf.build(args.data, version.name, stack())
         with atomic_path(version.manifest_path) as tmp:
             tmp.write_text(mf.dumps(found))
-        print(f"recorded {version.manifest_path}: mesh {found['fingerprints']['mesh']}, "
-              f"label {found['fingerprints']['label']}")
+        print(
+            f"recorded {version.manifest_path}: mesh {found['fingerprints']['mesh']}, "
+            f"label {found['fingerprints']['label']}"
+        )
         return 0
     if (args.source or args.pack) and version.manifest is None:
         raise VersionError(f"{version.name}: no manifest recorded, so nothing to verify against")
@@ -289,17 +394,27 @@ def run(args) -> int:
     elif args.check or args.pack:
         report = {"version": version.name, **check(version, args.data)}
     else:
-        report = build(version, args.data, workers=args.workers, scheduler=args.scheduler,
-                       quiet=args.quiet, shards=args.shards)
+        report = build(
+            version,
+            args.data,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            quiet=args.quiet,
+            shards=args.shards,
+        )
     if report["matches_recorded"] and args.pack:
         if "slice" in report:
-            raise VersionError(f"{args.data}: holds only a slice of {version.name}; pack a "
-                               f"whole build")
+            raise VersionError(
+                f"{args.data}: holds only a slice of {version.name}; pack a whole build"
+            )
         report["archive"] = str(release.pack(args.data, version.manifest, args.pack))
     print(json.dumps(report, indent=2))
     if report["matches_recorded"] is False:
         first = report["differences"][0]
-        hint = (f" (stack differs from the recorded one: {', '.join(report['stack_differs'])})"
-                if report["stack_differs"] else "")
+        hint = (
+            f" (stack differs from the recorded one: {', '.join(report['stack_differs'])})"
+            if report["stack_differs"]
+            else ""
+        )
         raise VersionError(f"{args.data}: not {version.name} as recorded: {first}{hint}")
     return 0

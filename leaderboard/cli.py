@@ -29,25 +29,40 @@ publish a new one by pull request (docs/SUBMITTING.md)."""
 
 
 def build_parser() -> ArgumentParser:
-    p = ArgumentParser(prog="leaderboard", description=__doc__, epilog=EPILOG,
-                       formatter_class=RawDescriptionHelpFormatter)
+    p = ArgumentParser(
+        prog="leaderboard",
+        description=__doc__,
+        epilog=EPILOG,
+        formatter_class=RawDescriptionHelpFormatter,
+    )
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
-    entries = {"default": DEFAULT_ENTRIES, "type": Path,
-               "help": "entries folder (default: %(default)s)"}
+    entries = {
+        "default": DEFAULT_ENTRIES,
+        "type": Path,
+        "help": "entries folder (default: %(default)s)",
+    }
     # Writing commands never default to the repository's own board: the folder is named.
-    new_entries = {"required": True, "type": Path,
-                   "help": f"entries folder to write into (the published board: {DEFAULT_ENTRIES})"}
-    unregistered = {"action": "store_true",
-                    "help": "accept a dataset that is not a registered version (benchmark "
-                    "dataset --list): a private board; the entry says so"}
+    new_entries = {
+        "required": True,
+        "type": Path,
+        "help": f"entries folder to write into (the published board: {DEFAULT_ENTRIES})",
+    }
+    unregistered = {
+        "action": "store_true",
+        "help": "accept a dataset that is not a registered version (benchmark "
+        "dataset --list): a private board; the entry says so",
+    }
 
-    s = sub.add_parser("submit", help="re-score a results JSON + predictions file and add an entry",
-                       description="Score the predictions file again against the dataset (nothing "
-                       "submitted is executed), refuse the results if any number differs from the "
-                       "re-score, if a fingerprint belongs to another dataset or if a file is "
-                       "malformed; otherwise write one entry file atomically. No model is run, so "
-                       "the entry's speed and parameter count are recorded as self-reported.")
+    s = sub.add_parser(
+        "submit",
+        help="re-score a results JSON + predictions file and add an entry",
+        description="Score the predictions file again against the dataset (nothing "
+        "submitted is executed), refuse the results if any number differs from the "
+        "re-score, if a fingerprint belongs to another dataset or if a file is "
+        "malformed; otherwise write one entry file atomically. No model is run, so "
+        "the entry's speed and parameter count are recorded as self-reported.",
+    )
     s.add_argument("results", type=Path, help="results JSON written by `benchmark evaluate`")
     s.add_argument("--predictions", type=Path, required=True, help="predictions HDF5 file")
     s.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
@@ -66,40 +81,65 @@ def build_parser() -> ArgumentParser:
         "own reproduce runs only: the speeds and parameter counts the harness measured there "
         "are kept as measured.",
     )
-    d.add_argument("--from", dest="from_dir", type=Path, required=True, metavar="OUT/results",
-                   help="the results/ folder inside `benchmark reproduce --out OUT`")
+    d.add_argument(
+        "--from",
+        dest="from_dir",
+        type=Path,
+        required=True,
+        metavar="OUT/results",
+        help="the results/ folder inside `benchmark reproduce --out OUT`",
+    )
     d.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     d.add_argument("--entries", **new_entries)
     d.add_argument("--unregistered", **unregistered)
     d.add_argument("--link", help="http(s) URL shared by the seeded entries")
     add_quiet_flag(d)
 
-    m = sub.add_parser("simulator", help="record the physics simulator's point for a dataset",
-                       description="Write the dataset's simulator entry: the physics "
-                       "simulator run on each stored representation mesh (radar-sim label "
-                       "--mesh-labels), scored "
-                       "against the object's label like a model (test objects with mesh "
-                       "physics only); speed = timing radar_sim on the example object's "
-                       "meshes, or --ms-per-mesh.")
+    m = sub.add_parser(
+        "simulator",
+        help="record the physics simulator's point for a dataset",
+        description="Write the dataset's simulator entry: the physics "
+        "simulator run on each stored representation mesh (radar-sim label "
+        "--mesh-labels), scored "
+        "against the object's label like a model (test objects with mesh "
+        "physics only); speed = timing radar_sim on the example object's "
+        "meshes, or --ms-per-mesh.",
+    )
     m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     m.add_argument("--entries", **new_entries)
-    m.add_argument("--ms-per-mesh", type=number(minimum=0),
-                   help="record this speed instead of timing radar_sim")
+    m.add_argument(
+        "--ms-per-mesh",
+        type=number(minimum=0),
+        help="record this speed instead of timing radar_sim",
+    )
     m.add_argument("--hardware", help="hardware description (default: this machine's CPU)")
 
-    r = sub.add_parser("render", help="build the static site and LEADERBOARD.md",
-                       description="Render every entry into OUT/index.html (sortable tables, "
-                       "per-class breakdowns, speed-vs-error chart, example predictions) and "
-                       "OUT/LEADERBOARD.md. The site loads nothing from the network.")
-    r.add_argument("--out", type=Path, default=Path("site"),
-                   help="output folder (default: %(default)s)")
+    r = sub.add_parser(
+        "render",
+        help="build the static site and LEADERBOARD.md",
+        description="Render every entry into OUT/index.html (sortable tables, "
+        "per-class breakdowns, speed-vs-error chart, example predictions) and "
+        "OUT/LEADERBOARD.md. The site loads nothing from the network.",
+    )
+    r.add_argument(
+        "--out", type=Path, default=Path("site"), help="output folder (default: %(default)s)"
+    )
     r.add_argument("--entries", **entries)
 
     v = sub.add_parser("serve", help="preview the rendered site locally (http.server)")
-    v.add_argument("site", type=Path, nargs="?", default=Path("site"),
-                   help="rendered site folder (default: %(default)s)")
-    v.add_argument("--port", type=number(int, minimum=0, maximum=65535), default=8000,
-                   help="port (default: %(default)s; 0 = any free)")
+    v.add_argument(
+        "site",
+        type=Path,
+        nargs="?",
+        default=Path("site"),
+        help="rendered site folder (default: %(default)s)",
+    )
+    v.add_argument(
+        "--port",
+        type=number(int, minimum=0, maximum=65535),
+        default=8000,
+        help="port (default: %(default)s; 0 = any free)",
+    )
     v.add_argument("--host", default="127.0.0.1", help="address to bind (default: %(default)s)")
     return p
 
@@ -107,19 +147,35 @@ def build_parser() -> ArgumentParser:
 def run(args) -> None:
     if args.command == "submit":
         from leaderboard.submit import submit
-        separate_outputs({"--entries": args.entries},
-                         {"RESULTS": args.results, "--predictions": args.predictions,
-                          "--data": args.data})
-        path = submit(args.results, args.predictions, args.data, args.entries, args.name, args.link,
-                      unregistered=args.unregistered)
+
+        separate_outputs(
+            {"--entries": args.entries},
+            {"RESULTS": args.results, "--predictions": args.predictions, "--data": args.data},
+        )
+        path = submit(
+            args.results,
+            args.predictions,
+            args.data,
+            args.entries,
+            args.name,
+            args.link,
+            unregistered=args.unregistered,
+        )
         print(f"accepted: {path}")
     elif args.command == "seed":
         from leaderboard.submit import seed
-        separate_outputs({"--entries": args.entries}, {"--from": args.from_dir,
-                                                       "--data": args.data})
-        accepted, skipped, refused = seed(args.from_dir, args.data, args.entries, args.link,
-                                          unregistered=args.unregistered,
-                                          progress=not args.quiet)
+
+        separate_outputs(
+            {"--entries": args.entries}, {"--from": args.from_dir, "--data": args.data}
+        )
+        accepted, skipped, refused = seed(
+            args.from_dir,
+            args.data,
+            args.entries,
+            args.link,
+            unregistered=args.unregistered,
+            progress=not args.quiet,
+        )
         if not args.quiet:
             for path in accepted:
                 print(f"accepted: {path}")
@@ -128,10 +184,13 @@ def run(args) -> None:
         for msg in refused:
             print(f"refused: {msg}", file=sys.stderr)
         if refused:
-            raise SystemExit(f"{len(accepted)} accepted, {len(skipped)} skipped, "
-                             f"{len(refused)} refused (first: {refused[0]})")
+            raise SystemExit(
+                f"{len(accepted)} accepted, {len(skipped)} skipped, "
+                f"{len(refused)} refused (first: {refused[0]})"
+            )
     elif args.command == "simulator":
         from leaderboard.simulator import record
+
         separate_outputs({"--entries": args.entries}, {"--data": args.data})
         try:
             path = record(args.data, args.entries, args.ms_per_mesh, args.hardware)
@@ -140,12 +199,17 @@ def run(args) -> None:
         print(f"recorded: {path}")
     elif args.command == "render":
         from leaderboard.render import render
+
         separate_outputs({"--out": args.out}, {"--entries": args.entries})
-        files = render(args.out, args.entries, warn=lambda msg: print(
-            f"leaderboard render: warning: {msg}", file=sys.stderr))
+        files = render(
+            args.out,
+            args.entries,
+            warn=lambda msg: print(f"leaderboard render: warning: {msg}", file=sys.stderr),
+        )
         print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
     elif args.command == "serve":
         from leaderboard.serve import serve
+
         serve(args.site, args.port, args.host)
 
 

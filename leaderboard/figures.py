@@ -29,22 +29,32 @@ def plottable(models: list[dict]) -> list[dict]:
     ]
 
 
-def speed_vs_error(models: list[dict], simulator: dict | None,
-                   references: dict | None = None) -> bytes:
+def speed_vs_error(
+    models: list[dict], simulator: dict | None, references: dict | None = None
+) -> bytes:
     """Every plottable model at (ms per mesh, Complex MSE); models without skill hollow,
     self-reported speeds as diamonds (``benchmark.plotting`` draws it, as for the table)."""
     points = []
     for e in plottable(models):
         m, own = e["metrics"], speed_self_reported(e)
-        points.append(Point(e["speed"]["ms_per_mesh"], m["complex_mse"],
-                            e["name"] + (" (self-reported speed)" if own else ""),
-                            ci=m.get("complex_mse_ci"), marker="D" if own else "o",
-                            hollow=bool(m.get("no_skill", m.get("mode_collapse")))))
+        points.append(
+            Point(
+                e["speed"]["ms_per_mesh"],
+                m["complex_mse"],
+                e["name"] + (" (self-reported speed)" if own else ""),
+                ci=m.get("complex_mse_ci"),
+                marker="D" if own else "o",
+                hollow=bool(m.get("no_skill", m.get("mode_collapse"))),
+            )
+        )
     sim = None  # a simulator entry without a Complex MSE (no complex mesh labelled) is not drawn
     if simulator is not None and simulator["metrics"]["complex_mse"] is not None:
         sim = (simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"])
-    return plotting.png(plotting.speed_vs_error(
-        points, {k: r.get("complex_mse") for k, r in (references or {}).items()}, sim))
+    return plotting.png(
+        plotting.speed_vs_error(
+            points, {k: r.get("complex_mse") for k, r in (references or {}).items()}, sim
+        )
+    )
 
 
 def example(models: list[dict]) -> bytes:
@@ -54,17 +64,28 @@ def example(models: list[dict]) -> bytes:
     physics = np.array(s["physics_db"])
     vmax = float(physics.max())
     extent = [s["range_m"][0], s["range_m"][-1], s["aspect_deg"][-1], s["aspect_deg"][0]]
-    fig, axes = plt.subplots(len(rows), 3, figsize=(10, 2.6 * len(rows) + 0.6), squeeze=False,
-                             layout="constrained")
+    fig, axes = plt.subplots(
+        len(rows), 3, figsize=(10, 2.6 * len(rows) + 0.6), squeeze=False, layout="constrained"
+    )
     simple, complex_ = s["meshes"]
-    titles = ["physics response", f"simple mesh ({simple['n_faces']} faces)",
-              f"complex mesh ({complex_['n_faces']} faces)"]
+    titles = [
+        "physics response",
+        f"simple mesh ({simple['n_faces']} faces)",
+        f"complex mesh ({complex_['n_faces']} faces)",
+    ]
     for r, e in enumerate(rows):
         images = [physics] + [np.array(m["predicted_db"]) for m in e["sample"]["meshes"]]
         for c, img in enumerate(images):
             ax = axes[r, c]
-            im = ax.imshow(img, extent=extent, aspect="auto", cmap="viridis",
-                           vmin=vmax - DB_RANGE, vmax=vmax, interpolation="nearest")
+            im = ax.imshow(
+                img,
+                extent=extent,
+                aspect="auto",
+                cmap="viridis",
+                vmin=vmax - DB_RANGE,
+                vmax=vmax,
+                interpolation="nearest",
+            )
             ax.set_title(titles[c] if c == 0 else f"{literal(e['name'])}: {titles[c]}", fontsize=9)
             ax.set_xlabel("range (m)", fontsize=8)
             ax.set_ylabel("aspect (deg)", fontsize=8)

@@ -41,18 +41,24 @@ from leaderboard.store import (
 )
 
 FIGURES = ("speed-vs-error-*.png", "example-*.png")
-METRIC_TITLES = {"simple_mse": "Simple MSE", "complex_mse": "Complex MSE",
-                 "variation_mse": "Variation MSE", "ood_complex_mse": "OOD Complex MSE",
-                 "ood_variation_mse": "OOD Variation MSE"}
+METRIC_TITLES = {
+    "simple_mse": "Simple MSE",
+    "complex_mse": "Complex MSE",
+    "variation_mse": "Variation MSE",
+    "ood_complex_mse": "OOD Complex MSE",
+    "ood_variation_mse": "OOD Variation MSE",
+}
 COLUMNS = METRIC_NAMES + OOD_METRIC_NAMES  # "—" in older entries
 PACKAGE = resources.files("leaderboard")  # the template and static files
 ASSET_MAX_BYTES = 1 << 20
 SELF_REPORTED = " (self-reported)"  # the marker of a number the harness did not measure
-SELF_REPORTED_NOTE = ("(self-reported): given by the submitter, not measured by the harness. "
-                      "A submission is scored from its predictions file and no model is run, so "
-                      "the speed and the parameter count of a submitted entry are always "
-                      "self-reported; only the maintainers' own reproduce runs (leaderboard "
-                      "seed) and the timed physics simulator are measured.")
+SELF_REPORTED_NOTE = (
+    "(self-reported): given by the submitter, not measured by the harness. "
+    "A submission is scored from its predictions file and no model is run, so "
+    "the speed and the parameter count of a submitted entry are always "
+    "self-reported; only the maintainers' own reproduce runs (leaderboard "
+    "seed) and the timed physics simulator are measured."
+)
 
 
 def fmt_mse(x: float | None) -> str:
@@ -119,8 +125,9 @@ def references(g: dict) -> dict:
     for e in g["models"]:
         refs = e["metrics"].get("references")
         if refs:  # entry files sort their keys: show them in the harness's order
-            order = [n for n in REFERENCE_NOTES if n in refs] \
-                + sorted(set(refs) - set(REFERENCE_NOTES))
+            order = [n for n in REFERENCE_NOTES if n in refs] + sorted(
+                set(refs) - set(REFERENCE_NOTES)
+            )
             return {n: refs[n] for n in order}
     return {}
 
@@ -130,18 +137,34 @@ def datasets(entries: list[dict]) -> list[dict]:
     groups: dict[str, dict] = {}
     for e in entries:
         fp = e["dataset"]["fingerprint"]
-        g = groups.setdefault(fp, {"fingerprint": fp, "short": fp[:12], "dataset": e["dataset"],
-                                   "models": [], "simulator": None})
+        g = groups.setdefault(
+            fp,
+            {
+                "fingerprint": fp,
+                "short": fp[:12],
+                "dataset": e["dataset"],
+                "models": [],
+                "simulator": None,
+            },
+        )
         if e["kind"] == "simulator":
             g["simulator"] = e
         else:
             g["models"].append(e)
     for g in groups.values():
-        g["models"].sort(key=lambda e: (e["metrics"]["complex_mse"] is None,
-                                        e["metrics"]["complex_mse"] or 0.0, e["name"]))
+        g["models"].sort(
+            key=lambda e: (
+                e["metrics"]["complex_mse"] is None,
+                e["metrics"]["complex_mse"] or 0.0,
+                e["name"],
+            )
+        )
         with_sample = [e for e in g["models"] if e.get("sample")]
-        g["example"] = [e for e in with_sample  # the best model's object, in case entries differ
-                        if e["sample"]["object_id"] == with_sample[0]["sample"]["object_id"]]
+        g["example"] = [
+            e
+            for e in with_sample  # the best model's object, in case entries differ
+            if e["sample"]["object_id"] == with_sample[0]["sample"]["object_id"]
+        ]
     return sorted(groups.values(), key=lambda g: (-len(g["models"]), g["fingerprint"]))
 
 
@@ -151,38 +174,53 @@ def describe(dataset: dict) -> str:
     from benchmark.versions import VERSIONS
 
     v = VERSIONS.get(dataset.get("version") or "")
-    head = (f"version {v.name}: {v.summary}; grid {v.grid()}, radar config "
-            f"{v.radar_config().name}; built by: benchmark dataset {v.name} --data DIR. "
-            if v else "not a registered dataset version. ")
+    head = (
+        f"version {v.name}: {v.summary}; grid {v.grid()}, radar config "
+        f"{v.radar_config().name}; built by: benchmark dataset {v.name} --data DIR. "
+        if v
+        else "not a registered dataset version. "
+    )
     recorded, found = v.fingerprints.get("mesh") if v else None, dataset.get("fingerprint")
     if recorded and found and found != recorded:
-        head += (f"Scored on an earlier build of {v.name} (mesh {found[:8]}..., "
-                 f"made before dataset bytes were machine-independent; the recorded build is "
-                 f"{recorded[:8]}...): its numbers re-score only where that build comes back "
-                 f"(docs/RESULTS.md, Status). ")
-    return (head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
-            f"test objects, {dataset['test_meshes']} test meshes")
+        head += (
+            f"Scored on an earlier build of {v.name} (mesh {found[:8]}..., "
+            f"made before dataset bytes were machine-independent; the recorded build is "
+            f"{recorded[:8]}...): its numbers re-score only where that build comes back "
+            f"(docs/RESULTS.md, Status). "
+        )
+    return (
+        head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
+        f"test objects, {dataset['test_meshes']} test meshes"
+    )
 
 
 def simulator_note(sim: dict | None) -> str:
     """One sentence about the physics point, plain text (escaped by the caller)."""
     if sim is None:
-        return ("No physics simulator point for this dataset yet "
-                "(run `leaderboard simulator --data DIR`).")
+        return (
+            "No physics simulator point for this dataset yet "
+            "(run `leaderboard simulator --data DIR`)."
+        )
     how = sim.get("complex_mse_source", "")
-    return (f"Physics simulator ({sim['name']}): {fmt_speed(sim)} ms per mesh "
-            f"on {sim['speed']['hardware'] or 'unknown hardware'}; "
-            f"Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² ({how}).")
+    return (
+        f"Physics simulator ({sim['name']}): {fmt_speed(sim)} ms per mesh "
+        f"on {sim['speed']['hardware'] or 'unknown hardware'}; "
+        f"Complex MSE {fmt_mse(sim['metrics']['complex_mse'])} dB² ({how})."
+    )
 
 
 def chart_note(g: dict) -> str:
     """Plain-text sentence naming the models missing from the chart ('' if none)."""
     missing = [e["name"] for e in g["models"] if e not in figures.plottable(g["models"])]
-    return (f"Not on the chart (no speed or no Complex MSE reported): {', '.join(missing)}."
-            if missing else "")
+    return (
+        f"Not on the chart (no speed or no Complex MSE reported): {', '.join(missing)}."
+        if missing
+        else ""
+    )
 
 
 # --- HTML ------------------------------------------------------------------------------------
+
 
 def _e(text) -> str:
     return html.escape(str(text), quote=True)
@@ -201,17 +239,29 @@ def _num(value, text: str) -> str:
 def _link(e: dict) -> str:
     if not e.get("link"):
         return '<td data-value="">—</td>'
-    return (f'<td><a href="{_e(e["link"])}" rel="nofollow noopener noreferrer">'
-            f'{_e(re.sub(r"^https?://", "", e["link"])[:40])}</a></td>')
+    return (
+        f'<td><a href="{_e(e["link"])}" rel="nofollow noopener noreferrer">'
+        f"{_e(re.sub(r'^https?://', '', e['link'])[:40])}</a></td>"
+    )
 
 
 def html_table(g: dict) -> str:
-    head = ([_th("#", "num"), _th("Model", "text")]
-            + [_th(METRIC_TITLES[k] + " [95%]", "num", "ascending" if k == "complex_mse" else None)
-               for k in COLUMNS]
-            + [_th("Skill", "num"), _th("No skill", "text"), _th("Params", "num"),
-               _th("ms / mesh", "num"), _th("Hardware", "text"), _th("Date", "text"),
-               _th("Link", "text")])
+    head = (
+        [_th("#", "num"), _th("Model", "text")]
+        + [
+            _th(METRIC_TITLES[k] + " [95%]", "num", "ascending" if k == "complex_mse" else None)
+            for k in COLUMNS
+        ]
+        + [
+            _th("Skill", "num"),
+            _th("No skill", "text"),
+            _th("Params", "num"),
+            _th("ms / mesh", "num"),
+            _th("Hardware", "text"),
+            _th("Date", "text"),
+            _th("Link", "text"),
+        ]
+    )
     rows = []
     for rank, e in enumerate(g["models"], 1):
         m = e["metrics"]
@@ -219,35 +269,55 @@ def html_table(g: dict) -> str:
         model = e.get("model", {})
         detail = " · ".join(str(model[k]) for k in ("embedding", "regime") if model.get(k))
         skill, skill_text = skill_of(e)
-        cells = ([_num(rank, str(rank)),
-                  f'<td data-value="{_e(e["name"].lower())}">{_e(e["name"])}'
-                  + (f'<br><small class="note">{_e(detail)}</small>' if detail else "") + "</td>"]
-                 + [_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS]
-                 + [_num(skill, skill_text),
-                    '<td class="flag">yes</td>' if flagged else "<td>no</td>",
-                    _num(e.get("params"), fmt_entry_params(e)),
-                    _num(e["speed"]["ms_per_mesh"], fmt_speed(e)),
-                    f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
-                    f'<td class="date">{_e(e["submitted"][:10])}</td>', _link(e)])
+        cells = (
+            [
+                _num(rank, str(rank)),
+                f'<td data-value="{_e(e["name"].lower())}">{_e(e["name"])}'
+                + (f'<br><small class="note">{_e(detail)}</small>' if detail else "")
+                + "</td>",
+            ]
+            + [_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS]
+            + [
+                _num(skill, skill_text),
+                '<td class="flag">yes</td>' if flagged else "<td>no</td>",
+                _num(e.get("params"), fmt_entry_params(e)),
+                _num(e["speed"]["ms_per_mesh"], fmt_speed(e)),
+                f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
+                f'<td class="date">{_e(e["submitted"][:10])}</td>',
+                _link(e),
+            ]
+        )
         cls = ' class="collapsed"' if flagged else ""
         rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
     for name, r in references(g).items():
-        cells = ([_num(None, "ref"), f'<td data-value="{_e(name)}">reference: {_e(name)}'
-                  f'<br><small class="note">{_e(REFERENCE_NOTES.get(name, ""))}</small></td>']
-                 + [_num(r.get(k), fmt_ci(r, k)) for k in COLUMNS]
-                 + [_num(None, "—"),
-                    '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
-                    _num(0, "0"), _num(None, "—")] + ["<td>—</td>"] * 3)
+        cells = (
+            [
+                _num(None, "ref"),
+                f'<td data-value="{_e(name)}">reference: {_e(name)}'
+                f'<br><small class="note">{_e(REFERENCE_NOTES.get(name, ""))}</small></td>',
+            ]
+            + [_num(r.get(k), fmt_ci(r, k)) for k in COLUMNS]
+            + [
+                _num(None, "—"),
+                '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
+                _num(0, "0"),
+                _num(None, "—"),
+            ]
+            + ["<td>—</td>"] * 3
+        )
         rows.append('<tr class="reference">' + "".join(cells) + "</tr>")
-    return (f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'
-            f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>")
+    return (
+        f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'
+        f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>"
+    )
 
 
-REFERENCE_NOTES = {"train-mean": "the training-set mean response, for every mesh",
-                   "class-mean": "the training mean of the object's class (class given)",
-                   "nearest-scale": "the 3 training objects nearest in log scale",
-                   "class-scale-nn": "class read from the mesh's normals, then the 3 nearest "
-                                     "in scale"}
+REFERENCE_NOTES = {
+    "train-mean": "the training-set mean response, for every mesh",
+    "class-mean": "the training mean of the object's class (class given)",
+    "nearest-scale": "the 3 training objects nearest in log scale",
+    "class-scale-nn": "class read from the mesh's normals, then the 3 nearest in scale",
+}
 
 
 def skill_note(g: dict) -> str:
@@ -255,23 +325,32 @@ def skill_note(g: dict) -> str:
     names = {(e["metrics"].get("skill") or {}).get("reference") for e in g["models"]} - {None}
     if not names:
         return ""
-    return (f"Skill: 1 − Complex MSE / Complex MSE of the strongest reference "
-            f"({', '.join(sorted(names))}), and whether the model is better, worse or not "
-            f"distinguishable from it by the paired 95% interval of the difference. No skill: "
-            f"not better than the training-set mean by a paired 95% interval. Reference rows "
-            f"cost nothing to run and are not ranked.")
+    return (
+        f"Skill: 1 − Complex MSE / Complex MSE of the strongest reference "
+        f"({', '.join(sorted(names))}), and whether the model is better, worse or not "
+        f"distinguishable from it by the paired 95% interval of the difference. No skill: "
+        f"not better than the training-set mean by a paired 95% interval. Reference rows "
+        f"cost nothing to run and are not ranked."
+    )
 
 
 def html_per_class(g: dict) -> str:
-    head = [_th("Model", "text"), _th("Class", "text")] + [_th(METRIC_TITLES[k], "num")
-                                                           for k in COLUMNS]
+    head = [_th("Model", "text"), _th("Class", "text")] + [
+        _th(METRIC_TITLES[k], "num") for k in COLUMNS
+    ]
     rows = []
     for e in g["models"]:
         for cls, m in sorted(e["metrics"]["per_class"].items()):
-            rows.append("<tr>" + f"<td>{_e(e['name'])}</td><td>{_e(cls)}</td>"
-                        + "".join(_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS) + "</tr>")
-    return (f'<table class="per-class sortable" id="per-class-{g["short"]}">\n<thead><tr>'
-            f'{"".join(head)}</tr></thead>\n<tbody>\n' + "\n".join(rows) + "\n</tbody>\n</table>")
+            rows.append(
+                "<tr>"
+                + f"<td>{_e(e['name'])}</td><td>{_e(cls)}</td>"
+                + "".join(_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS)
+                + "</tr>"
+            )
+    return (
+        f'<table class="per-class sortable" id="per-class-{g["short"]}">\n<thead><tr>'
+        f"{''.join(head)}</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>"
+    )
 
 
 def _img(name: str, size: tuple[int, int], alt: str) -> str:
@@ -282,32 +361,46 @@ def _img(name: str, size: tuple[int, int], alt: str) -> str:
 
 def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
     short = g["short"]
-    parts = [f'<section id="dataset-{short}">',
-             f"<h2>Dataset {_e(g['dataset'].get('version') or 'unregistered')} "
-             f"<code>{short}</code></h2>",
-             f'<p class="note">{_e(describe(g["dataset"]))}</p>']
+    parts = [
+        f'<section id="dataset-{short}">',
+        f"<h2>Dataset {_e(g['dataset'].get('version') or 'unregistered')} "
+        f"<code>{short}</code></h2>",
+        f'<p class="note">{_e(describe(g["dataset"]))}</p>',
+    ]
     if g["models"]:
         parts += [html_table(g), f'<p class="note">{_e(skill_note(g))}</p>']
     if self_reported_note(g):
         parts.append(f'<p class="note self-reported">{_e(self_reported_note(g))}</p>')
     notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
-    parts += ["<h3>Speed against error</h3>", f"<p>{_e(notes)}</p>",
-              _img(f"speed-vs-error-{short}.png", images[f"speed-vs-error-{short}.png"],
-                   "ms per mesh against Complex MSE for every model and the physics simulator")]
+    parts += [
+        "<h3>Speed against error</h3>",
+        f"<p>{_e(notes)}</p>",
+        _img(
+            f"speed-vs-error-{short}.png",
+            images[f"speed-vs-error-{short}.png"],
+            "ms per mesh against Complex MSE for every model and the physics simulator",
+        ),
+    ]
     if g["models"]:
         parts += ["<h3>Per class</h3>", html_per_class(g)]
     if g["example"]:
         s = g["example"][0]["sample"]
-        parts += ["<h3>Example predictions</h3>",
-                  f"<p>Test object {s['object_id']} ({_e(s['class'])}): the physics response "
-                  f"(aspect against range, roll {s['roll_deg']:g}°) beside each model's prediction "
-                  f"for the simple mesh and for a complex mesh of exactly the same shape.</p>",
-                  _img(f"example-{short}.png", images[f"example-{short}.png"],
-                       "physics response beside predictions for a simple and a complex mesh")]
+        parts += [
+            "<h3>Example predictions</h3>",
+            f"<p>Test object {s['object_id']} ({_e(s['class'])}): the physics response "
+            f"(aspect against range, roll {s['roll_deg']:g}°) beside each model's prediction "
+            f"for the simple mesh and for a complex mesh of exactly the same shape.</p>",
+            _img(
+                f"example-{short}.png",
+                images[f"example-{short}.png"],
+                "physics response beside predictions for a simple and a complex mesh",
+            ),
+        ]
     return "\n".join(parts + ["</section>"])
 
 
 # --- Markdown --------------------------------------------------------------------------------
+
 
 def _md(text) -> str:
     return re.sub(r"([\\`*_\[\]<>|#])", r"\\\1", str(text))
@@ -320,53 +413,73 @@ def md_url(url: str) -> str:
 
 
 def markdown(groups: list[dict]) -> str:
-    out = ["# Basic Shapes leaderboard", "",
-           "Verified by re-scoring each submission's predictions against the dataset; MSE in dB² "
-           "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
-           "computed by the harness and not ranked. Models with no skill (not better than the "
-           "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
-           "not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
-           "meshes from remeshers no training mesh comes from. Speeds and parameter counts "
-           "marked (self-reported) were not measured by the harness.", ""]
+    out = [
+        "# Basic Shapes leaderboard",
+        "",
+        "Verified by re-scoring each submission's predictions against the dataset; MSE in dB² "
+        "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
+        "computed by the harness and not ranked. Models with no skill (not better than the "
+        "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
+        "not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
+        "meshes from remeshers no training mesh comes from. Speeds and parameter counts "
+        "marked (self-reported) were not measured by the harness.",
+        "",
+    ]
     if not groups:
         out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
         short = g["short"]
-        out += [f"## Dataset {g['dataset'].get('version') or 'unregistered'} `{short}`", "",
-                _md(describe(g["dataset"])), ""]
+        out += [
+            f"## Dataset {g['dataset'].get('version') or 'unregistered'} `{short}`",
+            "",
+            _md(describe(g["dataset"])),
+            "",
+        ]
         if g["models"]:
-            out += ["| # | Model | Simple MSE | Complex MSE | Variation MSE | OOD Complex MSE "
-                    "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware "
-                    "| Date |",
-                    "|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|---|"]
+            out += [
+                "| # | Model | Simple MSE | Complex MSE | Variation MSE | OOD Complex MSE "
+                "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware "
+                "| Date |",
+                "|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|---|",
+            ]
             for rank, e in enumerate(g["models"], 1):
                 m = e["metrics"]
                 name = _md(e["name"])
                 if e.get("link"):
                     name = f"[{name}]({md_url(e['link'])})"
-                out.append(f"| {rank} | {name} | " + " | ".join(fmt_ci(m, k) for k in COLUMNS)
-                           + f" | {skill_of(e)[1]} | {'**yes**' if no_skill(m) else 'no'} | "
-                           f"{fmt_entry_params(e)} | {fmt_speed(e)} | "
-                           f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |")
+                out.append(
+                    f"| {rank} | {name} | "
+                    + " | ".join(fmt_ci(m, k) for k in COLUMNS)
+                    + f" | {skill_of(e)[1]} | {'**yes**' if no_skill(m) else 'no'} | "
+                    f"{fmt_entry_params(e)} | {fmt_speed(e)} | "
+                    f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |"
+                )
             for ref, r in references(g).items():
-                out.append(f"| ref | reference: {_md(ref)} | "
-                           + " | ".join(fmt_ci(r, k) for k in COLUMNS)
-                           + f" | — | {'**yes**' if r.get('no_skill') else 'no'} "
-                           f"| 0 | — | — | — |")
+                out.append(
+                    f"| ref | reference: {_md(ref)} | "
+                    + " | ".join(fmt_ci(r, k) for k in COLUMNS)
+                    + f" | — | {'**yes**' if r.get('no_skill') else 'no'} "
+                    f"| 0 | — | — | — |"
+                )
             out += ["", _md(skill_note(g)), ""]
         if self_reported_note(g):
             out += [_md(self_reported_note(g)), ""]
         notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
-        out += [_md(notes), "",
-                f"![Speed against error](speed-vs-error-{short}.png)", ""]
+        out += [_md(notes), "", f"![Speed against error](speed-vs-error-{short}.png)", ""]
         if g["models"]:
-            out += ["### Per class", "", "| Model | Class | "
-                    + " | ".join(METRIC_TITLES[k] for k in COLUMNS) + " |",
-                    "|---|---|" + "---:|" * len(COLUMNS)]
-            out += [f"| {_md(e['name'])} | {_md(c)} | "
-                    + " | ".join(fmt_ci(m, k) for k in COLUMNS)
-                    + " |" for e in g["models"]
-                    for c, m in sorted(e["metrics"]["per_class"].items())]
+            out += [
+                "### Per class",
+                "",
+                "| Model | Class | " + " | ".join(METRIC_TITLES[k] for k in COLUMNS) + " |",
+                "|---|---|" + "---:|" * len(COLUMNS),
+            ]
+            out += [
+                f"| {_md(e['name'])} | {_md(c)} | "
+                + " | ".join(fmt_ci(m, k) for k in COLUMNS)
+                + " |"
+                for e in g["models"]
+                for c, m in sorted(e["metrics"]["per_class"].items())
+            ]
             out += [""]
         if g["example"]:
             out += [f"![Example predictions](example-{short}.png)", ""]
@@ -374,6 +487,7 @@ def markdown(groups: list[dict]) -> str:
 
 
 # --- the site --------------------------------------------------------------------------------
+
 
 def _png_size(data: bytes) -> tuple[int, int]:
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
@@ -385,12 +499,16 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     files: dict[str, bytes] = {}
     for g in groups:
         files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(
-            g["models"], g["simulator"], references(g))
+            g["models"], g["simulator"], references(g)
+        )
         if g["example"]:
             files[f"example-{g['short']}.png"] = figures.example(g["example"])
     sizes = {name: _png_size(data) for name, data in files.items()}
-    body = "\n".join(html_section(g, sizes) for g in groups) if groups else \
-        "<p>No entries yet: see docs/SUBMITTING.md.</p>"
+    body = (
+        "\n".join(html_section(g, sizes) for g in groups)
+        if groups
+        else "<p>No entries yet: see docs/SUBMITTING.md.</p>"
+    )
     page = Template(asset("templates", "page.html").decode("utf-8"))
     files["index.html"] = page.substitute(body=body, n_entries=len(entries)).encode()
     files["LEADERBOARD.md"] = markdown(groups).encode()
@@ -413,8 +531,9 @@ def asset(folder: str, name: str) -> bytes:
     return data
 
 
-def render(out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
-           warn=None) -> dict[str, bytes]:
+def render(
+    out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES, warn=None
+) -> dict[str, bytes]:
     """Validate every entry, build the site in memory, then publish it as a whole.
 
     A bad entry file is skipped, reported through ``warn(message)`` (one broken file must not
@@ -433,8 +552,10 @@ def check_out(out: Path) -> None:
     """Refuse an output folder that is a symbolic link: the swap would replace the link by a
     directory and leave its target stale (and a stray link beside it)."""
     if out.is_symlink():
-        raise ValueError(f"{out}: a symbolic link; render publishes into a real directory, "
-                         f"never through a link (pass its target as --out)")
+        raise ValueError(
+            f"{out}: a symbolic link; render publishes into a real directory, "
+            f"never through a link (pass its target as --out)"
+        )
     if out.exists() and not out.is_dir():
         raise ValueError(f"{out}: not a directory")
 
@@ -461,8 +582,11 @@ def publish(out: Path, files: dict[str, bytes], warn=None) -> None:
     new.mkdir()
     try:
         if out.is_dir():
-            keep = [n for n in sorted(os.listdir(out)) if n not in files
-                    and not any(fnmatch.fnmatch(n, pat) for pat in FIGURES)]
+            keep = [
+                n
+                for n in sorted(os.listdir(out))
+                if n not in files and not any(fnmatch.fnmatch(n, pat) for pat in FIGURES)
+            ]
             _carry(out, new, keep, warn)
         for name, data in files.items():
             (new / name).write_bytes(data)

@@ -19,17 +19,21 @@ def through_link(root: str, path: str) -> bool:
     ``root`` and it is a symbolic link; for a folder, also its index file."""
     rel = os.path.relpath(path, root)
     current = root
-    for part in ([] if rel == os.curdir else rel.split(os.sep)):
+    for part in [] if rel == os.curdir else rel.split(os.sep):
         current = os.path.join(current, part)
         if os.path.islink(current):
             return True
-    return os.path.isdir(path) and any(os.path.islink(os.path.join(path, index))
-                                       for index in ("index.html", "index.htm"))
+    return os.path.isdir(path) and any(
+        os.path.islink(os.path.join(path, index)) for index in ("index.html", "index.htm")
+    )
 
 
 class _Handler(SimpleHTTPRequestHandler):
-    extensions_map = {**SimpleHTTPRequestHandler.extensions_map, ".js": "text/javascript",
-                      ".md": "text/markdown; charset=utf-8"}
+    extensions_map = {
+        **SimpleHTTPRequestHandler.extensions_map,
+        ".js": "text/javascript",
+        ".md": "text/markdown; charset=utf-8",
+    }
 
     def send_head(self):
         """As http.server's, but 404 for anything reached through a symbolic link."""
@@ -42,16 +46,18 @@ class _Handler(SimpleHTTPRequestHandler):
         print(f"{self.address_string()} {fmt % args}", flush=True)
 
 
-def make_server(directory: str | os.PathLike, port: int = 8000,
-                host: str = "127.0.0.1") -> ThreadingHTTPServer:
+def make_server(
+    directory: str | os.PathLike, port: int = 8000, host: str = "127.0.0.1"
+) -> ThreadingHTTPServer:
     """An HTTP server for a rendered site (``port=0`` picks a free port: ``server_port``)."""
     d = Path(directory)
     if d.is_symlink():
         raise ValueError(f"{d}: a symbolic link; serve a real site folder (its target)")
     if not (d / "index.html").is_file():
         raise ValueError(f"{d}: no index.html (run `leaderboard render --out {d}` first)")
-    return ThreadingHTTPServer((host, port),
-                               functools.partial(_Handler, directory=str(d.absolute())))
+    return ThreadingHTTPServer(
+        (host, port), functools.partial(_Handler, directory=str(d.absolute()))
+    )
 
 
 def serve(directory: str | os.PathLike, port: int = 8000, host: str = "127.0.0.1") -> None:

@@ -61,14 +61,21 @@ def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
                     simple = db_target(radar.mesh_response(variants.pop(0)))
                 else:
                     simple = db_target(_simple_physics(data, obj))
-                complex_ = np.array([db_target(radar.mesh_response(j))
-                                     for _, j in sorted(variants.items())])
-                scorer.add(int(data.objects["class_index"][obj]), data.target(obj), simple,
-                           complex_.reshape(len(variants), *simple.shape))
+                complex_ = np.array(
+                    [db_target(radar.mesh_response(j)) for _, j in sorted(variants.items())]
+                )
+                scorer.add(
+                    int(data.objects["class_index"][obj]),
+                    data.target(obj),
+                    simple,
+                    complex_.reshape(len(variants), *simple.shape),
+                )
     if not scorer.rows:
-        raise ValueError(f"{data.directory}: no test object has the physics of a stored mesh "
-                         f"(/radar/mesh_response): label with `radar-sim label "
-                         f"--mesh-labels all` (or sample:K)")
+        raise ValueError(
+            f"{data.directory}: no test object has the physics of a stored mesh "
+            f"(/radar/mesh_response): label with `radar-sim label "
+            f"--mesh-labels all` (or sample:K)"
+        )
     return scorer.result(), len(scorer.rows)
 
 
@@ -103,7 +110,7 @@ def measure_ms_per_mesh(data: BenchmarkData, n: int = TIMING_MESHES) -> float:
     rows = scored_mesh_rows(data)
     order = rows[np.argsort(np.asarray(data.meshes["n_faces"])[rows], kind="stable")]
     step = max(1, len(order) // n)
-    meshes = [data.mesh(int(r)) for r in order[step // 2::step][:n]]
+    meshes = [data.mesh(int(r)) for r in order[step // 2 :: step][:n]]
     simulate(*meshes[0], config, mode=mode)
     t0 = time.perf_counter()
     for v, f in meshes:
@@ -111,8 +118,12 @@ def measure_ms_per_mesh(data: BenchmarkData, n: int = TIMING_MESHES) -> float:
     return 1000.0 * (time.perf_counter() - t0) / len(meshes)
 
 
-def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
-           ms_per_mesh: float | None = None, hardware_text: str | None = None):
+def record(
+    data_dir: str | os.PathLike,
+    entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
+    ms_per_mesh: float | None = None,
+    hardware_text: str | None = None,
+):
     """Write (or replace) the simulator entry of a dataset; return its path."""
     with BenchmarkData(data_dir) as data:
         metrics, scored = mesh_physics_scores(data)
@@ -121,19 +132,33 @@ def record(data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT
         if timed:
             ms_per_mesh = measure_ms_per_mesh(data)
         config = radar_config(data)
-        dataset = {"fingerprint": fingerprint, "label_fingerprint": data.label_fingerprint,
-                   "classes": data.class_names,
-                   "test_objects": len(data.object_rows("test")),
-                   "test_meshes": len(data.mesh_rows("test"))}
+        dataset = {
+            "fingerprint": fingerprint,
+            "label_fingerprint": data.label_fingerprint,
+            "classes": data.class_names,
+            "test_objects": len(data.object_rows("test")),
+            "test_meshes": len(data.mesh_rows("test")),
+        }
     name = f"radar_sim on the representation mesh {config.get('name', '')}".strip()
     entry = {
-        "entry_version": ENTRY_VERSION, "id": f"physics-{fingerprint[:12]}", "kind": "simulator",
+        "entry_version": ENTRY_VERSION,
+        "id": f"physics-{fingerprint[:12]}",
+        "kind": "simulator",
         "origin": "simulator",
-        "name": name, "link": None, "params": None, "dataset": dataset, "metrics": metrics,
+        "name": name,
+        "link": None,
+        "params": None,
+        "dataset": dataset,
+        "metrics": metrics,
         "complex_mse_source": f"{MEASURED}, {scored} test objects",
-        "speed": {**(speed_block(ms_per_mesh) if timed else
-                     {**speed_block(ms_per_mesh, self_reported=True), "hardware": hardware_text}),
-                  "source": "measured by leaderboard simulator" if timed else "given by hand"},
+        "speed": {
+            **(
+                speed_block(ms_per_mesh)
+                if timed
+                else {**speed_block(ms_per_mesh, self_reported=True), "hardware": hardware_text}
+            ),
+            "source": "measured by leaderboard simulator" if timed else "given by hand",
+        },
         "submitted": utc_timestamp(),
         "sample": None,
     }

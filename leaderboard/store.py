@@ -30,9 +30,27 @@ ENTRY_MAX_BYTES = 4 << 20
 # predictions_content_sha256 covers the data scored (``benchmark.protocol.content_sha256``);
 # predictions_sha256 is the container's, kept for entries made before it existed
 FILE_HASHES = ("results_sha256", "predictions_sha256", "predictions_content_sha256")
-ENTRY_FIELDS = ("entry_version", "id", "kind", "origin", "name", "link", "model", "params",
-                "params_self_reported", "benchmark_version", "dataset", "metrics", "speed",
-                "seeds", "created", "submitted", "files", "sample", "complex_mse_source")
+ENTRY_FIELDS = (
+    "entry_version",
+    "id",
+    "kind",
+    "origin",
+    "name",
+    "link",
+    "model",
+    "params",
+    "params_self_reported",
+    "benchmark_version",
+    "dataset",
+    "metrics",
+    "speed",
+    "seeds",
+    "created",
+    "submitted",
+    "files",
+    "sample",
+    "complex_mse_source",
+)
 # Which command wrote an entry, so the board knows what the harness measured itself:
 # ``submit`` scores a predictions file and runs no model (its speed and params are claims),
 # ``seed`` publishes the maintainers' own `benchmark reproduce` runs (timed and counted by the
@@ -68,8 +86,10 @@ def check_text(value, what: str, max_len: int = MAX_TEXT) -> str:
         raise EntryError(f"{what} must be a non-empty string")
     bad = hidden_character(value)
     if len(value) > max_len or bad:
-        raise EntryError(f"{what} must be one printable line of at most {max_len} characters"
-                         + (f" (has the control or format character {bad})" if bad else ""))
+        raise EntryError(
+            f"{what} must be one printable line of at most {max_len} characters"
+            + (f" (has the control or format character {bad})" if bad else "")
+        )
     return value
 
 
@@ -103,10 +123,15 @@ def check_link(value) -> str | None:
 def check_number(value, what: str, minimum: float = 0.0, optional: bool = False) -> float | None:
     if value is None and optional:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value < minimum:
-        raise EntryError(f"{what} must be a finite number >= {minimum:g}{' or null' * optional}, "
-                         f"got {value!r}")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or value < minimum
+    ):
+        raise EntryError(
+            f"{what} must be a finite number >= {minimum:g}{' or null' * optional}, got {value!r}"
+        )
     return float(value)
 
 
@@ -126,8 +151,11 @@ def _check_schema(check, *args) -> None:
 
 
 def _check_image(img, rows: int, cols: int, what: str) -> None:
-    if not (isinstance(img, list) and len(img) == rows
-            and all(isinstance(r, list) and len(r) == cols for r in img)):
+    if not (
+        isinstance(img, list)
+        and len(img) == rows
+        and all(isinstance(r, list) and len(r) == cols for r in img)
+    ):
         raise EntryError(f"{what} must be a {rows} x {cols} list of lists")
     for r in img:
         for v in r:
@@ -169,35 +197,47 @@ def validate_entry(entry) -> dict:
     if entry.get("kind") not in KINDS:
         raise EntryError(f"kind must be one of {', '.join(KINDS)}")
     if entry.get("origin") is not None and entry["origin"] not in ORIGINS[entry["kind"]]:
-        raise EntryError(f"origin of a {entry['kind']} entry must be one of "
-                         f"{', '.join(ORIGINS[entry['kind']])}")
+        raise EntryError(
+            f"origin of a {entry['kind']} entry must be one of {', '.join(ORIGINS[entry['kind']])}"
+        )
     _check_strings(entry, "")
     if not re.fullmatch(r"[a-z0-9][a-z0-9-]*", str(entry.get("id", ""))):
         raise EntryError("id must be lower-case letters, digits and dashes")
     check_text(entry.get("name"), "name", MAX_NAME)
     check_link(entry.get("link"))
     dataset = entry.get("dataset")
-    if not isinstance(dataset, dict) or not re.fullmatch(r"[0-9a-f]{64}",
-                                                         str(dataset.get("fingerprint", ""))):
+    if not isinstance(dataset, dict) or not re.fullmatch(
+        r"[0-9a-f]{64}", str(dataset.get("fingerprint", ""))
+    ):
         raise EntryError("dataset.fingerprint must be a sha256 hex digest")
     if not re.fullmatch(r"[0-9a-f]{64}", str(dataset.get("label_fingerprint", ""))):
         raise EntryError("dataset.label_fingerprint must be a sha256 hex digest")
     classes = dataset.get("classes")
-    if not isinstance(classes, list) or len(classes) > schema.MAX_CLASSES \
-            or not all(isinstance(c, str) and len(c) <= MAX_NAME for c in classes):
+    if (
+        not isinstance(classes, list)
+        or len(classes) > schema.MAX_CLASSES
+        or not all(isinstance(c, str) and len(c) <= MAX_NAME for c in classes)
+    ):
         raise EntryError("dataset.classes must be a list of class names")
     version = dataset.get("version")
     if version is not None and not re.fullmatch(r"[a-z0-9][a-z0-9.-]{0,39}", str(version)):
         raise EntryError("dataset.version must be a registered version name or null")
-    if set(dataset) - {"fingerprint", "label_fingerprint", "version", "classes", "test_objects",
-                       "test_meshes"}:
+    if set(dataset) - {
+        "fingerprint",
+        "label_fingerprint",
+        "version",
+        "classes",
+        "test_objects",
+        "test_meshes",
+    }:
         raise EntryError("dataset has unknown fields")
     unknown = sorted(str(k)[:40] for k in set(entry) - set(ENTRY_FIELDS))
     if unknown:
         raise EntryError(f"unknown field(s) {', '.join(unknown[:5])}")
     for k in ("test_objects", "test_meshes"):
-        _check_schema(schema.Field("int", 0, schema.MAX_COUNT).check, dataset.get(k),
-                      f"dataset.{k}")
+        _check_schema(
+            schema.Field("int", 0, schema.MAX_COUNT).check, dataset.get(k), f"dataset.{k}"
+        )
     if "model" in entry:
         _check_schema(schema.check_fields, entry["model"], schema.MODEL, "model")
     check_metrics(entry.get("metrics"))
@@ -213,8 +253,11 @@ def validate_entry(entry) -> dict:
         if entry.get(k) is not None:
             check_text(entry[k], k)
     files = entry.get("files", {})
-    if not isinstance(files, dict) or set(files) - set(FILE_HASHES) \
-            or not all(re.fullmatch(r"[0-9a-f]{64}", str(v)) for v in files.values()):
+    if (
+        not isinstance(files, dict)
+        or set(files) - set(FILE_HASHES)
+        or not all(re.fullmatch(r"[0-9a-f]{64}", str(v)) for v in files.values())
+    ):
         raise EntryError(f"files must map {'/'.join(FILE_HASHES)} to sha256 digests")
     if not re.fullmatch(r"\d{4}-\d\d-\d\d(T[\d:.]+Z)?", str(entry.get("submitted", ""))):
         raise EntryError("submitted must be an ISO date (YYYY-MM-DD or YYYY-MM-DDTHH:MM:SSZ)")
@@ -231,8 +274,9 @@ def read_regular(path: str | os.PathLike, max_bytes: int, error=EntryError) -> b
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:
         if os.path.islink(path):
-            raise error(f"{path}: a symbolic link (never followed: it would publish "
-                        f"its target)") from None
+            raise error(
+                f"{path}: a symbolic link (never followed: it would publish its target)"
+            ) from None
         raise error(f"{path}: {exc.strerror or exc.__class__.__name__}") from None
     with os.fdopen(fd, "rb") as fh:
         if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
@@ -248,8 +292,9 @@ def load_entry(path: Path) -> dict:
     naming the file."""
     try:
         raw = read_regular(path, ENTRY_MAX_BYTES)
-        entry = validate_entry(load_json(raw, what=str(path), max_bytes=ENTRY_MAX_BYTES,
-                                         error=EntryError))
+        entry = validate_entry(
+            load_json(raw, what=str(path), max_bytes=ENTRY_MAX_BYTES, error=EntryError)
+        )
     except EntryError as exc:
         raise EntryError(str(exc) if str(exc).startswith(str(path)) else f"{path}: {exc}") from None
     if path.stem != entry["id"]:
@@ -317,8 +362,14 @@ def dumps(entry: dict) -> str:
     """Readable, diff-friendly JSON: sorted keys, arrays of numbers kept on one line."""
     text = json.dumps(entry, indent=1, sort_keys=True, ensure_ascii=False, allow_nan=False)
     number = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
-    return re.sub(rf"\[\s*((?:{number},\s*)*{number})\s*\]",
-                  lambda m: "[" + re.sub(r",\s*", ", ", m.group(1)) + "]", text) + "\n"
+    return (
+        re.sub(
+            rf"\[\s*((?:{number},\s*)*{number})\s*\]",
+            lambda m: "[" + re.sub(r",\s*", ", ", m.group(1)) + "]",
+            text,
+        )
+        + "\n"
+    )
 
 
 def write_entry(directory: str | os.PathLike, entry: dict, replace: bool = False) -> Path:

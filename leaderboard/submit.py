@@ -66,16 +66,22 @@ def _refuse(path, exc: BaseException) -> SubmissionError:
 
 def compare(claimed: dict, rescored: dict) -> list[str]:
     """Human-readable differences between claimed and re-scored metrics (empty if they agree)."""
+
     def close(a, b) -> bool:
         if a is None or b is None:
             return a is b
         return abs(a - b) <= ABS_TOL + REL_TOL * abs(b)
 
-    diffs = [f"claimed {k} {claimed.get(k)!r} differs from the re-score {rescored[k]!r}"
-             for k in METRIC_NAMES if not close(claimed.get(k), rescored[k])]
+    diffs = [
+        f"claimed {k} {claimed.get(k)!r} differs from the re-score {rescored[k]!r}"
+        for k in METRIC_NAMES
+        if not close(claimed.get(k), rescored[k])
+    ]
     if claimed.get("no_skill") != rescored["no_skill"]:
-        diffs.append(f"claimed no_skill {claimed.get('no_skill')} differs from the re-score "
-                     f"{rescored['no_skill']}")
+        diffs.append(
+            f"claimed no_skill {claimed.get('no_skill')} differs from the re-score "
+            f"{rescored['no_skill']}"
+        )
     cl, rs = claimed["per_class"], rescored["per_class"]
     if set(cl) != set(rs):
         diffs.append(
@@ -89,7 +95,6 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
             if not close(cl[c].get(k), rs[c][k])
         ]
     return diffs
-
 
 
 def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
@@ -113,10 +118,16 @@ SPEED_SOURCES = {
 }
 
 
-def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
-           data_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
-           name: str | None = None, link: str | None = None, unregistered: bool = False,
-           origin: str = "submit") -> Path:
+def submit(
+    results_path: str | os.PathLike,
+    predictions_path: str | os.PathLike,
+    data_dir: str | os.PathLike,
+    entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
+    name: str | None = None,
+    link: str | None = None,
+    unregistered: bool = False,
+    origin: str = "submit",
+) -> Path:
     """Verify one submission and write its entry; refused: SubmissionError, nothing written.
 
     ``origin="seed"`` (only ``seed`` passes it) trusts the results' own ``self_reported``
@@ -146,9 +157,11 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
             f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)"
         )
     if results["label_fingerprint"] != labels:
-        raise SubmissionError(f"{results_path}: label fingerprint "
-                              f"{results['label_fingerprint'][:16]}... belongs to other labels "
-                              f"({data_dir} is {labels[:16]}...: relabelled?)")
+        raise SubmissionError(
+            f"{results_path}: label fingerprint "
+            f"{results['label_fingerprint'][:16]}... belongs to other labels "
+            f"({data_dir} is {labels[:16]}...: relabelled?)"
+        )
     try:
         rescored = score_predictions(data_dir, predictions_path)
     except (OSError, ValueError) as exc:
@@ -177,18 +190,30 @@ def submit(results_path: str | os.PathLike, predictions_path: str | os.PathLike,
         # counted by the harness only in the maintainers' reproduce runs (checkpoint.params)
         "params_self_reported": origin != "seed",
         "benchmark_version": results["benchmark_version"],
-        "dataset": {"fingerprint": fingerprint, "label_fingerprint": labels,
-                    "version": version, "classes": data.class_names,
-                    "test_objects": test_objects, "test_meshes": test_meshes},
+        "dataset": {
+            "fingerprint": fingerprint,
+            "label_fingerprint": labels,
+            "version": version,
+            "classes": data.class_names,
+            "test_objects": test_objects,
+            "test_meshes": test_meshes,
+        },
         "metrics": check_metrics(rescored, "re-scored metrics"),
-        "speed": {**results["speed"], "self_reported": not measured,
-                  "source": SPEED_SOURCES[origin if measured or origin == "submit"
-                                          else "seed-self-reported"]},
+        "speed": {
+            **results["speed"],
+            "self_reported": not measured,
+            "source": SPEED_SOURCES[
+                origin if measured or origin == "submit" else "seed-self-reported"
+            ],
+        },
         "seeds": results["seeds"],
         "created": results["created"],
         "submitted": utc_timestamp(),
-        "files": {"results_sha256": file_sha256(results_path), "predictions_sha256": pred_sha,
-                  "predictions_content_sha256": content_sha},
+        "files": {
+            "results_sha256": file_sha256(results_path),
+            "predictions_sha256": pred_sha,
+            "predictions_content_sha256": content_sha,
+        },
         "sample": sample,
     }
     try:
@@ -208,14 +233,20 @@ def _check_duplicate(entries_dir, predictions_path, container_sha: str, content_
         return
     for e in load_entries(entries_dir, on_error=lambda msg: None):
         files = e.get("files", {})
-        if content_sha == files.get("predictions_content_sha256") \
-                or container_sha == files.get("predictions_sha256"):
+        if content_sha == files.get("predictions_content_sha256") or container_sha == files.get(
+            "predictions_sha256"
+        ):
             raise DuplicateSubmission(f"{predictions_path}: already on the board as {e['id']}")
 
 
-def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
-         entries_dir: str | os.PathLike = DEFAULT_ENTRIES, link: str | None = None,
-         unregistered: bool = False, progress: bool = True):
+def seed(
+    from_dir: str | os.PathLike,
+    data_dir: str | os.PathLike,
+    entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
+    link: str | None = None,
+    unregistered: bool = False,
+    progress: bool = True,
+):
     """Submit every ``<row>/results.json`` + ``<row>/predictions.h5`` of a reproduce output dir.
 
     Each entry is named after its row directory (unique per table row, unlike model names).
@@ -223,8 +254,9 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
     """
     rows = sorted(Path(from_dir).glob("*/results.json"))
     if not rows:
-        raise SubmissionError(f"{from_dir}: no <row>/results.json files "
-                              f"(expected `benchmark reproduce` output)")
+        raise SubmissionError(
+            f"{from_dir}: no <row>/results.json files (expected `benchmark reproduce` output)"
+        )
     accepted, skipped, refused = [], [], []
     for results in tqdm(rows, desc="submitting", unit="row", disable=not progress):
         predictions = results.with_name("predictions.h5")
@@ -232,9 +264,18 @@ def seed(from_dir: str | os.PathLike, data_dir: str | os.PathLike,
             refused.append(f"{results}: no predictions.h5 beside it")
             continue
         try:
-            accepted.append(submit(results, predictions, data_dir, entries_dir,
-                                   name=results.parent.name, link=link,
-                                   unregistered=unregistered, origin="seed"))
+            accepted.append(
+                submit(
+                    results,
+                    predictions,
+                    data_dir,
+                    entries_dir,
+                    name=results.parent.name,
+                    link=link,
+                    unregistered=unregistered,
+                    origin="seed",
+                )
+            )
         except DuplicateSubmission as exc:
             skipped.append(str(exc))
         except ValueError as exc:

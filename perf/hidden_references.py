@@ -46,21 +46,39 @@ def main(argv=None) -> None:
     print(f"hidden parameters: {', '.join(hidden)}")
     print(f"{'reference':15} {'Simple MSE':>24} {'Complex MSE':>24} {'objects':>8}")
     for name, r in rows.items():
-        cells = [f"{r[m]:7.2f} [{r[m + '_ci'][0]:6.2f}, {r[m + '_ci'][1]:6.2f}]"
-                 if r[m] is not None else "-" for m in ("simple_mse", "complex_mse")]
+        cells = [
+            f"{r[m]:7.2f} [{r[m + '_ci'][0]:6.2f}, {r[m + '_ci'][1]:6.2f}]"
+            if r[m] is not None
+            else "-"
+            for m in ("simple_mse", "complex_mse")
+        ]
         print(f"{name:15} {cells[0]:>24} {cells[1]:>24} {r['n_objects']:8d}")
     for m, p in paired.items():
-        print(f"oracle - class-scale-nn, {m}: {p['diff']:+.2f} [{p['ci'][0]:+.2f}, "
-              f"{p['ci'][1]:+.2f}] ({p['verdict']})")
+        print(
+            f"oracle - class-scale-nn, {m}: {p['diff']:+.2f} [{p['ci'][0]:+.2f}, "
+            f"{p['ci'][1]:+.2f}] ({p['verdict']})"
+        )
     if floor:
-        print(f"ratio-blind floor ({args.floor} ratios at the exact scale): "
-              f"{floor['mse']:.2f} dB^2 over {floor['n_objects']} test objects "
-              f"(relabel at the true ratio: {floor['relabel_mse']:.2g})")
+        print(
+            f"ratio-blind floor ({args.floor} ratios at the exact scale): "
+            f"{floor['mse']:.2f} dB^2 over {floor['n_objects']} test objects "
+            f"(relabel at the true ratio: {floor['relabel_mse']:.2g})"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps({"data": str(args.data), "hidden": hidden, "rows": rows,
-                                   "oracle_vs_class_scale_nn": paired,
-                                   "ratio_blind_floor": floor}, indent=1) + "\n")
+        tmp.write_text(
+            json.dumps(
+                {
+                    "data": str(args.data),
+                    "hidden": hidden,
+                    "rows": rows,
+                    "oracle_vs_class_scale_nn": paired,
+                    "ratio_blind_floor": floor,
+                },
+                indent=1,
+            )
+            + "\n"
+        )
 
 
 def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
@@ -73,8 +91,9 @@ def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
     ratios = (np.arange(n) + 0.5) / n * 0.9
 
     def label(scale, ratio):
-        v, f = simulation_mesh(solid_for("frustum", scale, {"top_ratio": float(ratio)}),
-                               config.f_stop_hz)
+        v, f = simulation_mesh(
+            solid_for("frustum", scale, {"top_ratio": float(ratio)}), config.f_stop_hz
+        )
         return db_target(radar_sim.simulate(v, f, config).range_profiles).astype(np.float64)
 
     errors, relabel = [], []
@@ -86,8 +105,13 @@ def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
         relabel.append(float(np.mean((label(scale, true["top_ratio"]) - target) ** 2)))
         blind = np.mean([label(scale, r) for r in ratios], axis=0)
         errors.append(float(np.mean((blind - target) ** 2)))
-    return {"mse": float(np.mean(errors)), "per_object": errors, "n_objects": len(errors),
-            "ratios": ratios.tolist(), "relabel_mse": float(np.max(relabel))}
+    return {
+        "mse": float(np.mean(errors)),
+        "per_object": errors,
+        "n_objects": len(errors),
+        "ratios": ratios.tolist(),
+        "relabel_mse": float(np.max(relabel)),
+    }
 
 
 if __name__ == "__main__":

@@ -36,8 +36,10 @@ from basic_shapes.infra import atomic_path, hardware  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 FLOOR = 1e-4
 SCALES = [(2.0, 2.0, 2.0), (0.2, 2.0, 2.0), (2.0, 2.0, 0.2)]
-GRIDS = {"full": radar_sim.RadarConfig.named("xband-v1"),
-         "coarse": radar_sim.RadarConfig(name="coarse", n_aspect=16, n_roll=5)}
+GRIDS = {
+    "full": radar_sim.RadarConfig.named("xband-v1"),
+    "coarse": radar_sim.RadarConfig(name="coarse", n_aspect=16, n_roll=5),
+}
 
 
 def target(profiles: np.ndarray) -> np.ndarray:
@@ -77,8 +79,7 @@ def faces_sample(kind: str, n: int, seed: int = 0) -> dict:
     """Mean / max simulation-mesh faces over n scales drawn log-uniform in 0.2-2 m per axis."""
     rng = np.random.default_rng(seed)
     scales = np.exp(rng.uniform(np.log(0.2), np.log(2.0), (n, 3)))
-    counts = [len(analytic.simulation_mesh(analytic.solid_for(kind, s), F_MAX)[1])
-              for s in scales]
+    counts = [len(analytic.simulation_mesh(analytic.solid_for(kind, s), F_MAX)[1]) for s in scales]
     return {"n": n, "mean_faces": float(np.mean(counts)), "max_faces": int(np.max(counts))}
 
 
@@ -89,20 +90,30 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--grid", choices=sorted(GRIDS), default="full")
     parser.add_argument("--classes", default=",".join(analytic.KINDS))
-    parser.add_argument("--scales", default=None,
-                        help="semicolon-separated extents, e.g. '2,2,2;0.2,2,2' (default: 3)")
+    parser.add_argument(
+        "--scales",
+        default=None,
+        help="semicolon-separated extents, e.g. '2,2,2;0.2,2,2' (default: 3)",
+    )
     parser.add_argument("--independent", action="store_true")
     parser.add_argument("--faces-sample", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS / "label_convergence.json")
     args = parser.parse_args(argv)
     config = GRIDS[args.grid]
-    scales = ([tuple(float(x) for x in s.split(",")) for s in args.scales.split(";")]
-              if args.scales else SCALES)
+    scales = (
+        [tuple(float(x) for x in s.split(",")) for s in args.scales.split(";")]
+        if args.scales
+        else SCALES
+    )
     rows = []
-    header = (f"{'class':9} {'extents (m)':15} {'faces':>8} {'faces 2x':>8} {'MSE 2x':>9} "
-              f"{'MSE indep':>9} {'s':>7}")
-    print(f"grid {config.name}: {config.n_aspect} aspects x {config.n_roll} rolls x "
-          f"{config.n_freq} freqs; rule {json.dumps(analytic.SIMULATION_RULE)}")
+    header = (
+        f"{'class':9} {'extents (m)':15} {'faces':>8} {'faces 2x':>8} {'MSE 2x':>9} "
+        f"{'MSE indep':>9} {'s':>7}"
+    )
+    print(
+        f"grid {config.name}: {config.n_aspect} aspects x {config.n_roll} rolls x "
+        f"{config.n_freq} freqs; rule {json.dumps(analytic.SIMULATION_RULE)}"
+    )
     print(header)
     for kind in args.classes.split(","):
         for scale in scales:
@@ -111,25 +122,44 @@ def main(argv=None) -> None:
             v2, f2 = analytic.simulation_mesh(solid, F_MAX, refinement=2.0)
             p1, seconds = label(v1, f1, config, kind)
             p2, _ = label(v2, f2, config, kind)
-            row = {"class": kind, "extents_m": list(scale), "faces": len(f1),
-                   "faces_2x": len(f2), "mse_vs_2x_db2": mse(p1, p2), "seconds": seconds}
+            row = {
+                "class": kind,
+                "extents_m": list(scale),
+                "faces": len(f1),
+                "faces_2x": len(f2),
+                "mse_vs_2x_db2": mse(p1, p2),
+                "seconds": seconds,
+            }
             ref = independent_mesh(kind, scale) if args.independent else None
             if ref is not None:
                 row["independent_faces"] = len(ref[1])
                 row["mse_vs_independent_db2"] = mse(p1, label(*ref, config, kind)[0])
             rows.append(row)
             ind = row.get("mse_vs_independent_db2")
-            print(f"{kind:9} {'x'.join(f'{x:g}' for x in scale):15} {len(f1):8d} {len(f2):8d} "
-                  f"{row['mse_vs_2x_db2']:9.4f} {'' if ind is None else f'{ind:9.4f}':>9} "
-                  f"{seconds:7.1f}", flush=True)
-    sample = {kind: faces_sample(kind, args.faces_sample)
-              for kind in args.classes.split(",")} if args.faces_sample else {}
+            print(
+                f"{kind:9} {'x'.join(f'{x:g}' for x in scale):15} {len(f1):8d} {len(f2):8d} "
+                f"{row['mse_vs_2x_db2']:9.4f} {'' if ind is None else f'{ind:9.4f}':>9} "
+                f"{seconds:7.1f}",
+                flush=True,
+            )
+    sample = (
+        {kind: faces_sample(kind, args.faces_sample) for kind in args.classes.split(",")}
+        if args.faces_sample
+        else {}
+    )
     for kind, s in sample.items():
-        print(f"faces over {s['n']} log-uniform scales, {kind}: mean {s['mean_faces']:.0f}, "
-              f"max {s['max_faces']}")
-    out = {"grid": config.name, "config": json.loads(config.to_json()),
-           "rule": analytic.SIMULATION_RULE, "rows": rows, "faces_sample": sample,
-           "hardware": hardware()}
+        print(
+            f"faces over {s['n']} log-uniform scales, {kind}: mean {s['mean_faces']:.0f}, "
+            f"max {s['max_faces']}"
+        )
+    out = {
+        "grid": config.name,
+        "config": json.loads(config.to_json()),
+        "rule": analytic.SIMULATION_RULE,
+        "rows": rows,
+        "faces_sample": sample,
+        "hardware": hardware(),
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:
         tmp.write_text(json.dumps(out, indent=1) + "\n")

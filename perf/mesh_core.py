@@ -27,8 +27,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from basic_shapes import blender, primitives
 from basic_shapes.infra import hardware
 
-STAGES = ("simple", "primitive", "loop_cuts", "decimate", "extract", "checks", "hausdorff",
-          "analytic")
+STAGES = (
+    "simple",
+    "primitive",
+    "loop_cuts",
+    "decimate",
+    "extract",
+    "checks",
+    "hausdorff",
+    "analytic",
+)
 
 
 def measure(class_name: str, n_objects: int, n_variants: int, seed: int) -> dict:
@@ -47,30 +55,48 @@ def measure(class_name: str, n_objects: int, n_variants: int, seed: int) -> dict
     per_mesh = {s: 1e3 * blender.STAGE_SECONDS.get(s, 0.0) / n for s in STAGES}
     faces = np.array(faces)
     return {
-        "class": class_name, "objects": n_objects, "variants": n_variants, "meshes": n,
-        "wall_s": wall, "cpu_s": cpu, "meshes_per_s_wall": n / wall, "meshes_per_s_cpu": n / cpu,
-        "ms_per_mesh": per_mesh, "ms_per_mesh_total_cpu": 1e3 * cpu / n,
+        "class": class_name,
+        "objects": n_objects,
+        "variants": n_variants,
+        "meshes": n,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "meshes_per_s_wall": n / wall,
+        "meshes_per_s_cpu": n / cpu,
+        "ms_per_mesh": per_mesh,
+        "ms_per_mesh_total_cpu": 1e3 * cpu / n,
         "attempts_per_variant": sum(blender.ATTEMPTS.values()) / (n_objects * n_variants),
         "outcomes": dict(blender.ATTEMPTS),
-        "faces": {"min": int(faces.min()), "median": float(np.median(faces)),
-                  "mean": float(faces.mean()), "max": int(faces.max()),
-                  "quantiles_10_90": np.quantile(faces, [0.1, 0.9]).tolist()},
+        "faces": {
+            "min": int(faces.min()),
+            "median": float(np.median(faces)),
+            "mean": float(faces.mean()),
+            "max": int(faces.max()),
+            "quantiles_10_90": np.quantile(faces, [0.1, 0.9]).tolist(),
+        },
         "face_counts": faces.tolist(),
         "hausdorff": {"max": float(np.max(distances)), "median": float(np.median(distances))},
     }
 
 
 def table(results: list[dict]) -> str:
-    head = f"{'class':10s}" + "".join(f"{s:>10s}" for s in STAGES) + \
-        f"{'cpu total':>11s}{'mesh/s':>8s}{'tries':>7s}{'faces med':>10s}{'max':>6s}"
+    head = (
+        f"{'class':10s}"
+        + "".join(f"{s:>10s}" for s in STAGES)
+        + f"{'cpu total':>11s}{'mesh/s':>8s}{'tries':>7s}{'faces med':>10s}{'max':>6s}"
+    )
     lines = [head, "-" * len(head)]
     for r in results:
-        lines.append(f"{r['class']:10s}" + "".join(f"{r['ms_per_mesh'][s]:10.3f}" for s in STAGES)
-                     + f"{r['ms_per_mesh_total_cpu']:11.3f}{r['meshes_per_s_cpu']:8.0f}"
-                     f"{r['attempts_per_variant']:7.2f}{r['faces']['median']:10.0f}"
-                     f"{r['faces']['max']:6d}")
-    return "\n".join(lines) + ("\n(CPU ms per accepted mesh, rejected attempts included; "
-                              "mesh/s: 1 process, CPU time)")
+        lines.append(
+            f"{r['class']:10s}"
+            + "".join(f"{r['ms_per_mesh'][s]:10.3f}" for s in STAGES)
+            + f"{r['ms_per_mesh_total_cpu']:11.3f}{r['meshes_per_s_cpu']:8.0f}"
+            f"{r['attempts_per_variant']:7.2f}{r['faces']['median']:10.0f}"
+            f"{r['faces']['max']:6d}"
+        )
+    return "\n".join(lines) + (
+        "\n(CPU ms per accepted mesh, rejected attempts included; mesh/s: 1 process, CPU time)"
+    )
 
 
 def figure(results: list[dict], path: Path) -> None:
@@ -94,13 +120,17 @@ def figure(results: list[dict], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--classes", default=",".join(primitives.DEFAULT_CLASSES),
-                    help="comma-separated primitive classes (default: %(default)s)")
+    ap.add_argument(
+        "--classes",
+        default=",".join(primitives.DEFAULT_CLASSES),
+        help="comma-separated primitive classes (default: %(default)s)",
+    )
     ap.add_argument("--objects", type=int, default=5, help="objects per class (default: 5)")
     ap.add_argument("--variants", type=int, default=99, help="complex variants per object")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path,
-                    default=Path(__file__).resolve().parent / "results" / "mesh_core.json")
+    ap.add_argument(
+        "--out", type=Path, default=Path(__file__).resolve().parent / "results" / "mesh_core.json"
+    )
     ap.add_argument("--figure", type=Path, help="also write the face-count histogram (PNG)")
     args = ap.parse_args(argv)
     classes = args.classes.split(",")
@@ -117,11 +147,19 @@ def main(argv: list[str] | None = None) -> None:
     for r in results:
         r["primitive_cache_cpu_s"] = warm[r["class"]]
     print(table(results))
-    print(f"once per process: Blender start-up {startup:.2f} s CPU; primitive cache "
-          + ", ".join(f"{c} {warm[c]:.2f} s" for c in classes))
-    report = {"benchmark": "mesh_core", "platform": platform.platform(),
-              "hardware": hardware(), "python": platform.python_version(),
-              "command": " ".join(sys.argv), "startup_cpu_s": startup, "results": results}
+    print(
+        f"once per process: Blender start-up {startup:.2f} s CPU; primitive cache "
+        + ", ".join(f"{c} {warm[c]:.2f} s" for c in classes)
+    )
+    report = {
+        "benchmark": "mesh_core",
+        "platform": platform.platform(),
+        "hardware": hardware(),
+        "python": platform.python_version(),
+        "command": " ".join(sys.argv),
+        "startup_cpu_s": startup,
+        "results": results,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(json.dumps(report, indent=1))

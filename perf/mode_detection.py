@@ -41,8 +41,9 @@ def detect(vertices, faces, rule: dict) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--objects", type=int, default=3)
     ap.add_argument("--variants", type=int, default=19)
     ap.add_argument("--n-aspect", type=int, default=16)
@@ -52,8 +53,9 @@ def main() -> None:
     config = RadarConfig(name="bench", n_aspect=args.n_aspect, n_roll=args.n_roll)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = GenerateConfig(classes=("sphere",), objects_per_class=args.objects,
-                             variants=args.variants, seed=0)
+        cfg = GenerateConfig(
+            classes=("sphere",), objects_per_class=args.objects, variants=args.variants, seed=0
+        )
         generate(Path(tmp) / "d", cfg, workers=0, progress=False)
         for path in list_shards(Path(tmp) / "d"):
             with Shard(path) as s:
@@ -65,26 +67,45 @@ def main() -> None:
                         labels = {}
                         for mode in (old, new):
                             t0 = time.perf_counter()
-                            labels[mode] = db_target(simulate(v, f, config, mode=mode)
-                                                     .range_profiles)
+                            labels[mode] = db_target(
+                                simulate(v, f, config, mode=mode).range_profiles
+                            )
                             row[f"seconds_{mode}"] = round(time.perf_counter() - t0, 4)
-                        row["mse_db2"] = float(np.mean((labels[old].astype(np.float64)
-                                                        - labels[new]) ** 2))
+                        row["mse_db2"] = float(
+                            np.mean((labels[old].astype(np.float64) - labels[new]) ** 2)
+                        )
                     rows.append(row)
     changed = [r for r in rows if r["former"] != r["current"]]
-    counts = {rule: {m: sum(r[rule] == m for r in rows) for m in ("convex", "shadowed", "bounce2")}
-              for rule in ("former", "current")}
-    print(f"{len(rows)} generated sphere meshes; modes former {counts['former']}, "
-          f"current {counts['current']}")
-    print(f"{'mesh':>5} {'faces':>6} {'former':>9} {'current':>9} {'s former':>9} {'s current':>9}"
-          f" {'ratio':>7} {'dB^2':>8}")
+    counts = {
+        rule: {m: sum(r[rule] == m for r in rows) for m in ("convex", "shadowed", "bounce2")}
+        for rule in ("former", "current")
+    }
+    print(
+        f"{len(rows)} generated sphere meshes; modes former {counts['former']}, "
+        f"current {counts['current']}"
+    )
+    print(
+        f"{'mesh':>5} {'faces':>6} {'former':>9} {'current':>9} {'s former':>9} {'s current':>9}"
+        f" {'ratio':>7} {'dB^2':>8}"
+    )
     for r in changed:
         a, b = r[f"seconds_{r['former']}"], r[f"seconds_{r['current']}"]
-        print(f"{r['mesh']:>5} {r['faces']:>6} {r['former']:>9} {r['current']:>9} {a:>9.3f} "
-              f"{b:>9.3f} {a / b:>7.1f} {r['mse_db2']:>8.3g}")
-    Path(args.out).write_text(json.dumps({
-        "command": "python perf/mode_detection.py", "grid": json.loads(config.to_json()),
-        "counts": counts, "rows": rows}, indent=1) + "\n")
+        print(
+            f"{r['mesh']:>5} {r['faces']:>6} {r['former']:>9} {r['current']:>9} {a:>9.3f} "
+            f"{b:>9.3f} {a / b:>7.1f} {r['mse_db2']:>8.3g}"
+        )
+    Path(args.out).write_text(
+        json.dumps(
+            {
+                "command": "python perf/mode_detection.py",
+                "grid": json.loads(config.to_json()),
+                "counts": counts,
+                "rows": rows,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     print(f"wrote {args.out}")
 
 

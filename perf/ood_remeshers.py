@@ -49,8 +49,7 @@ def measure(class_name: str, n_objects: int, per: int, seed: int) -> list[dict]:
     for i in tqdm(range(n_objects), desc=class_name, leave=False):
         scale = np.exp(rng.uniform(lo, hi, 3))
         simple = blender.object_meshes(class_name, scale, seed + i, 0)[0]
-        meshes += remesh.ood_meshes(class_name, scale, seed + i, simple.vertices, simple.faces,
-                                    per)
+        meshes += remesh.ood_meshes(class_name, scale, seed + i, simple.vertices, simple.faces, per)
     tol = verify.tolerance(class_name, {})
     rows = []
     for name in OOD_REMESHERS:
@@ -59,31 +58,43 @@ def measure(class_name: str, n_objects: int, per: int, seed: int) -> list[dict]:
             continue
         tries = sum(n for (r, _), n in remesh.TRIES.items() if r == name)
         prim = [m.params["primitive_distance"] for m in mine]
-        rows.append({
-            "class": class_name, "remesher": name, "meshes": len(mine), "tolerance": tol,
-            "faces": _stats([len(m.faces) for m in mine]),
-            "primitive_distance": _stats(prim), "simple_distance": _stats([m.hausdorff
-                                                                           for m in mine]),
-            "max_over_tolerance": max(max(prim), max(m.hausdorff for m in mine)) / tol,
-            "cpu_ms_per_mesh": 1e3 * remesh.SECONDS[name] / len(mine),
-            "tries_per_mesh": tries / len(mine),
-            "outcomes": {r: n for (m, r), n in remesh.TRIES.items() if m == name}})
+        rows.append(
+            {
+                "class": class_name,
+                "remesher": name,
+                "meshes": len(mine),
+                "tolerance": tol,
+                "faces": _stats([len(m.faces) for m in mine]),
+                "primitive_distance": _stats(prim),
+                "simple_distance": _stats([m.hausdorff for m in mine]),
+                "max_over_tolerance": max(max(prim), max(m.hausdorff for m in mine)) / tol,
+                "cpu_ms_per_mesh": 1e3 * remesh.SECONDS[name] / len(mine),
+                "tries_per_mesh": tries / len(mine),
+                "outcomes": {r: n for (m, r), n in remesh.TRIES.items() if m == name},
+            }
+        )
     return rows
 
 
 def table(rows: list[dict]) -> str:
-    head = (f"{'class':9s}{'remesher':10s}{'meshes':>7s}{'faces min':>10s}{'median':>8s}"
-            f"{'max':>6s}{'d_prim max':>11s}{'d_simple max':>13s}{'/ tol':>7s}{'cpu ms':>8s}"
-            f"{'tries':>7s}")
+    head = (
+        f"{'class':9s}{'remesher':10s}{'meshes':>7s}{'faces min':>10s}{'median':>8s}"
+        f"{'max':>6s}{'d_prim max':>11s}{'d_simple max':>13s}{'/ tol':>7s}{'cpu ms':>8s}"
+        f"{'tries':>7s}"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['class']:9s}{r['remesher']:10s}{r['meshes']:7d}"
-                     f"{r['faces']['min']:10.0f}{r['faces']['median']:8.0f}"
-                     f"{r['faces']['max']:6.0f}{r['primitive_distance']['max']:11.2e}"
-                     f"{r['simple_distance']['max']:13.2e}{r['max_over_tolerance']:7.2f}"
-                     f"{r['cpu_ms_per_mesh']:8.0f}{r['tries_per_mesh']:7.2f}")
-    return "\n".join(lines) + ("\n(distances relative to the bbox diagonal; '/ tol': the larger "
-                               "max over the class tolerance; CPU ms per accepted mesh)")
+        lines.append(
+            f"{r['class']:9s}{r['remesher']:10s}{r['meshes']:7d}"
+            f"{r['faces']['min']:10.0f}{r['faces']['median']:8.0f}"
+            f"{r['faces']['max']:6.0f}{r['primitive_distance']['max']:11.2e}"
+            f"{r['simple_distance']['max']:13.2e}{r['max_over_tolerance']:7.2f}"
+            f"{r['cpu_ms_per_mesh']:8.0f}{r['tries_per_mesh']:7.2f}"
+        )
+    return "\n".join(lines) + (
+        "\n(distances relative to the bbox diagonal; '/ tol': the larger "
+        "max over the class tolerance; CPU ms per accepted mesh)"
+    )
 
 
 def figure(class_name: str, scale: np.ndarray, seed: int, path: Path) -> None:
@@ -108,8 +119,11 @@ def figure(class_name: str, scale: np.ndarray, seed: int, path: Path) -> None:
         draw_mesh(ax, v, f, half, rng)
         ax.set_title(f"{label}\n{len(f)} faces", fontsize=9)
     sx, sy, sz = scale
-    fig.suptitle(f"{class_name} {sx:.2f} x {sy:.2f} x {sz:.2f} m: simple mesh, a training "
-                 f"variant and out-of-distribution test meshes", fontsize=11)
+    fig.suptitle(
+        f"{class_name} {sx:.2f} x {sy:.2f} x {sz:.2f} m: simple mesh, a training "
+        f"variant and out-of-distribution test meshes",
+        fontsize=11,
+    )
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.88, wspace=0, hspace=0.1)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
@@ -118,14 +132,24 @@ def figure(class_name: str, scale: np.ndarray, seed: int, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--classes", default=",".join(primitives.DEFAULT_CLASSES),
-                    help="comma-separated primitive classes (default: %(default)s)")
+    ap.add_argument(
+        "--classes",
+        default=",".join(primitives.DEFAULT_CLASSES),
+        help="comma-separated primitive classes (default: %(default)s)",
+    )
     ap.add_argument("--objects", type=int, default=10, help="objects per class (default: 10)")
-    ap.add_argument("--per-remesher", type=int, default=3,
-                    help="OOD meshes per remesher and object (default: 3)")
+    ap.add_argument(
+        "--per-remesher",
+        type=int,
+        default=3,
+        help="OOD meshes per remesher and object (default: 3)",
+    )
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path,
-                    default=Path(__file__).resolve().parent / "results" / "ood_remeshers.json")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).resolve().parent / "results" / "ood_remeshers.json",
+    )
     ap.add_argument("--figure", type=Path, help="also draw one cylinder's meshes (PNG)")
     args = ap.parse_args(argv)
     classes = args.classes.split(",")
@@ -136,10 +160,17 @@ def main(argv: list[str] | None = None) -> None:
     rows = [r for c in classes for r in measure(c, args.objects, args.per_remesher, args.seed)]
     wall = time.perf_counter() - wall
     print(table(rows))
-    report = {"benchmark": "ood_remeshers", "platform": platform.platform(),
-              "hardware": hardware(), "python": platform.python_version(),
-              "command": " ".join(sys.argv), "wall_s": wall, "objects_per_class": args.objects,
-              "per_remesher": args.per_remesher, "results": rows}
+    report = {
+        "benchmark": "ood_remeshers",
+        "platform": platform.platform(),
+        "hardware": hardware(),
+        "python": platform.python_version(),
+        "command": " ".join(sys.argv),
+        "wall_s": wall,
+        "objects_per_class": args.objects,
+        "per_remesher": args.per_remesher,
+        "results": rows,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(json.dumps(report, indent=1))

@@ -66,11 +66,14 @@ def mie_amplitude(a: float, freq_hz: np.ndarray, convention: tuple[bool, float])
 def pick_convention() -> tuple[bool, float]:
     """The phase convention under which Mie matches the toolkit's PO on a fine sphere."""
     a = 0.1
-    freq = np.linspace(18e9, 20e9, 9)          # ka 38-42
+    freq = np.linspace(18e9, 20e9, 9)  # ka 38-42
     v, f = simulation_mesh(solid_for("sphere", (2 * a,) * 3), 2 * freq.max())
     po = radar_sim.monostatic_field(v, f, freq, np.array([[0.0, 0.0, 1.0]]))[0]
-    errors = {(c, s): float(np.max(np.abs(mie_amplitude(a, freq, (c, s)) - po) / np.abs(po)))
-              for c in (False, True) for s in (1.0, -1.0)}
+    errors = {
+        (c, s): float(np.max(np.abs(mie_amplitude(a, freq, (c, s)) - po) / np.abs(po)))
+        for c in (False, True)
+        for s in (1.0, -1.0)
+    }
     best = min(errors, key=errors.get)
     others = sorted(v for k, v in errors.items() if k != best)
     if errors[best] > 0.1 or others[0] < 0.5:
@@ -84,13 +87,16 @@ def db(profiles: np.ndarray) -> np.ndarray:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--radii", type=float, nargs="+",
-                   default=[0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.95])
+    p.add_argument("--radii", type=float, nargs="+", default=[0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.95])
     p.add_argument("--grid", default="31x7", help="aspects x rolls (default 31x7, cpu-v1's)")
     args = p.parse_args()
     n_aspect, n_roll = (int(x) for x in args.grid.split("x"))
-    config = dataclasses.replace(radar_sim.RadarConfig.named("xband-v1"),
-                                 name=f"xband-v1-{args.grid}", n_aspect=n_aspect, n_roll=n_roll)
+    config = dataclasses.replace(
+        radar_sim.RadarConfig.named("xband-v1"),
+        name=f"xband-v1-{args.grid}",
+        n_aspect=n_aspect,
+        n_roll=n_roll,
+    )
     convention = pick_convention()
     rows = []
     for a in args.radii:
@@ -98,27 +104,39 @@ def main() -> None:
         v, f = simulation_mesh(solid_for("sphere", (2 * a,) * 3), config.f_stop_hz)
         label = db(radar_sim.simulate(v, f, config).range_profiles)
         exact_response = mie_amplitude(a, config.frequency_hz, convention)
-        exact = db(config.range_profiles(exact_response))                  # (n_range,)
+        exact = db(config.range_profiles(exact_response))  # (n_range,)
         exact = np.broadcast_to(exact, label.shape)
         near = exact >= exact.max(axis=-1, keepdims=True) - PEAK_WINDOW_DB
         err = (label - exact) ** 2
         ka = 2 * np.pi * config.frequency_hz[[0, -1]] * a / C0
-        rows.append({"radius_m": a, "ka": [float(ka[0]), float(ka[1])], "faces": len(f),
-                     "mse_all_db2": float(err.mean()),
-                     "mse_within_30db_db2": float(err[near].mean()),
-                     "bins_within_30db": float(near.mean()),
-                     "seconds": time.perf_counter() - t0})
-    out = {"grid": args.grid, "band_hz": [config.f_start_hz, config.f_stop_hz],
-           "mie_convention": {"conjugate": convention[0], "sign": convention[1]},
-           "hardware": hardware(), "rows": rows}
+        rows.append(
+            {
+                "radius_m": a,
+                "ka": [float(ka[0]), float(ka[1])],
+                "faces": len(f),
+                "mse_all_db2": float(err.mean()),
+                "mse_within_30db_db2": float(err[near].mean()),
+                "bins_within_30db": float(near.mean()),
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+    out = {
+        "grid": args.grid,
+        "band_hz": [config.f_start_hz, config.f_stop_hz],
+        "mie_convention": {"conjugate": convention[0], "sign": convention[1]},
+        "hardware": hardware(),
+        "rows": rows,
+    }
     RESULTS.mkdir(exist_ok=True)
     with atomic_path(RESULTS / "physics_budget.json") as tmp:
         tmp.write_text(json.dumps(out, indent=2))
     print(f"PO labels vs the exact Mie series, PEC spheres, xband-v1 grid {args.grid} (dB²)")
     print(f"{'radius m':>8s} {'ka':>11s} {'faces':>8s} {'MSE all':>8s} {'MSE <=30dB':>10s}")
     for r in rows:
-        print(f"{r['radius_m']:8.2f} {r['ka'][0]:5.0f}-{r['ka'][1]:<5.0f} {r['faces']:8d} "
-              f"{r['mse_all_db2']:8.2f} {r['mse_within_30db_db2']:10.3f}")
+        print(
+            f"{r['radius_m']:8.2f} {r['ka'][0]:5.0f}-{r['ka'][1]:<5.0f} {r['faces']:8d} "
+            f"{r['mse_all_db2']:8.2f} {r['mse_within_30db_db2']:10.3f}"
+        )
 
 
 if __name__ == "__main__":

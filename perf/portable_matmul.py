@@ -43,7 +43,7 @@ def blas(a, b):
 
 def timed(vertices, faces, config, product) -> tuple[float, np.ndarray]:
     field.matmul = geometry.matmul = product
-    radar_sim.simulate(vertices, faces, config)            # warm-up (numba, caches)
+    radar_sim.simulate(vertices, faces, config)  # warm-up (numba, caches)
     best, result = float("inf"), None
     for _ in range(3):
         t0 = time.perf_counter()
@@ -58,8 +58,12 @@ def main() -> None:
     p.add_argument("--scale", type=float, default=1.0, help="object extent in metres")
     args = p.parse_args()
     n_aspect, n_roll = (int(x) for x in args.grid.split("x"))
-    config = dataclasses.replace(radar_sim.RadarConfig.named("xband-v1"),
-                                 name=f"xband-v1-{args.grid}", n_aspect=n_aspect, n_roll=n_roll)
+    config = dataclasses.replace(
+        radar_sim.RadarConfig.named("xband-v1"),
+        name=f"xband-v1-{args.grid}",
+        n_aspect=n_aspect,
+        n_roll=n_roll,
+    )
     rows = []
     for name in CLASSES:
         scale = (args.scale, 0.8 * args.scale, 0.6 * args.scale)
@@ -67,19 +71,30 @@ def main() -> None:
         v, f = simulation_mesh(solid_for(name, scale, params), config.f_stop_hz)
         t_blas, a = timed(v, f, config, blas)
         t_fixed, b = timed(v, f, config, matmul)
-        rows.append({"class": name, "faces": len(f), "blas_s": t_blas, "portable_s": t_fixed,
-                     "ratio": t_fixed / t_blas,
-                     "max_rel_difference": float(np.abs(a - b).max() / np.abs(a).max())})
+        rows.append(
+            {
+                "class": name,
+                "faces": len(f),
+                "blas_s": t_blas,
+                "portable_s": t_fixed,
+                "ratio": t_fixed / t_blas,
+                "max_rel_difference": float(np.abs(a - b).max() / np.abs(a).max()),
+            }
+        )
     out = {"grid": args.grid, "scale_m": args.scale, "hardware": hardware(), "rows": rows}
     RESULTS.mkdir(exist_ok=True)
     with atomic_path(RESULTS / "portable_matmul.json") as tmp:
         tmp.write_text(json.dumps(out, indent=2))
     print(f"simulate on the xband-v1 grid {args.grid}, one core, best of 3")
-    print(f"{'class':9s} {'faces':>7s} {'BLAS s':>8s} {'fixed s':>8s} {'ratio':>6s} "
-          f"{'max |diff|/peak':>16s}")
+    print(
+        f"{'class':9s} {'faces':>7s} {'BLAS s':>8s} {'fixed s':>8s} {'ratio':>6s} "
+        f"{'max |diff|/peak':>16s}"
+    )
     for r in rows:
-        print(f"{r['class']:9s} {r['faces']:7d} {r['blas_s']:8.3f} {r['portable_s']:8.3f} "
-              f"{r['ratio']:6.2f} {r['max_rel_difference']:16.2e}")
+        print(
+            f"{r['class']:9s} {r['faces']:7d} {r['blas_s']:8.3f} {r['portable_s']:8.3f} "
+            f"{r['ratio']:6.2f} {r['max_rel_difference']:16.2e}"
+        )
 
 
 if __name__ == "__main__":

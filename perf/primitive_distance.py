@@ -27,24 +27,38 @@ def main() -> None:
     rows = defaultdict(list)
     for kind in analytic.KINDS:
         for k in range(4):
-            scale = (np.exp(rng.uniform(np.log(0.2), np.log(2.0), 3)) if k
-                     else np.array([2.0, 2.0, 2.0]))
+            scale = (
+                np.exp(rng.uniform(np.log(0.2), np.log(2.0), 3)) if k else np.array([2.0, 2.0, 2.0])
+            )
             for m in blender.object_meshes(kind, scale, 100 + k, 15):
                 how = "simple" if m.variant == 0 else m.params["decimate"]["kind"]
-                rows[kind, how].append((m.primitive_distance,
-                                        verify.primitive_tolerance(kind, m.params),
-                                        verify.in_wavelengths(m.primitive_distance, scale)))
+                rows[kind, how].append(
+                    (
+                        m.primitive_distance,
+                        verify.primitive_tolerance(kind, m.params),
+                        verify.in_wavelengths(m.primitive_distance, scale),
+                    )
+                )
     table = []
-    print(f"{'class':9} {'kind':9} {'n':>3} {'max rel':>9} {'bound':>9} {'max/bound':>9} "
-          f"{'max λ':>6}")
+    print(
+        f"{'class':9} {'kind':9} {'n':>3} {'max rel':>9} {'bound':>9} {'max/bound':>9} {'max λ':>6}"
+    )
     for (kind, how), r in sorted(rows.items()):
         a = np.array(r)
-        row = {"class": kind, "kind": how, "n": len(a), "max_relative": float(a[:, 0].max()),
-               "bound": float(a[:, 1].max()), "max_ratio": float((a[:, 0] / a[:, 1]).max()),
-               "max_wavelengths": float(a[:, 2].max())}
+        row = {
+            "class": kind,
+            "kind": how,
+            "n": len(a),
+            "max_relative": float(a[:, 0].max()),
+            "bound": float(a[:, 1].max()),
+            "max_ratio": float((a[:, 0] / a[:, 1]).max()),
+            "max_wavelengths": float(a[:, 2].max()),
+        }
         table.append(row)
-        print(f"{kind:9} {how:9} {len(a):3d} {row['max_relative']:9.2e} {row['bound']:9.2e} "
-              f"{row['max_ratio']:9.2f} {row['max_wavelengths']:6.3f}")
+        print(
+            f"{kind:9} {how:9} {len(a):3d} {row['max_relative']:9.2e} {row['bound']:9.2e} "
+            f"{row['max_ratio']:9.2f} {row['max_wavelengths']:6.3f}"
+        )
     OUT.parent.mkdir(parents=True, exist_ok=True)
     tmp = OUT.with_suffix(".tmp")
     tmp.write_text(json.dumps(table, indent=1) + "\n")

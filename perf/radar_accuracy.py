@@ -91,8 +91,9 @@ def plate_mesh(side: float, n: int):
     vertices = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], -1)
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
-    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
-                            np.stack([a, c, d], -1).reshape(-1, 3)])
+    faces = np.concatenate(
+        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)]
+    )
     return vertices, faces
 
 
@@ -117,8 +118,10 @@ def best_time(fn, budget_s: float = 1.0):
 
 
 def methods(brute: tuple[int, ...]):
-    out = {"exact": lambda v, f, fr, d: radar_sim.monostatic_field(v, f, fr, d, mode="convex"),
-           "centroid": lambda v, f, fr, d: centroid_field(v, f, fr, d, 1)}
+    out = {
+        "exact": lambda v, f, fr, d: radar_sim.monostatic_field(v, f, fr, d, mode="convex"),
+        "centroid": lambda v, f, fr, d: centroid_field(v, f, fr, d, 1),
+    }
     for m in brute:
         out[f"brute-{m}"] = lambda v, f, fr, d, m=m: centroid_field(v, f, fr, d, m)
     return out
@@ -143,9 +146,14 @@ def run_case(name, meshes, frequencies, directions, reference, brute):
                 "max_db_error": float(db.max()),
             }
         rows.append(row)
-        print(f"  {name} {label}: " + ", ".join(
-            f"{k} {r['peak_relative_error']:.2e} in {r['seconds'] * 1e3:.1f} ms"
-            for k, r in row["methods"].items()), flush=True)
+        print(
+            f"  {name} {label}: "
+            + ", ".join(
+                f"{k} {r['peak_relative_error']:.2e} in {r['seconds'] * 1e3:.1f} ms"
+                for k, r in row["methods"].items()
+            ),
+            flush=True,
+        )
     return rows
 
 
@@ -174,17 +182,26 @@ def plot(results, out):
 
     fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 4.6))
     for ax, (name, case) in zip(np.atleast_1d(axes), results.items()):
-        names = sorted({m for row in case["rows"] for m in row["methods"]}, key=lambda n: (
-            n != "exact", n != "centroid", int(n.split("-")[-1]) if "-" in n else 0))
+        names = sorted(
+            {m for row in case["rows"] for m in row["methods"]},
+            key=lambda n: (n != "exact", n != "centroid", int(n.split("-")[-1]) if "-" in n else 0),
+        )
         for n in names:
-            pts = [(row["methods"][n]["seconds"], max(row["methods"][n]["peak_relative_error"],
-                                                      1e-16), row["faces"])
-                   for row in case["rows"] if n in row["methods"]]
+            pts = [
+                (
+                    row["methods"][n]["seconds"],
+                    max(row["methods"][n]["peak_relative_error"], 1e-16),
+                    row["faces"],
+                )
+                for row in case["rows"]
+                if n in row["methods"]
+            ]
             t, e, faces = zip(*pts)
             ax.loglog(t, e, "o-", label=n)
             for ti, ei, fi in zip(t, e, faces):
-                ax.annotate(str(fi), (ti, ei), fontsize=7, textcoords="offset points",
-                            xytext=(3, 3))
+                ax.annotate(
+                    str(fi), (ti, ei), fontsize=7, textcoords="offset points", xytext=(3, 3)
+                )
         ax.set_xlabel("seconds (one core)")
         ax.set_ylabel("peak-relative amplitude error")
         ax.set_title(f"{name}: {case['description']}", fontsize=9)
@@ -197,8 +214,9 @@ def plot(results, out):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--quick", action="store_true", help="fewer resolutions (a smoke run)")
     ap.add_argument("--out", default=str(RESULTS / "radar_accuracy.json"))
     args = ap.parse_args()
@@ -217,8 +235,9 @@ def main() -> None:
         mesh = trimesh.creation.icosphere(subdivisions=s, radius=radius)
         edge = float(mesh.edges_unique_length.max())
         spheres.append((f"icosphere-{s} (edge {edge * 1e3:.2f} mm)", (mesh.vertices, mesh.faces)))
-    sphere_ref = np.broadcast_to(sphere_reference(radius, frequencies),
-                                 (len(sphere_dirs), len(frequencies)))
+    sphere_ref = np.broadcast_to(
+        sphere_reference(radius, frequencies), (len(sphere_dirs), len(frequencies))
+    )
     plate_dirs = line_of_sight(np.linspace(0, 60, 61), [0.0, 30.0, 45.0])
     plates = [(f"{n}x{n} squares", plate_mesh(side, n)) for n in plate_n]
     plate_ref = plate_reference(side, frequencies, plate_dirs)
@@ -242,12 +261,18 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     png = Path(args.out).with_suffix(".png")
     plot(results, png)
-    Path(args.out).write_text(json.dumps({
-        "frequencies_hz": [frequencies[0], frequencies[-1], len(frequencies)],
-        "hardware": hardware(threads=1),
-        "load_average_at_start": load,
-        "error": "max over directions and frequencies of ||A| - |A_ref|| / max |A_ref|",
-        "cases": results}, indent=2))
+    Path(args.out).write_text(
+        json.dumps(
+            {
+                "frequencies_hz": [frequencies[0], frequencies[-1], len(frequencies)],
+                "hardware": hardware(threads=1),
+                "load_average_at_start": load,
+                "error": "max over directions and frequencies of ||A| - |A_ref|| / max |A_ref|",
+                "cases": results,
+            },
+            indent=2,
+        )
+    )
     print(f"\nwrote {args.out} and {png}")
 
 

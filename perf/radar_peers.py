@@ -60,8 +60,9 @@ def box_reference(extents, frequencies_hz, directions) -> np.ndarray:
             n[axis] = sign
             cosine = np.asarray(directions) @ n
             lit = np.clip(cosine, 0, None)[:, None]
-            centre_phase = np.exp(2j * np.outer(np.asarray(directions)[:, axis] * sign
-                                                * ext[axis] / 2, k))
+            centre_phase = np.exp(
+                2j * np.outer(np.asarray(directions)[:, axis] * sign * ext[axis] / 2, k)
+            )
             sa = np.sinc(np.outer(np.asarray(directions)[:, e1], k) * ext[e1] / np.pi)
             sb = np.sinc(np.outer(np.asarray(directions)[:, e2], k) * ext[e2] / np.pi)
             total += lit * ext[e1] * ext[e2] * centre_phase * sa * sb
@@ -87,7 +88,7 @@ def peer_style(vertices, faces, frequencies_hz, directions, m: int, shadows: boo
         k = 2 * np.pi * freq / C
         for i, d in enumerate(np.asarray(directions, np.float64)):
             w = area_vec @ d
-            lit_facet = (area_vec[::m * m] @ d) > 0
+            lit_facet = (area_vec[:: m * m] @ d) > 0
             if shadows:
                 idx = np.flatnonzero(lit_facet)
                 origins = np.ascontiguousarray(centres[idx] + eps * d, np.float32)
@@ -109,37 +110,57 @@ def timed(fn):
 
 
 def run_case(name, vertices, faces, mode, frequencies, directions, reference):
-    ours, t_ours = timed(lambda: radar_sim.monostatic_field(vertices, faces, frequencies,
-                                                            directions, mode=mode))
+    ours, t_ours = timed(
+        lambda: radar_sim.monostatic_field(vertices, faces, frequencies, directions, mode=mode)
+    )
     reference_name = "analytic" if reference is not None else "radar_sim"
     if reference is None:
         reference = np.abs(ours)
-    per_freq, t_per_freq = timed(lambda: np.concatenate([
-        radar_sim.monostatic_field(vertices, faces, [f], directions, mode=mode)
-        for f in frequencies], axis=1))
+    per_freq, t_per_freq = timed(
+        lambda: np.concatenate(
+            [
+                radar_sim.monostatic_field(vertices, faces, [f], directions, mode=mode)
+                for f in frequencies
+            ],
+            axis=1,
+        )
+    )
     target = max(TARGET, error(ours, reference))
     peer_rows = []
     m = 1
     while m <= MAX_M:
-        field, seconds = timed(lambda m=m: peer_style(vertices, faces, frequencies, directions, m,
-                                                  mode != "convex"))
+        field, seconds = timed(
+            lambda m=m: peer_style(vertices, faces, frequencies, directions, m, mode != "convex")
+        )
         peer_rows.append({"m": m, "seconds": seconds, "error": error(field, reference)})
-        print(f"  {name}: peer-style M={m}: error {peer_rows[-1]['error']:.2e} in {seconds:.2f} s",
-              flush=True)
+        print(
+            f"  {name}: peer-style M={m}: error {peer_rows[-1]['error']:.2e} in {seconds:.2f} s",
+            flush=True,
+        )
         if peer_rows[-1]["error"] <= target:
             break
         m *= 2
     reached = peer_rows[-1]["error"] <= target
-    return {"faces": int(len(faces)), "mode": mode, "target": target, "reference": reference_name,
-            "radar_sim": {"seconds": t_ours, "error": error(ours, reference)},
-            "per_frequency": {"seconds": t_per_freq, "error": error(per_freq, reference)},
-            "peer_style": {"runs": peer_rows, "reached_target": reached,
-                           "seconds": peer_rows[-1]["seconds"], "m": peer_rows[-1]["m"]}}
+    return {
+        "faces": int(len(faces)),
+        "mode": mode,
+        "target": target,
+        "reference": reference_name,
+        "radar_sim": {"seconds": t_ours, "error": error(ours, reference)},
+        "per_frequency": {"seconds": t_per_freq, "error": error(per_freq, reference)},
+        "peer_style": {
+            "runs": peer_rows,
+            "reached_target": reached,
+            "seconds": peer_rows[-1]["seconds"],
+            "m": peer_rows[-1]["m"],
+        },
+    }
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--aspects", type=int, default=61, help="orientations per case (default 61)")
     ap.add_argument("--out", default=str(RESULTS / "radar_peers.json"))
     args = ap.parse_args()
@@ -158,30 +179,54 @@ def main() -> None:
     }
     results = {}
     for name, (mesh, mode, reference) in cases.items():
-        results[name] = run_case(name, np.asarray(mesh.vertices), np.asarray(mesh.faces), mode,
-                                 frequencies, directions, reference)
+        results[name] = run_case(
+            name,
+            np.asarray(mesh.vertices),
+            np.asarray(mesh.faces),
+            mode,
+            frequencies,
+            directions,
+            reference,
+        )
     scale = len(config.aspect_deg) * len(config.roll_deg) / len(directions)
-    print(f"\n{len(directions)} orientations x {len(frequencies)} frequencies; seconds (error); "
-          f"speed-up = other / radar_sim")
-    print(f"{'case':>7} {'faces':>6} {'radar_sim':>18} {'per-freq':>18} {'peer-style':>24} "
-          f"{'x per-freq':>10} {'x peer':>8}")
+    print(
+        f"\n{len(directions)} orientations x {len(frequencies)} frequencies; seconds (error); "
+        f"speed-up = other / radar_sim"
+    )
+    print(
+        f"{'case':>7} {'faces':>6} {'radar_sim':>18} {'per-freq':>18} {'peer-style':>24} "
+        f"{'x per-freq':>10} {'x peer':>8}"
+    )
     for name, r in results.items():
         ours, pf, peer = r["radar_sim"], r["per_frequency"], r["peer_style"]
         ours_error = "ref" if r["reference"] == "radar_sim" else f"{ours['error']:.0e}"
-        peer_cell = (f"{peer['seconds']:.2f} ({peer['runs'][-1]['error']:.0e}) M={peer['m']}"
-                     + ("" if peer["reached_target"] else "!"))
-        print(f"{name:>7} {r['faces']:>6} {ours['seconds']:>8.3f} ({ours_error:>5}) "
-              f"{pf['seconds']:>8.3f} ({pf['error']:.0e}) {peer_cell:>24} "
-              f"{pf['seconds'] / ours['seconds']:>10.1f} {peer['seconds'] / ours['seconds']:>8.1f}")
-    print("('!': the peer-style rule did not reach the target within M = "
-          f"{MAX_M}; its speed-up is then a lower bound)")
+        peer_cell = f"{peer['seconds']:.2f} ({peer['runs'][-1]['error']:.0e}) M={peer['m']}" + (
+            "" if peer["reached_target"] else "!"
+        )
+        print(
+            f"{name:>7} {r['faces']:>6} {ours['seconds']:>8.3f} ({ours_error:>5}) "
+            f"{pf['seconds']:>8.3f} ({pf['error']:.0e}) {peer_cell:>24} "
+            f"{pf['seconds'] / ours['seconds']:>10.1f} {peer['seconds'] / ours['seconds']:>8.1f}"
+        )
+    print(
+        "('!': the peer-style rule did not reach the target within M = "
+        f"{MAX_M}; its speed-up is then a lower bound)"
+    )
     RESULTS.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({
-        "hardware": hardware(threads=1),
-        "load_average_at_start": load,
-        "orientations": len(directions), "frequencies": len(frequencies),
-        "full_grid_factor": scale, "target_peak_relative_error": TARGET, "cases": results},
-        indent=2))
+    Path(args.out).write_text(
+        json.dumps(
+            {
+                "hardware": hardware(threads=1),
+                "load_average_at_start": load,
+                "orientations": len(directions),
+                "frequencies": len(frequencies),
+                "full_grid_factor": scale,
+                "target_peak_relative_error": TARGET,
+                "cases": results,
+            },
+            indent=2,
+        )
+    )
     print(f"wrote {args.out}")
 
 

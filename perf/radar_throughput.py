@@ -59,16 +59,24 @@ def blender_uv_sphere(segments: int = 32, rings: int = 16, radius: float = 0.5) 
     """Blender's default UV sphere: 32 segments x 16 rings, 482 vertices, 960 triangles."""
     theta = np.pi * np.arange(1, rings) / rings  # polar angles of the rings between the poles
     phi = 2 * np.pi * np.arange(segments) / segments
-    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
-                     np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments))], -1)
+    ring = np.stack(
+        [
+            np.sin(theta)[:, None] * np.cos(phi),
+            np.sin(theta)[:, None] * np.sin(phi),
+            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
+        ],
+        -1,
+    )
     vertices = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * radius
     idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
     nxt = np.roll(idx, -1, axis=1)
     south = len(vertices) - 1
-    faces = [np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
-             np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
-             np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
-             np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1)]
+    faces = [
+        np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
+        np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
+        np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
+        np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1),
+    ]
     mesh = trimesh.Trimesh(vertices, np.concatenate(faces), process=False)
     mesh.fix_normals()
     return mesh
@@ -83,12 +91,20 @@ def convex_objects():
 def time_simulate(mesh, config, mode):
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     result, seconds = best_time(lambda: radar_sim.simulate(v, f, config, mode=mode), budget_s=3.0)
-    field_s = best_time(lambda: radar_sim.monostatic_field(v, f, config.frequency_hz,
-                                                           config.directions(), mode=mode),
-                        budget_s=3.0)[1]
+    field_s = best_time(
+        lambda: radar_sim.monostatic_field(
+            v, f, config.frequency_hz, config.directions(), mode=mode
+        ),
+        budget_s=3.0,
+    )[1]
     n = len(config.aspect_deg) * len(config.roll_deg) * len(config.frequency_hz)
-    return {"faces": int(len(f)), "mode": result.mode, "seconds": seconds, "field_seconds": field_s,
-            "orientation_frequencies_per_second": n / seconds}
+    return {
+        "faces": int(len(f)),
+        "mode": result.mode,
+        "seconds": seconds,
+        "field_seconds": field_s,
+        "orientation_frequencies_per_second": n / seconds,
+    }
 
 
 def shadow_rays(mesh, directions):
@@ -99,8 +115,10 @@ def shadow_rays(mesh, directions):
         lit = normals @ d > 0
         origins.append(centres[lit])
         dirs.append(np.broadcast_to(d, (int(lit.sum()), 3)))
-    return (np.ascontiguousarray(np.concatenate(origins), np.float32),
-            np.ascontiguousarray(np.concatenate(dirs), np.float32))
+    return (
+        np.ascontiguousarray(np.concatenate(origins), np.float32),
+        np.ascontiguousarray(np.concatenate(dirs), np.float32),
+    )
 
 
 def raw_embree(mesh, origins, dirs):
@@ -117,29 +135,48 @@ def raw_embree(mesh, origins, dirs):
 
     scene, build_s = best_time(build, budget_s=1.0)
     eps = np.float32(1e-6 * mesh.scale)
-    _, run_s = best_time(lambda: scene.run(origins + eps * dirs, dirs, query="OCCLUDED"),
-                         budget_s=3.0)
-    return {"build_seconds": build_s, "rays": int(len(origins)),
-            "rays_per_second": len(origins) / run_s}
+    _, run_s = best_time(
+        lambda: scene.run(origins + eps * dirs, dirs, query="OCCLUDED"), budget_s=3.0
+    )
+    return {
+        "build_seconds": build_s,
+        "rays": int(len(origins)),
+        "rays_per_second": len(origins) / run_s,
+    }
 
 
 def paper_dataset(directory: Path, n_objects: int, per_shard: int = 8) -> Path:
     """Basic-Shapes-like simple meshes (what `label` simulates), classes in turn."""
     directory.mkdir(parents=True)
     rng = np.random.default_rng(0)
-    base = [trimesh.creation.box(extents=(1, 1, 1)),
-            trimesh.creation.cylinder(radius=0.5, height=1.0, sections=32),
-            blender_uv_sphere()]
+    base = [
+        trimesh.creation.box(extents=(1, 1, 1)),
+        trimesh.creation.cylinder(radius=0.5, height=1.0, sections=32),
+        blender_uv_sphere(),
+    ]
     objects = []
     for oid in range(n_objects):
         scale = rng.uniform(0.3, 1.5, 3)
         mesh = base[oid % 3]
         v = np.asarray(mesh.vertices * scale, np.float32)
-        objects.append(ObjectRecord(oid, oid % 3, scale, oid, "train",
-                                    [MeshRecord(0, v, np.asarray(mesh.faces, np.int32), 0.0, {})]))
+        objects.append(
+            ObjectRecord(
+                oid,
+                oid % 3,
+                scale,
+                oid,
+                "train",
+                [MeshRecord(0, v, np.asarray(mesh.faces, np.int32), 0.0, {})],
+            )
+        )
     for i in range(0, n_objects, per_shard):
-        write_shard(directory / shard_name(i // per_shard), objects[i:i + per_shard],
-                    ["cube", "cylinder", "sphere"], {}, "bench")
+        write_shard(
+            directory / shard_name(i // per_shard),
+            objects[i : i + per_shard],
+            ["cube", "cylinder", "sphere"],
+            {},
+            "bench",
+        )
     return directory
 
 
@@ -149,9 +186,17 @@ def copy_cost(tmp: Path) -> dict:
     rng = np.random.default_rng(0)
     v = rng.normal(size=(PAPER_COMPLEX_FACES // 2 + 2, 3)).astype(np.float32)
     f = rng.integers(0, len(v), size=(PAPER_COMPLEX_FACES, 3)).astype(np.int32)
-    objects = [ObjectRecord(o, 0, np.ones(3), o, "train",
-                            [MeshRecord(i, v, f, 0.0, {}) for i in range(n_meshes // 8)])
-               for o in range(8)]
+    objects = [
+        ObjectRecord(
+            o,
+            0,
+            np.ones(3),
+            o,
+            "train",
+            [MeshRecord(i, v, f, 0.0, {}) for i in range(n_meshes // 8)],
+        )
+        for o in range(8)
+    ]
     path = tmp / "copy.h5"
     write_shard(path, objects, ["cube"], {}, "bench")
     mb = path.stat().st_size / 1e6
@@ -160,20 +205,25 @@ def copy_cost(tmp: Path) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--paper-objects", type=int, default=PAPER_OBJECTS)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--out", default=str(RESULTS / "radar_throughput.json"))
     args = ap.parse_args()
     config = radar_sim.RadarConfig.named("xband-v1")
-    out = {"hardware": hardware(), "cpu_count": os.cpu_count(),
-           "load_average_at_start": os.getloadavg()[0],
-           "grid": [len(config.aspect_deg), len(config.roll_deg), len(config.frequency_hz)]}
+    out = {
+        "hardware": hardware(),
+        "cpu_count": os.cpu_count(),
+        "load_average_at_start": os.getloadavg()[0],
+        "grid": [len(config.aspect_deg), len(config.roll_deg), len(config.frequency_hz)],
+    }
 
     print("1. convex ~1k-face objects, full default grid, one core")
-    out["convex"] = {name: time_simulate(mesh, config, "auto")
-                     for name, mesh in convex_objects().items()}
+    out["convex"] = {
+        name: time_simulate(mesh, config, "auto") for name, mesh in convex_objects().items()
+    }
     for name, r in out["convex"].items():
         print(
             f"  {name:>10} {r['faces']:>6} faces  mode {r['mode']:<8} {r['seconds'] * 1e3:8.1f} ms"
@@ -189,19 +239,27 @@ def main() -> None:
     origins, dirs = shadow_rays(torus, config.directions())
     raw = raw_embree(torus, origins, dirs)
     shadow_s = shadowed["field_seconds"] - culled["field_seconds"]
-    out["nonconvex"] = {"auto_mode": radar_sim.detect_mode(torus.vertices, torus.faces),
-                        "shadowed": shadowed, "culling_only": culled, "raw_embreex": raw,
-                        "shadow_seconds": shadow_s,
-                        "simulator_shadow_rays_per_second": raw["rays"] / shadow_s}
+    out["nonconvex"] = {
+        "auto_mode": radar_sim.detect_mode(torus.vertices, torus.faces),
+        "shadowed": shadowed,
+        "culling_only": culled,
+        "raw_embreex": raw,
+        "shadow_seconds": shadow_s,
+        "simulator_shadow_rays_per_second": raw["rays"] / shadow_s,
+    }
     print(f"  auto mode: {out['nonconvex']['auto_mode']}")
     for name, r in (("shadowed", shadowed), ("culling only", culled)):
-        print(f"  {name:>12} {r['seconds'] * 1e3:8.1f} ms  "
-              f"{r['orientation_frequencies_per_second']:.3g} orientation-frequencies/s")
-    print(f"  shadowing costs {shadow_s * 1e3:.1f} ms for {raw['rays']} rays: "
-          f"{raw['rays'] / shadow_s / 1e6:.2f} M rays/s in the simulator vs "
-          f"{raw['rays_per_second'] / 1e6:.2f} M rays/s raw embreex "
-          f"(ratio {raw['rays'] / shadow_s / raw['rays_per_second']:.2f}); "
-          f"BVH build {raw['build_seconds'] * 1e3:.1f} ms")
+        print(
+            f"  {name:>12} {r['seconds'] * 1e3:8.1f} ms  "
+            f"{r['orientation_frequencies_per_second']:.3g} orientation-frequencies/s"
+        )
+    print(
+        f"  shadowing costs {shadow_s * 1e3:.1f} ms for {raw['rays']} rays: "
+        f"{raw['rays'] / shadow_s / 1e6:.2f} M rays/s in the simulator vs "
+        f"{raw['rays_per_second'] / 1e6:.2f} M rays/s raw embreex "
+        f"(ratio {raw['rays'] / shadow_s / raw['rays_per_second']:.2f}); "
+        f"BVH build {raw['build_seconds'] * 1e3:.1f} ms"
+    )
 
     print(f"3. `radar-sim label` on {args.paper_objects} simple meshes")
     with tempfile.TemporaryDirectory() as tmp:
@@ -212,15 +270,27 @@ def main() -> None:
             t0 = time.perf_counter()
             summary = label_directory(data, request, workers=w, progress=False)
             seconds = time.perf_counter() - t0
-            rows.append({"workers": w, "objects": summary.objects, "seconds": seconds,
-                         "objects_per_second": summary.objects / seconds,
-                         "paper_seconds": PAPER_OBJECTS * seconds / summary.objects})
+            rows.append(
+                {
+                    "workers": w,
+                    "objects": summary.objects,
+                    "seconds": seconds,
+                    "objects_per_second": summary.objects / seconds,
+                    "paper_seconds": PAPER_OBJECTS * seconds / summary.objects,
+                }
+            )
         copy = copy_cost(Path(tmp))
     paper_mb = PAPER_OBJECTS / 8 * copy["shard_mb"]
-    out["label"] = {"rows": rows, "rewrite": copy, "paper_dataset_mb_estimate": paper_mb,
-                    "paper_rewrite_seconds_estimate": paper_mb * copy["seconds_per_mb"]}
-    print(f"  {'workers':>7} {'objects':>7} {'seconds':>8} {'obj/s':>7} {'paper s':>8} "
-          f"{'vs 1st':>7} {'vs goal':>7}")
+    out["label"] = {
+        "rows": rows,
+        "rewrite": copy,
+        "paper_dataset_mb_estimate": paper_mb,
+        "paper_rewrite_seconds_estimate": paper_mb * copy["seconds_per_mb"],
+    }
+    print(
+        f"  {'workers':>7} {'objects':>7} {'seconds':>8} {'obj/s':>7} {'paper s':>8} "
+        f"{'vs 1st':>7} {'vs goal':>7}"
+    )
     for r in rows:
         print(
             f"  {r['workers']:>7} {r['objects']:>7} {r['seconds']:>8.1f} "

@@ -42,8 +42,12 @@ def main() -> None:
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "scoring_speed.json"))
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        data = make_dataset(Path(tmp) / "data", objects_per_class=args.objects_per_class,
-                            n_test_per_class=args.objects_per_class // 2, grid=tuple(args.grid))
+        data = make_dataset(
+            Path(tmp) / "data",
+            objects_per_class=args.objects_per_class,
+            n_test_per_class=args.objects_per_class // 2,
+            grid=tuple(args.grid),
+        )
         preds = Path(tmp) / "preds.h5"
         model = load_model("benchmark.protocol:NearestScaleModel", {"data_dir": str(data)})
         t0 = time.perf_counter()
@@ -53,9 +57,14 @@ def main() -> None:
         score_predictions(data, preds)
         t_score = time.perf_counter() - t0
     n = results["metrics"]["n_meshes"]
-    rows = [{"step": step, "ms_per_mesh": round(1000 * t / n, 3),
-             "paper_test_split_s": round(t / n * PAPER_TEST_MESHES, 1)}
-            for step, t in (("score", t_score), ("evaluate", t_eval))]
+    rows = [
+        {
+            "step": step,
+            "ms_per_mesh": round(1000 * t / n, 3),
+            "paper_test_split_s": round(t / n * PAPER_TEST_MESHES, 1),
+        }
+        for step, t in (("score", t_score), ("evaluate", t_eval))
+    ]
     print(f"{'step':>10} {'ms/mesh':>9} {'vs score':>9} {'paper test split (s)':>21}")
     for r in rows:
         print(
@@ -65,9 +74,19 @@ def main() -> None:
         )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"grid": args.grid, "test_meshes": n, "rows": rows,
-                               "hardware": hardware()["text"],
-                               "python": platform.python_version()}, indent=2) + "\n")
+    out.write_text(
+        json.dumps(
+            {
+                "grid": args.grid,
+                "test_meshes": n,
+                "rows": rows,
+                "hardware": hardware()["text"],
+                "python": platform.python_version(),
+            },
+            indent=2,
+        )
+        + "\n"
+    )
     print(f"written to {out}")
 
 

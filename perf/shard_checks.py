@@ -36,8 +36,9 @@ def best(fn, repeat: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--objects", type=int, default=8)
     ap.add_argument("--meshes", type=int, default=100)
     ap.add_argument("--repeat", type=int, default=5)
@@ -47,9 +48,17 @@ def main() -> None:
     v, f = sphere.vertices.astype(np.float32), sphere.faces.astype(np.int32)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "shard-00000.h5"
-        objects = [ObjectRecord(i, 0, np.ones(3), i, "train",
-                                [MeshRecord(k, v, f, 0.0, {}) for k in range(args.meshes)])
-                   for i in range(args.objects)]
+        objects = [
+            ObjectRecord(
+                i,
+                0,
+                np.ones(3),
+                i,
+                "train",
+                [MeshRecord(k, v, f, 0.0, {}) for k in range(args.meshes)],
+            )
+            for i in range(args.objects)
+        ]
         write_shard(path, objects, ["sphere"], {"bench": True}, "0")
 
         def open_close():
@@ -66,8 +75,7 @@ def main() -> None:
 
         bomb = Path(tmp) / "bomb.h5"
         with h5py.File(bomb, "w") as h:
-            h.create_dataset("target_db", (10**9, 61, 21, 107), np.float32,
-                             chunks=(1, 61, 21, 107))
+            h.create_dataset("target_db", (10**9, 61, 21, 107), np.float32, chunks=(1, 61, 21, 107))
 
         def refuse_bomb():
             try:
@@ -76,19 +84,26 @@ def main() -> None:
                 return
             raise AssertionError("the bomb was accepted")
 
-        rows = {"open + validate": best(open_close, args.repeat),
-                "verify (faces + fingerprint)": best(verify, args.repeat),
-                "read every mesh": best(read_all, args.repeat),
-                "refuse 1e9-row predictions": best(refuse_bomb, args.repeat)}
+        rows = {
+            "open + validate": best(open_close, args.repeat),
+            "verify (faces + fingerprint)": best(verify, args.repeat),
+            "read every mesh": best(read_all, args.repeat),
+            "refuse 1e9-row predictions": best(refuse_bomb, args.repeat),
+        }
         size = {"shard_bytes": path.stat().st_size, "bomb_bytes": bomb.stat().st_size}
     base = rows["read every mesh"]
     print(f"{'step':30} {'ms':>9} {'vs reading':>10}")
     for name, s in rows.items():
         print(f"{name:30} {1000 * s:9.2f} {s / base:10.2f}")
-    result = {"objects": args.objects, "meshes_per_object": args.meshes, "faces_per_mesh": len(f),
-              **size, "seconds_best_of": args.repeat,
-              "seconds": {k: round(s, 5) for k, s in rows.items()},
-              "ratio_to_reading": {k: round(s / base, 3) for k, s in rows.items()}}
+    result = {
+        "objects": args.objects,
+        "meshes_per_object": args.meshes,
+        "faces_per_mesh": len(f),
+        **size,
+        "seconds_best_of": args.repeat,
+        "seconds": {k: round(s, 5) for k, s in rows.items()},
+        "ratio_to_reading": {k: round(s / base, 3) for k, s in rows.items()},
+    }
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.out}")
 

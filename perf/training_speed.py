@@ -68,8 +68,16 @@ from benchmark.train import (
 )
 
 RESULTS = Path(__file__).parent / "results"
-ROWS = ("direct-basic", "graph-basic", "token-basic", "invariant-basic", "blind-basic",
-        "direct-ideal", "graph-ideal", "token-ideal")
+ROWS = (
+    "direct-basic",
+    "graph-basic",
+    "token-basic",
+    "invariant-basic",
+    "blind-basic",
+    "direct-ideal",
+    "graph-ideal",
+    "token-ideal",
+)
 NO_PLATEAU = 100_000  # patience: the measured epochs never halve the rate nor stop
 
 
@@ -86,7 +94,7 @@ def concatenated_tokens(self, batch):
     tokens = batch.tokens[batch.mask]
     parts, start = [], 0
     for table, (_, n) in zip(self.tables, TOKEN_GROUPS):
-        parts.append(table(tokens[:, start:start + n]).flatten(1))
+        parts.append(table(tokens[:, start : start + n]).flatten(1))
         start += n
     return self.proj(torch.cat(parts, 1))
 
@@ -137,12 +145,16 @@ def old_fit(task, examples, groups, val, *, epochs, batch_size, lr, weight_decay
             opt.step()
             step += 1
             losses.append(loss.item())
-        record = {"loss": float(np.mean(losses)),
-                  "val_mse": old_validation_mse(task.model, val, batch_size)}
+        record = {
+            "loss": float(np.mean(losses)),
+            "val_mse": old_validation_mse(task.model, val, batch_size),
+        }
         stamps.append(time.perf_counter())
         if best is None or record["val_mse"] < best[0]:  # the old fit kept the best weights
-            best = (record["val_mse"], {k: v.detach().clone()
-                                        for k, v in task.state_dict().items()})
+            best = (
+                record["val_mse"],
+                {k: v.detach().clone() for k, v in task.state_dict().items()},
+            )
         history.append(record)
     return history
 
@@ -205,7 +217,8 @@ def examples_of(row: str, data: BenchmarkData, cache: FeatureCache):
 
 def set_statistics(task: RegressionTask, examples, groups) -> None:
     task.model.decoder.set_output_statistics(
-        torch.from_numpy(np.stack([examples[g[0]].target for g in groups])))
+        torch.from_numpy(np.stack([examples[g[0]].target for g in groups]))
+    )
 
 
 # --- measurements -----------------------------------------------------------------------------
@@ -213,8 +226,7 @@ def breakdown(task, opt, examples, batches) -> dict:
     """Milliseconds per step by part (each forward + backward), over ``batches`` after two
     warm-up steps; the parts are cut apart by detaching between them."""
     model = task.model
-    parts = dict.fromkeys(("batch", "embedding", "aggregator", "decoder", "clip", "optimizer"),
-                          0.0)
+    parts = dict.fromkeys(("batch", "embedding", "aggregator", "decoder", "clip", "optimizer"), 0.0)
     padded = real = 0
     for k, idx in enumerate(batches):
         t = [time.perf_counter()]
@@ -266,14 +278,19 @@ def featurize_seconds(data: BenchmarkData, regime: str, probes: bool, n: int = 2
     return (time.perf_counter() - t) / len(sample)
 
 
-def measure_row(row: str, data: BenchmarkData, cache: FeatureCache, epochs: int,
-                seeds: list[int], steps: int) -> dict:
+def measure_row(
+    row: str, data: BenchmarkData, cache: FeatureCache, epochs: int, seeds: list[int], steps: int
+) -> dict:
     examples, groups, val = examples_of(row, data, cache)
     embedding, regime = row.split("-")
-    out = {"row": row, "train_objects": len(groups), "train_meshes": len(examples),
-           "val_objects": len(val),
-           "featurize_s_per_mesh": featurize_seconds(data, regime, REGISTRY[embedding].probes)}
-    batches = epoch_batches(examples, groups, 16, 0, 0)[:steps + 2]
+    out = {
+        "row": row,
+        "train_objects": len(groups),
+        "train_meshes": len(examples),
+        "val_objects": len(val),
+        "featurize_s_per_mesh": featurize_seconds(data, regime, REGISTRY[embedding].probes),
+    }
+    batches = epoch_batches(examples, groups, 16, 0, 0)[: steps + 2]
     for path, old in (("old", True), ("new", False)):
         task, cfg = make_task(row, data, 0, old)
         set_statistics(task, examples, groups)
@@ -285,34 +302,57 @@ def measure_row(row: str, data: BenchmarkData, cache: FeatureCache, epochs: int,
     for path, seed in [("old", seeds[0])] + [("new", s) for s in seeds]:
         task, cfg = make_task(row, data, seed, path == "old")
         set_statistics(task, examples, groups)
-        kw = dict(epochs=epochs, batch_size=cfg.batch_size, lr=cfg.lr,
-                  weight_decay=cfg.weight_decay, seed=seed)
+        kw = dict(
+            epochs=epochs,
+            batch_size=cfg.batch_size,
+            lr=cfg.lr,
+            weight_decay=cfg.weight_decay,
+            seed=seed,
+        )
         load = os.getloadavg()[0]
         stamps: list[float] = []  # at the end of every epoch (its validation)
         if path == "old":
             history = old_fit(task, examples, groups, val, **kw, stamps=stamps)
         else:
             with epoch_clock(stamps):
-                history = fit(task, examples, groups, **kw, desc=row,
-                              device=torch.device("cpu"), progress=False, val=val,
-                              patience=NO_PLATEAU)
+                history = fit(
+                    task,
+                    examples,
+                    groups,
+                    **kw,
+                    desc=row,
+                    device=torch.device("cpu"),
+                    progress=False,
+                    val=val,
+                    patience=NO_PLATEAU,
+                )
         epoch_s = np.diff(stamps).tolist()
         runs[f"{path}-seed-{seed}"] = {
-            "s_per_epoch": float(np.median(epoch_s)), "epoch_s": epoch_s, "load_avg_1m": load,
-            "val_mse": [r["val_mse"] for r in history], "loss": [r["loss"] for r in history]}
+            "s_per_epoch": float(np.median(epoch_s)),
+            "epoch_s": epoch_s,
+            "load_avg_1m": load,
+            "val_mse": [r["val_mse"] for r in history],
+            "loss": [r["loss"] for r in history],
+        }
     old, new = runs[f"old-seed-{seeds[0]}"], runs[f"new-seed-{seeds[0]}"]
-    out.update(runs=runs, s_per_epoch_old=old["s_per_epoch"], s_per_epoch_new=new["s_per_epoch"],
-               speedup=old["s_per_epoch"] / new["s_per_epoch"],
-               val_mse_old=old["val_mse"][-1], val_mse_new=new["val_mse"][-1],
-               seed_spread=float(np.ptp([runs[f"new-seed-{s}"]["val_mse"][-1] for s in seeds]))
-               if len(seeds) > 1 else None)
+    out.update(
+        runs=runs,
+        s_per_epoch_old=old["s_per_epoch"],
+        s_per_epoch_new=new["s_per_epoch"],
+        speedup=old["s_per_epoch"] / new["s_per_epoch"],
+        val_mse_old=old["val_mse"][-1],
+        val_mse_new=new["val_mse"][-1],
+        seed_spread=float(np.ptp([runs[f"new-seed-{s}"]["val_mse"][-1] for s in seeds]))
+        if len(seeds) > 1
+        else None,
+    )
     return out
 
 
 def threads_probe(row: str, data: BenchmarkData, cache: FeatureCache, steps: int) -> dict:
     """Milliseconds per new step of ``row`` with one and with two torch threads."""
     examples, groups, _ = examples_of(row, data, cache)
-    batches = epoch_batches(examples, groups, 16, 0, 0)[:steps + 2]
+    batches = epoch_batches(examples, groups, 16, 0, 0)[: steps + 2]
     out = {}
     previous = torch.get_num_threads()
     for threads in (1, 2):
@@ -326,29 +366,43 @@ def threads_probe(row: str, data: BenchmarkData, cache: FeatureCache, steps: int
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| row | s/epoch old | s/epoch new | speed-up | val MSE old | val MSE new | "
-             "seed spread (new) |", "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| row | s/epoch old | s/epoch new | speed-up | val MSE old | val MSE new | "
+        "seed spread (new) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         spread = "-" if r["seed_spread"] is None else f"{r['seed_spread']:.2f}"
-        lines.append(f"| {r['row']} | {r['s_per_epoch_old']:.2f} | {r['s_per_epoch_new']:.2f} | "
-                     f"{r['speedup']:.1f}x | {r['val_mse_old']:.2f} | {r['val_mse_new']:.2f} | "
-                     f"{spread} |")
+        lines.append(
+            f"| {r['row']} | {r['s_per_epoch_old']:.2f} | {r['s_per_epoch_new']:.2f} | "
+            f"{r['speedup']:.1f}x | {r['val_mse_old']:.2f} | {r['val_mse_new']:.2f} | "
+            f"{spread} |"
+        )
     lines += ["", "ms per step by part (old -> new):", ""]
     parts = ("batch", "embedding", "aggregator", "decoder", "clip", "optimizer", "step")
-    lines += ["| row | " + " | ".join(parts) + " | padded/real |",
-              "|---|" + "---:|" * (len(parts) + 1)]
+    lines += [
+        "| row | " + " | ".join(parts) + " | padded/real |",
+        "|---|" + "---:|" * (len(parts) + 1),
+    ]
     for r in rows:
         o, n = r["breakdown_old"], r["breakdown_new"]
-        lines.append(f"| {r['row']} | " + " | ".join(f"{o[p]:.0f} -> {n[p]:.0f}" for p in parts)
-                     + f" | {n['padded_per_real_face']:.2f} |")
+        lines.append(
+            f"| {r['row']} | "
+            + " | ".join(f"{o[p]:.0f} -> {n[p]:.0f}" for p in parts)
+            + f" | {n['padded_per_real_face']:.2f} |"
+        )
     return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", help="labelled dataset (default: the test fixture, cpu-v1 grid)")
-    parser.add_argument("--objects-per-class", type=int, default=40,
-                        help="fixture objects per class (without --data)")
+    parser.add_argument(
+        "--objects-per-class",
+        type=int,
+        default=40,
+        help="fixture objects per class (without --data)",
+    )
     parser.add_argument("--train-objects", type=int, help="seeded subset of the train objects")
     parser.add_argument("--val-objects", type=int, help="seeded subset of the val objects")
     parser.add_argument("--epochs", type=int, default=4)
@@ -366,8 +420,13 @@ def main() -> None:
             sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
             from tests.benchmark_fixture import make_dataset
 
-            directory = make_dataset(Path(tmp) / "fixture", args.objects_per_class,
-                                     n_test_per_class=2, n_val_per_class=4, grid=(31, 7, 107))
+            directory = make_dataset(
+                Path(tmp) / "fixture",
+                args.objects_per_class,
+                n_test_per_class=2,
+                n_val_per_class=4,
+                grid=(31, 7, 107),
+            )
         with BenchmarkData(directory) as data:
             subset(data, args.train_objects, args.val_objects)
             cache = FeatureCache()
@@ -375,16 +434,27 @@ def main() -> None:
             for row in args.rows.split(","):
                 rows.append(measure_row(row, data, cache, args.epochs, seeds, args.steps))
                 r = rows[-1]
-                print(f"{row}: {r['s_per_epoch_old']:.2f} -> {r['s_per_epoch_new']:.2f} s/epoch "
-                      f"({r['speedup']:.1f}x), val MSE {r['val_mse_old']:.2f} / "
-                      f"{r['val_mse_new']:.2f}", flush=True)
+                print(
+                    f"{row}: {r['s_per_epoch_old']:.2f} -> {r['s_per_epoch_new']:.2f} s/epoch "
+                    f"({r['speedup']:.1f}x), val MSE {r['val_mse_old']:.2f} / "
+                    f"{r['val_mse_new']:.2f}",
+                    flush=True,
+                )
             threads = threads_probe(args.rows.split(",")[0], data, cache, args.steps)
-    record = {"command": "python perf/training_speed.py " + " ".join(
-                  f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
-                  if v is not None and k != "out"),
-              "dataset": str(args.data or f"fixture, {args.objects_per_class} objects per class"),
-              "machine": hardware(1), "epochs": args.epochs, "seeds": seeds,
-              "threads_probe": threads, "rows": rows}
+    record = {
+        "command": "python perf/training_speed.py "
+        + " ".join(
+            f"--{k.replace('_', '-')} {v}"
+            for k, v in vars(args).items()
+            if v is not None and k != "out"
+        ),
+        "dataset": str(args.data or f"fixture, {args.objects_per_class} objects per class"),
+        "machine": hardware(1),
+        "epochs": args.epochs,
+        "seeds": seeds,
+        "threads_probe": threads,
+        "rows": rows,
+    }
     with atomic_path(args.out) as tmp_out:
         Path(tmp_out).write_text(json.dumps(record, indent=1) + "\n")
     print(table(rows))

@@ -11,5 +11,14 @@ from radar_sim.field import monostatic_field
 from radar_sim.geometry import MeshError, UnitsWarning, detect_mode
 from radar_sim.rcs import rcs
 
-__all__ = ["MeshError", "RadarConfig", "RadarResult", "UnitsWarning", "__version__", "detect_mode",
-           "monostatic_field", "rcs", "simulate"]
+__all__ = [
+    "MeshError",
+    "RadarConfig",
+    "RadarResult",
+    "UnitsWarning",
+    "__version__",
+    "detect_mode",
+    "monostatic_field",
+    "rcs",
+    "simulate",
+]

@@ -42,13 +42,15 @@ def _numbers(text: str, positive: bool = False) -> np.ndarray:
             if not 0 <= count < MAX_VALUES:  # also NaN and inf
                 raise argparse.ArgumentTypeError(
                     f"{text!r}: start:stop:step needs step > 0, stop >= start and at most "
-                    f"{MAX_VALUES} values")
+                    f"{MAX_VALUES} values"
+                )
             values = np.arange(start, stop + step / 2, step)
         else:
             values = np.array([float(x) for x in text.split(",")])
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected numbers like 8,10,12 or "
-                                         f"start:stop:step") from None
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected numbers like 8,10,12 or start:stop:step"
+        ) from None
     if len(values) == 0 or len(values) > MAX_VALUES or not np.isfinite(values).all():
         raise argparse.ArgumentTypeError(f"{text!r}: expected 1 to {MAX_VALUES} finite numbers")
     if positive and not (values > 0).all():
@@ -64,7 +66,8 @@ def _frequencies(text: str) -> np.ndarray:
     if values.max() > MAX_GHZ:
         raise argparse.ArgumentTypeError(
             f"{text!r}: --freq is in GHz; {values.max():g} looks like Hz "
-            f"(give {values.max() / 1e9:g} for {values.max():g} Hz)")
+            f"(give {values.max() / 1e9:g} for {values.max():g} Hz)"
+        )
     return values
 
 
@@ -106,21 +109,32 @@ def units_hint(path: str):
         yield
     for w in caught:
         if issubclass(w.category, UnitsWarning):
-            print(f"radar-sim: warning: {path}: {w.message}; if the file is in millimetres, "
-                  f"pass --units mm", file=sys.stderr)
+            print(
+                f"radar-sim: warning: {path}: {w.message}; if the file is in millimetres, "
+                f"pass --units mm",
+                file=sys.stderr,
+            )
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def cmd_label(args) -> None:
-    request = LabelRequest(load_config(args.config), args.mesh_labels, args.mode,
-                           args.frequency_response)
-    summary = label_directory(args.data, request, workers=args.workers,
-                              scheduler=args.scheduler, overwrite=args.overwrite,
-                              progress=not args.quiet)
+    request = LabelRequest(
+        load_config(args.config), args.mesh_labels, args.mode, args.frequency_response
+    )
+    summary = label_directory(
+        args.data,
+        request,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+    )
     reused = f" ({summary.reused} finished before an interruption)" if summary.reused else ""
-    print(f"labelled {len(summary.labelled)} shard(s), {summary.objects} object(s){reused}; "
-          f"skipped {len(summary.skipped)} shard(s) already labelled with this config")
+    print(
+        f"labelled {len(summary.labelled)} shard(s), {summary.objects} object(s){reused}; "
+        f"skipped {len(summary.skipped)} shard(s) already labelled with this config"
+    )
 
 
 MAX_WAVELENGTHS = 300.0
@@ -138,13 +152,16 @@ def size_warning(extent_m, f_min_hz: float, f_max_hz: float, units: str) -> str 
 
     size = float(np.max(extent_m))
     if size > MAX_WAVELENGTHS * C0 / f_max_hz:
-        hint = "if the file is in millimetres, pass --units mm" if units == "m" else \
-            "check --units"
-        return (f"the object is {size:.4g} m across, {size * f_max_hz / C0:.0f} wavelengths at "
-                f"{f_max_hz / 1e9:.4g} GHz, larger than {MAX_WAVELENGTHS:.0f}: {hint}")
+        hint = "if the file is in millimetres, pass --units mm" if units == "m" else "check --units"
+        return (
+            f"the object is {size:.4g} m across, {size * f_max_hz / C0:.0f} wavelengths at "
+            f"{f_max_hz / 1e9:.4g} GHz, larger than {MAX_WAVELENGTHS:.0f}: {hint}"
+        )
     if size < 0.5 * C0 / f_min_hz:
-        return (f"the object is {size:.4g} m across, under half a wavelength at "
-                f"{f_min_hz / 1e9:.4g} GHz, where physical optics does not hold: check --units")
+        return (
+            f"the object is {size:.4g} m across, under half a wavelength at "
+            f"{f_min_hz / 1e9:.4g} GHz, where physical optics does not hold: check --units"
+        )
     return None
 
 
@@ -157,8 +174,10 @@ def cmd_rcs(args) -> None:
         field = rcs(vertices, faces, args.freq * 1e9, args.aspect, args.roll, mode=mode)
     extent = np.ptp(vertices, axis=0)
     text = " x ".join(f"{e:.4g}" for e in extent)
-    print(f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {text} m), "
-          f"mode {mode}, roll {args.roll:g} deg")
+    print(
+        f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {text} m), "
+        f"mode {mode}, roll {args.roll:g} deg"
+    )
     warning = size_warning(extent, args.freq.min() * 1e9, args.freq.max() * 1e9, args.units)
     if warning:
         print(f"# warning: {warning}")
@@ -171,8 +190,9 @@ def cmd_rcs(args) -> None:
         print(f"{aspect:>10.4g} " + " ".join(f"{v:>13.4f}" for v in row))
 
 
-def dataset_signature(directory, object_id: int, config: str, mode: str = "auto",
-                      variant: int | None = None):
+def dataset_signature(
+    directory, object_id: int, config: str, mode: str = "auto", variant: int | None = None
+):
     """(coordinates, profiles, frequency response, title) of one mesh of a dataset object.
 
     Without ``variant``: the object's label, stored when it includes the frequency response,
@@ -190,25 +210,36 @@ def dataset_signature(directory, object_id: int, config: str, mode: str = "auto"
     if variant is not None:
         by_variant = {v: (vertices, faces) for v, vertices, faces in meshes}
         if variant not in by_variant:
-            raise ShardError(f"{path}: object {obj['id']} has no variant {variant} "
-                             f"(--variant 0..{max(by_variant)})")
+            raise ShardError(
+                f"{path}: object {obj['id']} has no variant {variant} "
+                f"(--variant 0..{max(by_variant)})"
+            )
         name = "simple mesh" if variant == 0 else f"variant {variant}"
         try:
-            return simulated_signature(*by_variant[variant], config, mode, f"{title}, physics "
-                                       f"on its {name}")
+            return simulated_signature(
+                *by_variant[variant], config, mode, f"{title}, physics on its {name}"
+            )
         except MeshError as exc:  # name the shard and the mesh, not only --data
             raise ShardError(f"{path}: object {obj['id']} variant {variant}: {exc}") from None
     with Shard(path) as s:
         if s.has_labels and s.radar.has_frequency_response:
             radar = s.radar
-            return (radar.coordinates, radar.response(k), radar.frequency_response(k),
-                    f"{title}, stored label")
+            return (
+                radar.coordinates,
+                radar.response(k),
+                radar.frequency_response(k),
+                f"{title}, stored label",
+            )
         params = object_params(s)[k]
     cfg = load_config(config)
-    vertices, faces = simulation_mesh(solid_for(obj["class"], obj["scale"], params),
-                                      cfg.f_stop_hz)
-    return simulated_signature(vertices, faces, config, object_mode(obj["class"], mode),
-                               f"{title}, label on its {len(faces)}-face simulation mesh")
+    vertices, faces = simulation_mesh(solid_for(obj["class"], obj["scale"], params), cfg.f_stop_hz)
+    return simulated_signature(
+        vertices,
+        faces,
+        config,
+        object_mode(obj["class"], mode),
+        f"{title}, label on its {len(faces)}-face simulation mesh",
+    )
 
 
 def simulated_signature(vertices, faces, config: str, mode: str, title: str):
@@ -216,8 +247,12 @@ def simulated_signature(vertices, faces, config: str, mode: str, title: str):
 
     result = simulate(vertices, faces, load_config(config), mode=mode)
     coords = {n: getattr(result, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
-    return (coords, result.range_profiles, result.frequency_response,
-            f"{title}, simulated ({result.mode}, config {config})")
+    return (
+        coords,
+        result.range_profiles,
+        result.frequency_response,
+        f"{title}, simulated ({result.mode}, config {config})",
+    )
 
 
 def cmd_plot(args) -> None:
@@ -234,79 +269,126 @@ def cmd_plot(args) -> None:
             raise SystemExit(f"--data {args.data}: not a dataset directory")
         if args.object is None:
             raise SystemExit(f"--data {args.data}: pass --object ID")
-        signature = dataset_signature(args.data, args.object, args.config, args.mode,
-                                      args.variant)
+        signature = dataset_signature(args.data, args.object, args.config, args.mode, args.variant)
     else:
         if args.variant is not None or args.object is not None:
-            raise SystemExit(f"{args.meshfile} is a mesh file: --object and --variant need "
-                             f"--data DIR")
+            raise SystemExit(
+                f"{args.meshfile} is a mesh file: --object and --variant need --data DIR"
+            )
         vertices, faces = load_mesh(args.meshfile, args.units)
         with units_hint(args.meshfile):
-            signature = simulated_signature(vertices, faces, args.config, args.mode,
-                                            Path(args.meshfile).name)
+            signature = simulated_signature(
+                vertices, faces, args.config, args.mode, Path(args.meshfile).name
+            )
     coords, profiles, response, title = signature
-    plot_signature(args.out, range_profiles=profiles, frequency_response=response,
-                   roll=args.roll, title=title, **coords)
+    plot_signature(
+        args.out,
+        range_profiles=profiles,
+        frequency_response=response,
+        roll=args.roll,
+        title=title,
+        **coords,
+    )
     print(f"wrote {args.out}")
 
 
 def build_parser() -> ArgumentParser:
-    p = ArgumentParser(prog="radar-sim", description=(
-        "Exact physical-optics radar simulator: label Basic Shapes shards, print the RCS of a "
-        f"mesh file, plot an object's signature. Units are metres; {CONVENTION}."))
+    p = ArgumentParser(
+        prog="radar-sim",
+        description=(
+            "Exact physical-optics radar simulator: label Basic Shapes shards, print the RCS of a "
+            f"mesh file, plot an object's signature. Units are metres; {CONVENTION}."
+        ),
+    )
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
 
-    q = sub.add_parser("label", help="add /radar labels to every shard of a dataset, in place",
-                       description="Label every shard in place, atomically and resumably: an "
-                       "object's label is the physics of its analytic primitive (on a simulation "
-                       "mesh refined for the top frequency); finished objects survive a kill; a "
-                       "shard already labelled with the same config is skipped. Runs on Dask.")
-    q.add_argument("--data", required=True, metavar="DIR",
-                   help="dataset directory holding shard-*.h5")
+    q = sub.add_parser(
+        "label",
+        help="add /radar labels to every shard of a dataset, in place",
+        description="Label every shard in place, atomically and resumably: an "
+        "object's label is the physics of its analytic primitive (on a simulation "
+        "mesh refined for the top frequency); finished objects survive a kill; a "
+        "shard already labelled with the same config is skipped. Runs on Dask.",
+    )
+    q.add_argument(
+        "--data", required=True, metavar="DIR", help="dataset directory holding shard-*.h5"
+    )
     q.add_argument(
         "--config", default="xband-v1", help="config name or JSON file (default %(default)s)"
     )
     add_cluster_flags(q, "worker processes, one thread each")
     add_quiet_flag(q)
-    q.add_argument("--mesh-labels", type=_mesh_labels, default="none", help="also store the "
-                   "physics on stored meshes (representations, the simple one included): none, "
-                   "sample:K (K per object, drawn from the object seed) or all (default none)")
-    q.add_argument("--mode", choices=MODES, default="auto",
-                   help="physics per mesh: auto-detected, or forced (default auto)")
-    q.add_argument("--frequency-response", action="store_true",
-                   help="also store the complex frequency response per object")
-    q.add_argument("--overwrite", action="store_true",
-                   help="relabel shards labelled with a different config or options")
+    q.add_argument(
+        "--mesh-labels",
+        type=_mesh_labels,
+        default="none",
+        help="also store the "
+        "physics on stored meshes (representations, the simple one included): none, "
+        "sample:K (K per object, drawn from the object seed) or all (default none)",
+    )
+    q.add_argument(
+        "--mode",
+        choices=MODES,
+        default="auto",
+        help="physics per mesh: auto-detected, or forced (default auto)",
+    )
+    q.add_argument(
+        "--frequency-response",
+        action="store_true",
+        help="also store the complex frequency response per object",
+    )
+    q.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="relabel shards labelled with a different config or options",
+    )
     q.set_defaults(run=cmd_label)
 
-    q = sub.add_parser("rcs", help="print the monostatic RCS (dBsm) of a mesh file",
-                       description=f"Monostatic RCS of one OBJ/STL/PLY mesh. {CONVENTION}. Line "
-                       "of sight (sin a cos r, sin a sin r, cos a) for aspect a, roll r.")
+    q = sub.add_parser(
+        "rcs",
+        help="print the monostatic RCS (dBsm) of a mesh file",
+        description=f"Monostatic RCS of one OBJ/STL/PLY mesh. {CONVENTION}. Line "
+        "of sight (sin a cos r, sin a sin r, cos a) for aspect a, roll r.",
+    )
     q.add_argument("meshfile", help="OBJ, STL or PLY file")
-    q.add_argument("--freq", type=_frequencies, required=True,
-                   help="GHz: 10 or 8,10,12 or 8:12:0.5")
+    q.add_argument(
+        "--freq", type=_frequencies, required=True, help="GHz: 10 or 8,10,12 or 8:12:0.5"
+    )
     q.add_argument("--aspect", type=_numbers, required=True, help="degrees: 0,45,90 or 0:180:5")
     q.add_argument("--roll", type=number(), default=0.0, help="degrees (default 0)")
     q.add_argument("--units", choices=UNITS, default="m", help="units of the file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")
     q.set_defaults(run=cmd_rcs)
 
-    q = sub.add_parser("plot", help="range-aspect image and RCS polar plot of one object (PNG)",
-                       description="Plot |range profile| (dB) against range and aspect, and the "
-                       "RCS (dBsm) against aspect at the frequency sample nearest the band centre "
-                       "(named in the title), at one roll angle.")
-    q.add_argument("meshfile", nargs="?", default=None,
-                   help="OBJ, STL or PLY file (or give --data DIR --object ID)")
+    q = sub.add_parser(
+        "plot",
+        help="range-aspect image and RCS polar plot of one object (PNG)",
+        description="Plot |range profile| (dB) against range and aspect, and the "
+        "RCS (dBsm) against aspect at the frequency sample nearest the band centre "
+        "(named in the title), at one roll angle.",
+    )
+    q.add_argument(
+        "meshfile",
+        nargs="?",
+        default=None,
+        help="OBJ, STL or PLY file (or give --data DIR --object ID)",
+    )
     q.add_argument("--data", metavar="DIR", default=None, help="dataset directory (with --object)")
-    q.add_argument("--object", type=number(int, minimum=0), default=None,
-                   help="object id in --data")
-    q.add_argument("--variant", type=number(int, minimum=0), default=None,
-                   help="plot the physics on this representation mesh of the object (0 = "
-                   "simple, 1.. = complex), simulated; default: the object's label")
+    q.add_argument(
+        "--object", type=number(int, minimum=0), default=None, help="object id in --data"
+    )
+    q.add_argument(
+        "--variant",
+        type=number(int, minimum=0),
+        default=None,
+        help="plot the physics on this representation mesh of the object (0 = "
+        "simple, 1.. = complex), simulated; default: the object's label",
+    )
     q.add_argument("--out", type=_png_path, required=True, help="PNG file to write")
-    q.add_argument("--roll", type=number(), default=0.0,
-                   help="degrees; nearest grid roll (default 0)")
+    q.add_argument(
+        "--roll", type=number(), default=0.0, help="degrees; nearest grid roll (default 0)"
+    )
     q.add_argument("--config", default="xband-v1", help="config name or JSON file for simulation")
     q.add_argument("--units", choices=UNITS, default="m", help="units of a mesh file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")

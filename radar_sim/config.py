@@ -23,7 +23,7 @@ WINDOWS = ("hann", "none")
 # Size bounds (docs/RADAR.md, "Config bounds"): simulate holds the frequency response and two
 # FFT temporaries, about 48 bytes per grid sample (complex128 x 3), so MAX_GRID_SAMPLES keeps a
 # worker under ~0.8 GB whatever the mesh; per-axis bounds keep each list sane on its own.
-MAX_GRID_SAMPLES = 1 << 24          # n_aspect * n_roll * n_freq
+MAX_GRID_SAMPLES = 1 << 24  # n_aspect * n_roll * n_freq
 MAX_AXIS = {"n_aspect": 3601, "n_roll": 7200, "n_freq": 65536}
 MAX_FREQUENCY_HZ = 1e12
 CONFIG_MAX_BYTES = 1 << 16
@@ -37,12 +37,12 @@ class RadarConfig:
     aspect_start_deg: float = 0.0
     aspect_stop_deg: float = 180.0
     n_aspect: int = 61
-    n_roll: int = 21                 # rolls 0 .. 360° in n_roll equal steps, endpoint excluded
+    n_roll: int = 21  # rolls 0 .. 360° in n_roll equal steps, endpoint excluded
     f_start_hz: float = 8e9
     f_stop_hz: float = 12e9
     n_freq: int = 128
-    window: str = "hann"             # symmetric Hann (numpy.hanning), or "none"
-    n_range: int = 107               # range bins kept, centred on the origin
+    window: str = "hann"  # symmetric Hann (numpy.hanning), or "none"
+    n_range: int = 107  # range bins kept, centred on the origin
 
     def __post_init__(self):
         problems = []
@@ -77,8 +77,9 @@ class RadarConfig:
     def from_file(cls, path) -> RadarConfig:
         """A JSON object with the fields of RadarConfig (missing fields take the defaults)."""
         path = Path(path)
-        data = load_json(path, max_bytes=CONFIG_MAX_BYTES, max_depth=2,
-                         what=f"{path}: radar config")
+        data = load_json(
+            path, max_bytes=CONFIG_MAX_BYTES, max_depth=2, what=f"{path}: radar config"
+        )
         if not isinstance(data, dict):
             raise ValueError(f"{path}: radar config must be a JSON object")
         known = {f.name: f.type for f in fields(cls)}
@@ -86,12 +87,20 @@ class RadarConfig:
         if unknown:
             raise ValueError(f"{path}: unknown radar config field(s) {unknown}")
         if "name" not in data:
-            raise ValueError(f"{path}: radar config must have a \"name\"")
+            raise ValueError(f'{path}: radar config must have a "name"')
         try:
             if any(isinstance(v, (bool, list, dict)) or v is None for v in data.values()):
                 raise ValueError("fields must be numbers or strings")
-            kwargs = {k: (str(v) if k in ("name", "window") else
-                          int(v) if k.startswith("n_") else float(v)) for k, v in data.items()}
+            kwargs = {
+                k: (
+                    str(v)
+                    if k in ("name", "window")
+                    else int(v)
+                    if k.startswith("n_")
+                    else float(v)
+                )
+                for k, v in data.items()
+            }
             if any(k.startswith("n_") and v != data[k] for k, v in kwargs.items()):
                 raise ValueError("counts must be integers")
             return cls(**kwargs)
@@ -135,8 +144,10 @@ class RadarConfig:
         t = self.aspect_deg[:, None]
         p = self.roll_deg[None, :]
         st = np.broadcast_to(_sind(t), (self.n_aspect, self.n_roll))
-        los = np.stack([st * _cosd(p), st * _sind(p),
-                        np.broadcast_to(_cosd(t), (self.n_aspect, self.n_roll))], axis=-1)
+        los = np.stack(
+            [st * _cosd(p), st * _sind(p), np.broadcast_to(_cosd(t), (self.n_aspect, self.n_roll))],
+            axis=-1,
+        )
         return los.reshape(-1, 3)
 
     def window_weights(self) -> np.ndarray:
@@ -175,18 +186,24 @@ NAMED = {"xband-v1": RadarConfig()}
 class RadarResult:
     """Frequency response and range profiles on a config's grid, with coordinates."""
 
-    frequency_response: np.ndarray   # (n_aspect, n_roll, n_freq) complex, σ = |A|² m²
-    range_profiles: np.ndarray       # (n_aspect, n_roll, n_range) complex
+    frequency_response: np.ndarray  # (n_aspect, n_roll, n_freq) complex, σ = |A|² m²
+    range_profiles: np.ndarray  # (n_aspect, n_roll, n_range) complex
     aspect_deg: np.ndarray
     roll_deg: np.ndarray
     frequency_hz: np.ndarray
     range_m: np.ndarray
-    mode: str                        # the physics used: "convex", "shadowed" or "bounce2"
+    mode: str  # the physics used: "convex", "shadowed" or "bounce2"
     config: RadarConfig
 
 
-def simulate(vertices, faces, config: RadarConfig | None = None, mode: str = "auto", *,
-             tol: float = DEFAULT_TOL) -> RadarResult:
+def simulate(
+    vertices,
+    faces,
+    config: RadarConfig | None = None,
+    mode: str = "auto",
+    *,
+    tol: float = DEFAULT_TOL,
+) -> RadarResult:
     """Simulate a mesh (metres) on the grid of ``config`` (default "xband-v1").
 
     Raises MeshError if the mesh is invalid or extends beyond the range window, saying
@@ -197,13 +214,27 @@ def simulate(vertices, faces, config: RadarConfig | None = None, mode: str = "au
     limit = config.max_radius_m
     if mesh.radius > limit:
         plainly_mm = mesh.radius > MILLIMETRE_RADIUS and mesh.radius / 1000.0 <= limit
-        hint = (f"; it looks like millimetres ({mesh.radius:.4g} mm = "
-                f"{mesh.radius / 1000:.4g} m): mesh units must be metres" if plainly_mm else "")
-        raise MeshError(f"object extends {mesh.radius:.4g} m from the origin, beyond the "
-                        f"±{limit:.4g} m range window of {config.name!r}{hint}")
+        hint = (
+            f"; it looks like millimetres ({mesh.radius:.4g} mm = "
+            f"{mesh.radius / 1000:.4g} m): mesh units must be metres"
+            if plainly_mm
+            else ""
+        )
+        raise MeshError(
+            f"object extends {mesh.radius:.4g} m from the origin, beyond the "
+            f"±{limit:.4g} m range window of {config.name!r}{hint}"
+        )
     check_units(mesh)
     used = resolve_mode(mode, mesh)
     response = mesh_field(mesh, wavenumbers(config.frequency_hz), config.directions(), used, tol)
     response = response.reshape(config.n_aspect, config.n_roll, config.n_freq)
-    return RadarResult(response, config.range_profiles(response), config.aspect_deg,
-                       config.roll_deg, config.frequency_hz, config.range_m, used, config)
+    return RadarResult(
+        response,
+        config.range_profiles(response),
+        config.aspect_deg,
+        config.roll_deg,
+        config.frequency_hz,
+        config.range_m,
+        used,
+        config,
+    )

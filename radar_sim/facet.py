@@ -28,19 +28,19 @@ import numpy as np
 
 SQRT_PI = np.sqrt(np.pi)
 EPS = np.finfo(np.float64).eps
-SERIES_SPREAD = 0.5      # rad: below this phase spread, the series branch
-SERIES_TERMS = 16        # h_n terms for spreads <= 0.5 rad (last term < 1e-17)
+SERIES_SPREAD = 0.5  # rad: below this phase spread, the series branch
+SERIES_TERMS = 16  # h_n terms for spreads <= 0.5 rad (last term < 1e-17)
 
 # ---------------------------------------------------------------------------------------------
 # e^{jx}, fast and accurate: table of e^{j 2π i/N} times a short polynomial of the remainder.
 # numpy's float64 sin/cos are scalar libm calls (~15-20 ns each); this is a few vector ops.
 _TABLE_BITS = 12
 _N = 1 << _TABLE_BITS
-_TWO_PI_HI, _TWO_PI_LO = 6.283185307179586, 2.4492935982947064e-16   # 2π as a double-double
-_H_HI = float(np.round(_TWO_PI_HI / _N * 2.0 ** 29) / 2.0 ** 29)      # 20 significant bits
+_TWO_PI_HI, _TWO_PI_LO = 6.283185307179586, 2.4492935982947064e-16  # 2π as a double-double
+_H_HI = float(np.round(_TWO_PI_HI / _N * 2.0**29) / 2.0**29)  # 20 significant bits
 _H_LO = ((_TWO_PI_HI - _N * _H_HI) + _TWO_PI_LO) / _N
 _INV_H = _N / _TWO_PI_HI
-_CIS_LIMIT = float(2 ** 32) * _H_HI    # m * _H_HI stays exact below this |x| (6.6e6 rad)
+_CIS_LIMIT = float(2**32) * _H_HI  # m * _H_HI stays exact below this |x| (6.6e6 rad)
 
 
 def _table() -> np.ndarray:
@@ -55,11 +55,11 @@ def _table() -> np.ndarray:
         idx = np.arange(octant * e, (octant + 1) * e)
         j = idx - octant * e
         if octant % 2:
-            jj = e - j          # reflected octant: angle (octant+1)π/4 − φ
+            jj = e - j  # reflected octant: angle (octant+1)π/4 − φ
             cc, ss = s[jj], c[jj]
         else:
             cc, ss = c[j], s[j]
-        quarter = octant // 2   # rotate by quarter · π/2
+        quarter = octant // 2  # rotate by quarter · π/2
         for _ in range(quarter):
             cc, ss = -ss, cc
         cos[idx], sin[idx] = cc, ss
@@ -83,7 +83,7 @@ def cis(x: np.ndarray, x_lo: np.ndarray | None = None) -> np.ndarray:
     if x_lo is not None:
         r += x_lo
     r2 = r * r
-    cm1 = r2 * (-0.5 + r2 * (1.0 / 24.0))               # cos r − 1
+    cm1 = r2 * (-0.5 + r2 * (1.0 / 24.0))  # cos r − 1
     sn = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0)))
     t = _TAB.take(m.astype(np.int64) & (_N - 1))
     return t + t * (cm1 + 1j * sn)
@@ -92,7 +92,7 @@ def cis(x: np.ndarray, x_lo: np.ndarray | None = None) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 def _phi1(a: np.ndarray) -> np.ndarray:
     """(e^{ja} − 1)/(ja) without cancellation: sin(a)/a + j·2 sin²(a/2)/a."""
-    h = np.sinc(a / (2 * np.pi))          # sin(a/2)/(a/2), exact 1 at a = 0
+    h = np.sinc(a / (2 * np.pi))  # sin(a/2)/(a/2), exact 1 at a = 0
     sh = np.sin(a / 2)
     return np.sinc(a / np.pi) + 1j * (sh * h)
 
@@ -114,8 +114,8 @@ def exp_divided_difference(x1, x2, x3, lo=None) -> np.ndarray:
     hi = np.take_along_axis(hi, order, axis=0)
     low = np.take_along_axis(low, order, axis=0)
     out = np.empty(hi.shape[1:], dtype=np.complex128)
-    gap_lo = (hi[0] - hi[1]) + (low[0] - low[1])       # lo − mid <= 0
-    gap_hi = (hi[2] - hi[1]) + (low[2] - low[1])       # hi − mid >= 0
+    gap_lo = (hi[0] - hi[1]) + (low[0] - low[1])  # lo − mid <= 0
+    gap_hi = (hi[2] - hi[1]) + (low[2] - low[1])  # hi − mid >= 0
     series = gap_hi - gap_lo <= SERIES_SPREAD
     e_mid = cis(hi[1], low[1])
     if np.any(series):
@@ -130,17 +130,17 @@ def exp_divided_difference(x1, x2, x3, lo=None) -> np.ndarray:
 
 def _series(a, b):
     """Σ_n j^n h_n(a, b)/(n+2)! for |a|, |b| <= 0.5."""
-    h = np.ones_like(a)                   # h_0
+    h = np.ones_like(a)  # h_0
     a_pow = np.ones_like(a)
-    re = np.full_like(a, 0.5)             # j^0 h_0 / 2!
+    re = np.full_like(a, 0.5)  # j^0 h_0 / 2!
     im = np.zeros_like(a)
     fact = 2.0
     for n in range(1, SERIES_TERMS):
         a_pow = a_pow * a
-        h = b * h + a_pow                 # h_n(a, b) = b h_{n-1}(a, b) + a^n
+        h = b * h + a_pow  # h_n(a, b) = b h_{n-1}(a, b) + a^n
         fact *= n + 2
         term = h / fact
-        r = n % 4                         # j^n = 1, j, −1, −j
+        r = n % 4  # j^n = 1, j, −1, −j
         if r == 0:
             re += term
         elif r == 1:
@@ -164,7 +164,7 @@ def _first_difference(x, x_lo, gap, e_mid):
 
 def split(a):
     """Veltkamp splitting a = hi + lo, each with at most 26 significant bits."""
-    t = a * 134217729.0               # 2^27 + 1
+    t = a * 134217729.0  # 2^27 + 1
     hi = t - (t - a)
     return hi, a - hi
 
@@ -200,7 +200,7 @@ def _cross_terms(triangles):
     e1 = _two_sum(r1, -r0)
     e2 = _two_sum(r2, -r0)
     out = []
-    for b, c in ((1, 2), (2, 0), (0, 1)):          # component a = (b × c)
+    for b, c in ((1, 2), (2, 0), (0, 1)):  # component a = (b × c)
         terms = []
         for sign, (u, w) in ((1.0, (b, c)), (-1.0, (c, b))):
             p, pe = two_product(e1[0][..., u], e2[0][..., w])
@@ -258,8 +258,9 @@ def _phases(triangles, direction, k):
     return x_hi, x_lo + s_lo[..., None] * two_k
 
 
-def facet_field(triangles: np.ndarray, direction: np.ndarray, k: np.ndarray,
-                two_sided: bool = False) -> np.ndarray:
+def facet_field(
+    triangles: np.ndarray, direction: np.ndarray, k: np.ndarray, two_sided: bool = False
+) -> np.ndarray:
     """Field amplitude A_f(k) of each facet lit by a plane wave from ``direction``.
 
     triangles (F, 3, 3) metres; direction (3,) unit line of sight (towards the radar);
@@ -273,7 +274,6 @@ def facet_field(triangles: np.ndarray, direction: np.ndarray, k: np.ndarray,
     k = np.atleast_1d(np.asarray(k, dtype=np.float64))
     proj = projected_area(triangles, direction)
     lit = np.abs(proj) if two_sided else np.maximum(proj, 0.0)
-    x_hi, x_lo = _phases(triangles, direction, k)                 # (F, 3, n)
-    dd = exp_divided_difference(x_hi[:, 0], x_hi[:, 1], x_hi[:, 2],
-                                lo=np.moveaxis(x_lo, 1, 0))
+    x_hi, x_lo = _phases(triangles, direction, k)  # (F, 3, n)
+    dd = exp_divided_difference(x_hi[:, 0], x_hi[:, 1], x_hi[:, 2], lo=np.moveaxis(x_lo, 1, 0))
     return (2.0 / SQRT_PI) * lit[:, None] * k[None, :] * dd

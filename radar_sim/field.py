@@ -29,13 +29,13 @@ from radar_sim.geometry import Mesh, RayCaster, UnitsWarning, check_units, mode_
 
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
-DEFAULT_TOL = 1e-10     # bound on each facet's error relative to its specular magnitude P k/√π
-GROUP = 64              # directions per kernel call (same in every mode: same bytes)
-VERTEX_TERM_COST = 8.0        # one moment update per vertex / one multiply-add of the contraction
-DIRECT_COST = 30.0            # one direct phasor and multiply-add / one of the contraction
-MOMENT_EPS = facet.EPS / 16    # Taylor remainder of a vertex phasor in the binned sums
-MOMENT_BUDGET = 64 << 20       # bytes of moments (or contraction matrix) held at a time
-MIN_PLAUSIBLE_HZ = 1e6         # physical optics on a mesh below 1 MHz: GHz given as Hz
+DEFAULT_TOL = 1e-10  # bound on each facet's error relative to its specular magnitude P k/√π
+GROUP = 64  # directions per kernel call (same in every mode: same bytes)
+VERTEX_TERM_COST = 8.0  # one moment update per vertex / one multiply-add of the contraction
+DIRECT_COST = 30.0  # one direct phasor and multiply-add / one of the contraction
+MOMENT_EPS = facet.EPS / 16  # Taylor remainder of a vertex phasor in the binned sums
+MOMENT_BUDGET = 64 << 20  # bytes of moments (or contraction matrix) held at a time
+MIN_PLAUSIBLE_HZ = 1e6  # physical optics on a mesh below 1 MHz: GHz given as Hz
 
 
 def _cis_of_product(s, s_parts, c) -> np.ndarray:
@@ -48,9 +48,12 @@ def wavenumbers(frequencies_hz) -> np.ndarray:
     if f.ndim != 1 or len(f) == 0 or not np.all(np.isfinite(f)) or np.any(f <= 0):
         raise ValueError(f"frequencies must be a non-empty 1-D array of positive Hz, got {f!r}")
     if f.max() < MIN_PLAUSIBLE_HZ:
-        warnings.warn(f"frequencies up to {f.max():g} Hz: the simulator takes Hz, so these look "
-                      f"like GHz (pass {f.max() * 1e9:g} for {f.max():g} GHz)", UnitsWarning,
-                      stacklevel=3)
+        warnings.warn(
+            f"frequencies up to {f.max():g} Hz: the simulator takes Hz, so these look "
+            f"like GHz (pass {f.max() * 1e9:g} for {f.max():g} GHz)",
+            UnitsWarning,
+            stacklevel=3,
+        )
     return 2.0 * np.pi * f / C0
 
 
@@ -72,8 +75,9 @@ def resolve_mode(mode: str, mesh: Mesh) -> str:
     return mode_of(mesh) if mode == "auto" else mode
 
 
-def monostatic_field(vertices, faces, frequencies_hz, directions, mode: str = "auto", *,
-                     tol: float = DEFAULT_TOL) -> np.ndarray:
+def monostatic_field(
+    vertices, faces, frequencies_hz, directions, mode: str = "auto", *, tol: float = DEFAULT_TOL
+) -> np.ndarray:
     """Complex field amplitude A (σ = |A|² in m²), shape (n_directions, n_frequencies).
 
     ``directions``: unit lines of sight (object towards radar) in the object frame.
@@ -83,8 +87,13 @@ def monostatic_field(vertices, faces, frequencies_hz, directions, mode: str = "a
     """
     mesh = prepare(vertices, faces)
     check_units(mesh)
-    return mesh_field(mesh, wavenumbers(frequencies_hz), unit_directions(directions),
-                      resolve_mode(mode, mesh), tol)
+    return mesh_field(
+        mesh,
+        wavenumbers(frequencies_hz),
+        unit_directions(directions),
+        resolve_mode(mode, mesh),
+        tol,
+    )
 
 
 @functools.cache
@@ -93,13 +102,14 @@ def _keep_heap() -> None:
     every large free: otherwise each batch's numpy temporaries page-fault again (measured 5x
     slower on small VMs). Process-wide and harmless; skipped where there is no glibc."""
     try:
-        ctypes.CDLL(ctypes.util.find_library("c")).mallopt(-2, 64 << 20)   # M_TOP_PAD
+        ctypes.CDLL(ctypes.util.find_library("c")).mallopt(-2, 64 << 20)  # M_TOP_PAD
     except (OSError, AttributeError, TypeError):
         pass
 
 
-def mesh_field(mesh: Mesh, k: np.ndarray, directions: np.ndarray, mode: str,
-               tol: float = DEFAULT_TOL) -> np.ndarray:
+def mesh_field(
+    mesh: Mesh, k: np.ndarray, directions: np.ndarray, mode: str, tol: float = DEFAULT_TOL
+) -> np.ndarray:
     """``monostatic_field`` on a prepared mesh, wavenumbers and unit directions."""
     _keep_heap()
     unique, inverse = np.unique(directions, axis=0, return_inverse=True)
@@ -115,9 +125,9 @@ class _Geometry:
 
     def __init__(self, mesh: Mesh):
         self.v = np.ascontiguousarray(mesh.vertices)
-        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int32)     # half the traffic
+        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int32)  # half the traffic
         self.area, self.area_lo = facet.area_vectors_split(self.v[self.f])
-        self.area_split = np.concatenate(facet.split(self.area), axis=1)    # (F, 6)
+        self.area_split = np.concatenate(facet.split(self.area), axis=1)  # (F, 6)
         self.two_sided = not mesh.closed
         self.centroids = mesh.centroids
         self.normals = self.area / np.linalg.norm(self.area, axis=1, keepdims=True)
@@ -139,11 +149,11 @@ class _Moments:
         self.k_mid = 0.5 * (float(k.min()) + float(k.max()))
         kappa = k - self.k_mid
         spread = float(np.abs(kappa).max())
-        h = 2.0 ** math.ceil(math.log2(2.0 * radius))           # one bin suffices without spread
+        h = 2.0 ** math.ceil(math.log2(2.0 * radius))  # one bin suffices without spread
         if spread > 0:
             h = min(h, 2.0 ** math.floor(math.log2(2.0 / spread)))
         best = None
-        for _ in range(8):                        # eight widths, halving from x <= 2
+        for _ in range(8):  # eight widths, halving from x <= 2
             x = spread * h
             terms, bound = 1, x
             while bound > MOMENT_EPS:
@@ -155,7 +165,7 @@ class _Moments:
                 best = (cost, h, x, terms, n_bins)
             h *= 0.5
         _, self.h, x, self.terms, self.n_bins = best
-        if DIRECT_COST * 0.5 * n_vertices * len(k) < best[0]:     # a handful of vertices
+        if DIRECT_COST * 0.5 * n_vertices * len(k) < best[0]:  # a handful of vertices
             self.terms, x = 0, 0.0
         self.b_min = -(self.n_bins // 2)
         self.width = self.n_bins * self.terms
@@ -165,14 +175,14 @@ class _Moments:
         taylor = [np.ones_like(step)]
         for m in range(1, self.terms):
             taylor.append(taylor[-1] * step / m)
-        self.taylor = np.array(taylor)                                       # (M, n_k)
+        self.taylor = np.array(taylor)  # (M, n_k)
         self.chunk = max(1, MOMENT_BUDGET // (max(self.terms, 1) * len(k) * 16))  # bins/block
         small = self.terms and self.n_bins <= self.chunk
         self._matrix = self._block(0, self.n_bins) if small else None
 
     def _block(self, lo: int, hi: int) -> np.ndarray:
         """Rows (b, m) of e^{j2k_n c_b}(jκ_n h)^m/m! for bins lo <= b - b_min < hi."""
-        centres = (np.arange(lo, hi) + self.b_min) * self.h                  # exact
+        centres = (np.arange(lo, hi) + self.b_min) * self.h  # exact
         centre = facet.cis(*facet.two_product(centres[:, None], 2.0 * self.k[None, :]))
         return (centre[:, None, :] * self.taylor[None]).reshape(-1, len(self.k))
 
@@ -183,7 +193,7 @@ class _Moments:
         out = np.zeros((len(mom), len(self.k)), dtype=np.complex128)
         for lo in range(0, self.n_bins, self.chunk):
             hi = min(lo + self.chunk, self.n_bins)
-            out += matmul(mom[:, lo * self.terms:hi * self.terms], self._block(lo, hi))
+            out += matmul(mom[:, lo * self.terms : hi * self.terms], self._block(lo, hi))
         return out
 
 
@@ -197,8 +207,9 @@ def _uniform_step(k: np.ndarray) -> float:
     return float(dk) if dk > 0 and np.all(np.abs(grid - k) <= 4 * facet.EPS * k) else 0.0
 
 
-def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | None,
-              tol: float) -> np.ndarray:
+def _po_field(
+    mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | None, tol: float
+) -> np.ndarray:
     """First-bounce PO by ``po_kernel`` in groups of directions (memory of the moments and
     shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too."""
     geo = _Geometry(mesh)
@@ -207,14 +218,32 @@ def _po_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | N
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
     no_shadow = np.zeros((0, 0), dtype=np.uint8)
     for lo in range(0, len(dirs), group):
-        r = dirs[lo:lo + group]
+        r = dirs[lo : lo + group]
         blocked = no_shadow if caster is None else _blocked(r, geo, caster)
         mom = np.zeros((len(r), plan.width), dtype=np.complex128)
-        part = out[lo:lo + group]
+        part = out[lo : lo + group]
         idx, val = po_kernel.first_bounce(
-            geo.v, geo.f, geo.area, geo.area_lo, geo.area_split, r, blocked, geo.two_sided, k,
-            plan.two_dk, tol, plan.phase_error, 1.0 / plan.h, plan.b_min, plan.terms,
-            2.0 * plan.k_mid, mom, part, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS)
+            geo.v,
+            geo.f,
+            geo.area,
+            geo.area_lo,
+            geo.area_split,
+            r,
+            blocked,
+            geo.two_sided,
+            k,
+            plan.two_dk,
+            tol,
+            plan.phase_error,
+            1.0 / plan.h,
+            plan.b_min,
+            plan.terms,
+            2.0 * plan.k_mid,
+            mom,
+            part,
+            po_kernel.CIS_TABLE,
+            po_kernel.CIS_PARAMS,
+        )
         if plan.terms:
             part += plan.contract(mom) / k
         if len(idx):
@@ -273,7 +302,7 @@ class _PhaseSums:
         q, p = self.q, self.p
         # e^{j2k_0 s}, e^{j2Δk s}, e^{j2qΔk s} in one pass (fewer numpy calls on small arrays)
         base, rho, rho_q = _cis_of_product(s[None], tuple(x[None] for x in parts), self._steps)
-        qm = np.empty((nb, q, nv), dtype=np.complex128)   # e^{j2rΔk s}, r < q
+        qm = np.empty((nb, q, nv), dtype=np.complex128)  # e^{j2rΔk s}, r < q
         qm[:, 0] = 1.0
         if q > 1:
             qm[:, 1] = rho
@@ -281,14 +310,14 @@ class _PhaseSums:
         while have < q:
             step = step * step
             n = min(have, q - have)
-            np.multiply(qm[:, :n], step[:, None, :], out=qm[:, have:have + n])
+            np.multiply(qm[:, :n], step[:, None, :], out=qm[:, have : have + n])
             have += n
-        pm = np.empty((nb, p, nv), dtype=np.complex128)   # e^{j2(k_0 + qPΔk) s}, P < p
+        pm = np.empty((nb, p, nv), dtype=np.complex128)  # e^{j2(k_0 + qPΔk) s}, P < p
         pm[:, 0] = base
         have, step = 1, rho_q
         while have < p:
             n = min(have, p - have)
-            np.multiply(pm[:, :n], step[:, None, :], out=pm[:, have:have + n])
+            np.multiply(pm[:, :n], step[:, None, :], out=pm[:, have : have + n])
             have += n
             step = step * step
         return pm, qm
@@ -298,9 +327,9 @@ class _PhaseSums:
         if not self.uniform:
             return matmul(w, ph[0])
         pm, qm = ph
-        x = pm[0][None] * w[:, None, :]                               # (c, p, V)
+        x = pm[0][None] * w[:, None, :]  # (c, p, V)
         q_t = qm[0].T
-        return np.stack([matmul(xc, q_t) for xc in x]).reshape(len(w), -1)[:, :len(self.k)]
+        return np.stack([matmul(xc, q_t) for xc in x]).reshape(len(w), -1)[:, : len(self.k)]
 
 
 def _powers(x: np.ndarray, n: int) -> np.ndarray:
@@ -315,10 +344,10 @@ def _powers(x: np.ndarray, n: int) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 # Bounces 2 and 3: shooting and bouncing rays (SBR) with physical-optics ray-tube radiation.
 
-MAX_BOUNCES = 3          # the trihedral's return is a triple bounce
+MAX_BOUNCES = 3  # the trihedral's return is a triple bounce
 RAYS_PER_WAVELENGTH = 8  # tube size λ_min/8: aperture edges resolved to ~1%
-SBR_CHUNK = 4096         # ray tubes per frequency-sum chunk (wide footprints)
-SINC_TERMS = 8           # sinc(kα)sinc(kβ) to order (kα)¹⁴: remainder < 1e-14 for |kα| <= 1
+SBR_CHUNK = 4096  # ray tubes per frequency-sum chunk (wide footprints)
+SINC_TERMS = 8  # sinc(kα)sinc(kβ) to order (kα)¹⁴: remainder < 1e-14 for |kα| <= 1
 _SINC = np.array([(-1) ** i / np.prod(np.arange(1.0, 2 * i + 2)) for i in range(SINC_TERMS)])
 
 
@@ -333,8 +362,14 @@ def polarization(r: np.ndarray) -> np.ndarray:
     return theta
 
 
-def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
-              spacing: float | None = None, max_bounces: int = MAX_BOUNCES) -> np.ndarray:
+def sbr_field(
+    mesh: Mesh,
+    k: np.ndarray,
+    dirs: np.ndarray,
+    caster: RayCaster,
+    spacing: float | None = None,
+    max_bounces: int = MAX_BOUNCES,
+) -> np.ndarray:
     """Field of bounces 2..max_bounces (the first bounce is the exact PO of ``_po_field``).
 
     Parallel ray tubes of side ``spacing`` (default λ_min/8) are shot along −r̂ over the
@@ -351,7 +386,7 @@ def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
     n_side = int(np.ceil(radius / spacing))
     grid = (np.arange(-n_side, n_side + 1) + 0.0) * spacing
     gu, gv = np.meshgrid(grid, grid, indexing="ij")
-    inside = gu ** 2 + gv ** 2 <= (radius + spacing) ** 2
+    inside = gu**2 + gv**2 <= (radius + spacing) ** 2
     gu, gv = gu[inside], gv[inside]
     area = mesh.area_vectors
     normals = area / np.linalg.norm(area, axis=1, keepdims=True)
@@ -366,7 +401,7 @@ def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
         field = np.broadcast_to(e1, (n_rays, 3)).copy()
         tube_a = np.broadcast_to(e1, (n_rays, 3)).copy()
         tube_b = np.broadcast_to(e2, (n_rays, 3)).copy()
-        phase = np.zeros(n_rays)               # Φ so far: r̂·p1 − Σ segment lengths
+        phase = np.zeros(n_rays)  # Φ so far: r̂·p1 − Σ segment lengths
         lift = np.zeros((n_rays, 3))
         point = origins
         for bounce in range(1, max_bounces + 1):
@@ -386,14 +421,27 @@ def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
             point = previous + lift[hit] * caster.offset + dist[:, None] * d
             n = normals[face]
             cos_in = np.einsum("ij,ij->i", n, d)
-            n = n * -np.sign(cos_in)[:, None]            # facing the incoming ray
+            n = n * -np.sign(cos_in)[:, None]  # facing the incoming ray
             cos_in = np.abs(cos_in)
             if bounce == 1:
                 phase = matmul(point, r)
             else:
-                phase = phase - np.einsum("ij,ij->i", point - previous, d)   # path along d
-                _radiate(out[i], k, r, point, n, d, field, tube_a, tube_b, cos_in,
-                         phase + matmul(point, r), spacing, caster)
+                phase = phase - np.einsum("ij,ij->i", point - previous, d)  # path along d
+                _radiate(
+                    out[i],
+                    k,
+                    r,
+                    point,
+                    n,
+                    d,
+                    field,
+                    tube_a,
+                    tube_b,
+                    cos_in,
+                    phase + matmul(point, r),
+                    spacing,
+                    caster,
+                )
             d = d + 2.0 * cos_in[:, None] * n
             field = -field + 2.0 * np.einsum("ij,ij->i", n, field)[:, None] * n
             tube_a = tube_a - 2.0 * np.einsum("ij,ij->i", tube_a, n)[:, None] * n
@@ -401,7 +449,8 @@ def sbr_field(mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster,
             lift = n
             keep = cos_in > 0
             point, d, field, tube_a, tube_b, phase, lift = (
-                x[keep] for x in (point, d, field, tube_a, tube_b, phase, lift))
+                x[keep] for x in (point, d, field, tube_a, tube_b, phase, lift)
+            )
     return out
 
 
@@ -411,11 +460,12 @@ def _radiate(out, k, r, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing
     if not seen.any():
         return
     point, n, d, field, tube_a, tube_b, cos_in, phi = (
-        x[seen] for x in (point, n, d, field, tube_a, tube_b, cos_in, phi))
+        x[seen] for x in (point, n, d, field, tube_a, tube_b, cos_in, phi)
+    )
     e = polarization(r[None, :])[0]
     current = np.cross(n, np.cross(d, field))
-    amp = matmul(current, e) * spacing ** 2 / cos_in
-    q = r - d                                            # phase slope per unit k
+    amp = matmul(current, e) * spacing**2 / cos_in
+    q = r - d  # phase slope per unit k
     # tube axes projected along d onto the facet plane: a + d (n·a)/|n·d|
     along_a = tube_a + d * (np.einsum("ij,ij->i", tube_a, n) / cos_in)[:, None]
     along_b = tube_b + d * (np.einsum("ij,ij->i", tube_b, n) / cos_in)[:, None]
@@ -432,13 +482,17 @@ def _radiate(out, k, r, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing
             for j in range(SINC_TERMS - i):
                 coef[i + j] += _SINC[i] * _SINC[j] * a_pow[i] * b_pow[j]
         sums = _PhaseSums(k)
-        per_power = sums.weighted_channels(sums.phasors(0.5 * phi[series][None, :]),
-                                           coef * (amp[series] / facet.SQRT_PI))
+        per_power = sums.weighted_channels(
+            sums.phasors(0.5 * phi[series][None, :]), coef * (amp[series] / facet.SQRT_PI)
+        )
         out += np.sum(per_power * _powers(k, 2 * SINC_TERMS)[1::2], axis=0)
-    rest = np.flatnonzero(~series)                       # wide footprints: per frequency
+    rest = np.flatnonzero(~series)  # wide footprints: per frequency
     for start in range(0, len(rest), SBR_CHUNK):
-        sl = rest[start:start + SBR_CHUNK]
+        sl = rest[start : start + SBR_CHUNK]
         kk = k[None, :]
-        term = (np.sinc(kk * alpha[sl, None] / np.pi) * np.sinc(kk * beta[sl, None] / np.pi)
-                * facet.cis(kk * phi[sl, None]))
+        term = (
+            np.sinc(kk * alpha[sl, None] / np.pi)
+            * np.sinc(kk * beta[sl, None] / np.pi)
+            * facet.cis(kk * phi[sl, None])
+        )
         out += (k / facet.SQRT_PI) * matmul(amp[sl], term)

@@ -28,11 +28,11 @@ from basic_shapes.meshcheck import (  # MeshError is raised here too and re-expo
 from basic_shapes.portable import matmul
 
 EPS = np.finfo(np.float64).eps
-CONVEX_TOL = 1e-4          # relative to the bounding radius: flat within float32 noise
-SEE_EACH_OTHER = 0.01      # probe fraction of reflected power that hits the mesh again -> bounce2
-SEE_DISTANCE = 0.1         # ...after crossing at least this x the bounding radius (a cavity)
+CONVEX_TOL = 1e-4  # relative to the bounding radius: flat within float32 noise
+SEE_EACH_OTHER = 0.01  # probe fraction of reflected power that hits the mesh again -> bounce2
+SEE_DISTANCE = 0.1  # ...after crossing at least this x the bounding radius (a cavity)
 MILLIMETRE_RADIUS = 100.0  # metres; larger meshes are probably in millimetres (warning)
-RAY_OFFSET = 2.0 ** -17    # shadow/bounce ray origins leave the surface by this x scene radius
+RAY_OFFSET = 2.0**-17  # shadow/bounce ray origins leave the surface by this x scene radius
 
 
 class UnitsWarning(UserWarning):
@@ -54,8 +54,8 @@ class Mesh:
     faces: np.ndarray
     closed: bool
     convex: bool
-    radius: float          # max |vertex| about the origin
-    dropped: int           # degenerate or duplicate faces removed
+    radius: float  # max |vertex| about the origin
+    dropped: int  # degenerate or duplicate faces removed
 
     @property
     def area_vectors(self) -> np.ndarray:
@@ -111,13 +111,12 @@ def _is_convex(v: np.ndarray, f: np.ndarray, partner: np.ndarray, radius: float)
 
     directed = directed_edges(f)
     n = len(v)
-    adjacency = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])),
-                           shape=(n, n))
+    adjacency = coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
     if connected_components(adjacency, directed=False)[0] != 1:
         return False
     n_faces = len(f)
     face_of = np.arange(len(directed)) % n_faces
-    corner_of = np.arange(len(directed)) // n_faces          # edge (c, c+1) -> opposite c+2
+    corner_of = np.arange(len(directed)) // n_faces  # edge (c, c+1) -> opposite c+2
     opposite = f[face_of[partner], (corner_of[partner] + 2) % 3]
     normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
@@ -128,8 +127,12 @@ def _is_convex(v: np.ndarray, f: np.ndarray, partner: np.ndarray, radius: float)
 def check_units(mesh: Mesh) -> None:
     """Warn when a mesh is plainly not in metres (bounding radius above 100 m)."""
     if mesh.radius > MILLIMETRE_RADIUS:
-        warnings.warn(f"mesh bounding radius is {mesh.radius:.4g} m: is it in millimetres? "
-                      f"radar_sim works in metres (divide by 1000)", UnitsWarning, stacklevel=3)
+        warnings.warn(
+            f"mesh bounding radius is {mesh.radius:.4g} m: is it in millimetres? "
+            f"radar_sim works in metres (divide by 1000)",
+            UnitsWarning,
+            stacklevel=3,
+        )
 
 
 class RayCaster:
@@ -140,14 +143,19 @@ class RayCaster:
         from embreex.mesh_construction import TriangleMesh
 
         self.scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(self.scene, np.ascontiguousarray(mesh.vertices, dtype=np.float32),
-                     np.ascontiguousarray(mesh.faces, dtype=np.int32))
+        TriangleMesh(
+            self.scene,
+            np.ascontiguousarray(mesh.vertices, dtype=np.float32),
+            np.ascontiguousarray(mesh.faces, dtype=np.int32),
+        )
         self.offset = RAY_OFFSET * max(mesh.radius, float(np.abs(mesh.vertices).max()))
 
     def _arrays(self, origins, directions, normals):
         o = origins + self.offset * normals
-        return (np.ascontiguousarray(o, dtype=np.float32),
-                np.ascontiguousarray(directions, dtype=np.float32))
+        return (
+            np.ascontiguousarray(o, dtype=np.float32),
+            np.ascontiguousarray(directions, dtype=np.float32),
+        )
 
     def occluded(self, origins, directions, normals) -> np.ndarray:
         """True where a ray from ``origins`` (lifted along ``normals``) hits the mesh."""
@@ -169,7 +177,7 @@ def fibonacci_directions(n: int) -> np.ndarray:
     """n nearly uniform unit vectors (golden-angle spiral)."""
     i = np.arange(n) + 0.5
     z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5.0 ** 0.5) * i
+    phi = np.pi * (1.0 + 5.0**0.5) * i
     r = np.sqrt(1.0 - z * z)
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 

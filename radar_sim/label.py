@@ -75,10 +75,16 @@ class LabelRequest:
 
     def attrs(self) -> dict[str, str]:
         """The /radar attributes that identify this request."""
-        options = {"mesh_labels": self.mesh_labels, "mode": self.mode,
-                   "frequency_response": self.frequency_response}
-        return {"config": self.config.to_json(), "options": json.dumps(options, sort_keys=True),
-                "simulation_rule": json.dumps(SIMULATION_RULE, sort_keys=True)}
+        options = {
+            "mesh_labels": self.mesh_labels,
+            "mode": self.mode,
+            "frequency_response": self.frequency_response,
+        }
+        return {
+            "config": self.config.to_json(),
+            "options": json.dumps(options, sort_keys=True),
+            "simulation_rule": json.dumps(SIMULATION_RULE, sort_keys=True),
+        }
 
 
 def _differences(stored: dict[str, dict], attrs: dict[str, str]) -> list[str]:
@@ -111,8 +117,10 @@ def object_params(shard: Shard) -> list[dict]:
     """Hidden shape parameters per object (``/objects/params``; {} where the shard has none)."""
     if "objects/params" not in shard.file:
         return [{} for _ in range(shard.n_objects)]
-    return [load_json(p, what=f"{shard.path}: /objects/params[{k}]", error=ShardError)
-            for k, p in enumerate(shard.file["objects/params"][()])]
+    return [
+        load_json(p, what=f"{shard.path}: /objects/params[{k}]", error=ShardError)
+        for k, p in enumerate(shard.file["objects/params"][()])
+    ]
 
 
 @dataclass
@@ -160,8 +168,9 @@ def _stamp(request: LabelRequest, fingerprint: str) -> str:
     return json.dumps({**request.attrs(), "shard_fingerprint": fingerprint}, sort_keys=True)
 
 
-def _plan_object(path: Path, objs: dict, k: int, name: str, params: dict, faces: int,
-                 rows: np.ndarray, config) -> ObjectPlan:
+def _plan_object(
+    path: Path, objs: dict, k: int, name: str, params: dict, faces: int, rows: np.ndarray, config
+) -> ObjectPlan:
     """One object's plan; ``LabelError`` if its primitive is invalid or outside the window.
 
     ``faces``: the total face count of the stored meshes in ``rows``.
@@ -173,10 +182,12 @@ def _plan_object(path: Path, objs: dict, k: int, name: str, params: dict, faces:
         raise LabelError(f"{path}: object {oid}: {exc}") from None
     radius = float(np.sqrt((v * v).sum(axis=1).max()))
     if radius > config.max_radius_m:
-        raise LabelError(f"{path}: object {oid} ({name}, {' x '.join(f'{x:.4g}' for x in scale)}"
-                         f" m) extends {radius:.4g} m from the origin, beyond the "
-                         f"±{config.max_radius_m:.4g} m range window of radar config "
-                         f"{config.name!r}")
+        raise LabelError(
+            f"{path}: object {oid} ({name}, {' x '.join(f'{x:.4g}' for x in scale)}"
+            f" m) extends {radius:.4g} m from the origin, beyond the "
+            f"±{config.max_radius_m:.4g} m range window of radar config "
+            f"{config.name!r}"
+        )
     work = float(len(f) + faces) * config.n_aspect * config.n_roll * config.n_freq
     return ObjectPlan(k, oid, name, scale, params, rows, work)
 
@@ -192,23 +203,40 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
         s.verify()  # labels computed from edited meshes must not pass as done, nor be made
         if s.has_labels:
             radar = s.radar
-            stored = {"config": radar.config, "options": radar.options,
-                      "simulation_rule": radar.simulation_rule}
+            stored = {
+                "config": radar.config,
+                "options": radar.options,
+                "simulation_rule": radar.simulation_rule,
+            }
             differ = _differences(stored, request.attrs())
             if not differ and radar.computed_fingerprint() == radar.fingerprint:
                 return None
             if not differ:  # the same request, but the stored labels were edited: redo them
-                warn(f"{path}: stored labels do not match their fingerprint (edited or "
-                     f"corrupted); labelling the shard again")
+                warn(
+                    f"{path}: stored labels do not match their fingerprint (edited or "
+                    f"corrupted); labelling the shard again"
+                )
             elif not overwrite:
-                raise LabelError(f"{path}: already labelled, with different radar "
-                                 f"{' and '.join(differ)} (stored options: "
-                                 f"{json.dumps(stored['options'])}); pass --overwrite to relabel")
+                raise LabelError(
+                    f"{path}: already labelled, with different radar "
+                    f"{' and '.join(differ)} (stored options: "
+                    f"{json.dumps(stored['options'])}); pass --overwrite to relabel"
+                )
         objs, names, n_faces = s.objects(), s.class_names, s.file["meshes/n_faces"][()]
         params, rows = object_params(s), select_mesh_rows(s, request.mesh_labels)
-        plans = [_plan_object(path, objs, k, names[int(objs["class"][k])], params[k],
-                              int(n_faces[rows[k]].sum()), rows[k], request.config)
-                 for k in range(s.n_objects)]
+        plans = [
+            _plan_object(
+                path,
+                objs,
+                k,
+                names[int(objs["class"][k])],
+                params[k],
+                int(n_faces[rows[k]].sum()),
+                rows[k],
+                request.config,
+            )
+            for k in range(s.n_objects)
+        ]
         plan = ShardPlan(path, s.fingerprint, plans, s.n_objects)
     stamp = _stamp(request, plan.fingerprint)
     for k in range(plan.n_objects):
@@ -236,12 +264,14 @@ def _warm_up() -> None:
     from radar_sim import RadarConfig, simulate
 
     v, f = simulation_mesh(solid_for("cube", (0.01, 0.01, 0.01)), 1e9)
-    simulate(v, f, RadarConfig(name="warm-up", n_aspect=1, n_roll=1, n_freq=3, n_range=3),
-             mode="convex")
+    simulate(
+        v, f, RadarConfig(name="warm-up", n_aspect=1, n_roll=1, n_freq=3, n_range=3), mode="convex"
+    )
 
 
-def label_object(class_name: str, scale, params: dict, meshes: list, config, mode: str,
-                 frequency_response: bool) -> dict:
+def label_object(
+    class_name: str, scale, params: dict, meshes: list, config, mode: str, frequency_response: bool
+) -> dict:
     """Worker task: the object's label on its simulation mesh, and the physics on ``meshes``.
 
     ``meshes`` is [(row, vertices, faces), ...]; labels are complex64.
@@ -255,10 +285,17 @@ def label_object(class_name: str, scale, params: dict, meshes: list, config, mod
         r = simulate(v, f, config, mode=object_mode(class_name, mode))
     except MeshError as exc:
         raise MeshError(f"simulation mesh: {exc}") from None
-    out = {"response": r.range_profiles.astype(np.complex64), "mode": r.mode,
-           "frequency_response": (r.frequency_response.astype(np.complex64)
-                                  if frequency_response else None),
-           "mesh_rows": [], "mesh_responses": [], "mesh_modes": [], "faces": len(f)}
+    out = {
+        "response": r.range_profiles.astype(np.complex64),
+        "mode": r.mode,
+        "frequency_response": (
+            r.frequency_response.astype(np.complex64) if frequency_response else None
+        ),
+        "mesh_rows": [],
+        "mesh_responses": [],
+        "mesh_modes": [],
+        "faces": len(f),
+    }
     for row, vertices, faces in meshes:
         try:
             m = simulate(vertices, faces, config, mode=mode)
@@ -281,15 +318,24 @@ def write_object(plan: ShardPlan, k: int, result: dict, stamp: str) -> None:
             f.attrs["mode"] = result["mode"]
             f.create_dataset("response", data=result["response"], track_times=False)
             if result["frequency_response"] is not None:
-                f.create_dataset("frequency_response", data=result["frequency_response"],
-                                 track_times=False)
-            f.create_dataset("mesh_rows", data=np.asarray(result["mesh_rows"], np.int64),
-                             track_times=False)
+                f.create_dataset(
+                    "frequency_response", data=result["frequency_response"], track_times=False
+                )
+            f.create_dataset(
+                "mesh_rows", data=np.asarray(result["mesh_rows"], np.int64), track_times=False
+            )
             shape = (0, *result["response"].shape)
-            f.create_dataset("mesh_response", data=np.asarray(
-                result["mesh_responses"] or np.zeros(shape), np.complex64), track_times=False)
-            f.create_dataset("mesh_mode", data=[m.encode() for m in result["mesh_modes"]],
-                             dtype=h5py.string_dtype(), track_times=False)
+            f.create_dataset(
+                "mesh_response",
+                data=np.asarray(result["mesh_responses"] or np.zeros(shape), np.complex64),
+                track_times=False,
+            )
+            f.create_dataset(
+                "mesh_mode",
+                data=[m.encode() for m in result["mesh_modes"]],
+                dtype=h5py.string_dtype(),
+                track_times=False,
+            )
 
 
 def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
@@ -316,14 +362,19 @@ def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
                 modes.append(str(o.attrs["mode"]))
         with_meshes = request.mesh_labels != "none"
         write_radar(
-            f, attrs={**request.attrs(), "radar_sim_version": __version__},
-            coordinates={n: getattr(config, n)
-                         for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")},
-            object_ids=f["objects/id"][()], modes=modes, responses=rows("response"),
+            f,
+            attrs={**request.attrs(), "radar_sim_version": __version__},
+            coordinates={
+                n: getattr(config, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")
+            },
+            object_ids=f["objects/id"][()],
+            modes=modes,
+            responses=rows("response"),
             frequency_responses=rows("frequency_response") if request.frequency_response else None,
             mesh_index=np.fromiter(mesh_rows("mesh_rows"), np.int64) if with_meshes else None,
             mesh_modes=[m.decode() for m in mesh_rows("mesh_mode")] if with_meshes else None,
-            mesh_responses=mesh_rows("mesh_response") if with_meshes else None)
+            mesh_responses=mesh_rows("mesh_response") if with_meshes else None,
+        )
 
     rewrite_atomically(plan.path, edit)
     shutil.rmtree(plan.sidecar, ignore_errors=True)
@@ -373,20 +424,30 @@ class _Progress:
         if self.first is None:
             self.first = (now, self.work)
             rate = obj.work / max(result["seconds"], 1e-9) * self.n_threads
-            self.log(f"  first object: {result['seconds']:.2f} s; estimated total "
-                     f"{_duration(self.total / rate)} on {self.n_threads} worker(s)")
+            self.log(
+                f"  first object: {result['seconds']:.2f} s; estimated total "
+                f"{_duration(self.total / rate)} on {self.n_threads} worker(s)"
+            )
         else:
             rate = (self.work - self.first[1]) / max(now - self.first[0], 1e-9)
         extra = f" + {len(result['mesh_rows'])} mesh(es)" if result["mesh_rows"] else ""
-        self.log(f"  [{self.count}/{self.n_todo}] {plan.path.name} object {obj.object_id} "
-                 f"({obj.class_name}, {result['faces']} faces, {result['mode']}){extra}: "
-                 f"{result['seconds']:.2f} s; about {_duration((self.total - self.work) / rate)}"
-                 f" left")
+        self.log(
+            f"  [{self.count}/{self.n_todo}] {plan.path.name} object {obj.object_id} "
+            f"({obj.class_name}, {result['faces']} faces, {result['mode']}){extra}: "
+            f"{result['seconds']:.2f} s; about {_duration((self.total - self.work) / rate)}"
+            f" left"
+        )
 
 
-def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
-                    workers: int | None = None, scheduler: str | None = None,
-                    overwrite: bool = False, progress: bool = True) -> LabelSummary:
+def label_directory(
+    directory: str | os.PathLike,
+    request: LabelRequest,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> LabelSummary:
     """Label every shard of ``directory`` that is not already labelled with ``request``.
 
     Every shard is validated before any work starts, so a foreign or truncated shard, a config
@@ -404,8 +465,10 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
     paths = list_shards(directory)
     for path in [Path(directory), *paths]:  # labels go into the shards: fail before any work
         if not os.access(path, os.W_OK):
-            raise LabelError(f"{path}: not writable (labels are written into the dataset in "
-                             f"place); label a writable copy")
+            raise LabelError(
+                f"{path}: not writable (labels are written into the dataset in "
+                f"place); label a writable copy"
+            )
     plans = {p: plan_shard(p, request, overwrite) for p in paths}
     for path in [p for p, plan in plans.items() if plan is None]:  # killed after its merge
         shutil.rmtree(path.parent / SIDECAR / path.stem, ignore_errors=True)
@@ -415,9 +478,12 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
     for plan in todo:  # every shard is valid: now drop what cannot be reused
         for stale in plan.stale:
             stale.unlink()
-    summary = LabelSummary([], [p for p, plan in plans.items() if plan is None],
-                           sum(plan.n_objects for plan in todo),
-                           sum(len(plan.done) for plan in todo))
+    summary = LabelSummary(
+        [],
+        [p for p, plan in plans.items() if plan is None],
+        sum(plan.n_objects for plan in todo),
+        sum(len(plan.done) for plan in todo),
+    )
     for plan in [p for p in todo if not p.objects]:  # every object finished before a kill
         merge_shard(plan, request)
         summary.labelled.append(plan.path)
@@ -430,11 +496,14 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
         try:
             client = stack.enter_context(dask_client(workers, scheduler))
         except OSError as exc:
-            raise LabelError(f"{directory}: cannot use the Dask cluster "
-                             f"{scheduler or '(local)'}: {exc}") from None
-        log(f"radar-sim label: {n_todo} object(s) in {len(todo)} shard(s) to compute"
+            raise LabelError(
+                f"{directory}: cannot use the Dask cluster {scheduler or '(local)'}: {exc}"
+            ) from None
+        log(
+            f"radar-sim label: {n_todo} object(s) in {len(todo)} shard(s) to compute"
             f"{f', {summary.reused} reused from an interrupted run' if summary.reused else ''}; "
-            f"work {total_work:.3g} face x direction x frequency products")
+            f"work {total_work:.3g} face x direction x frequency products"
+        )
         n_threads = max(1, sum(client.nthreads().values()))
         tasks = _tasks(todo)
         running = as_completed()
@@ -444,9 +513,17 @@ def label_directory(directory: str | os.PathLike, request: LabelRequest, *,
             item = next(tasks, None)
             if item is not None:
                 plan, obj, meshes = item
-                future = client.submit(label_object, obj.class_name, obj.scale, obj.params,
-                                       meshes, request.config, request.mode,
-                                       request.frequency_response, pure=False)
+                future = client.submit(
+                    label_object,
+                    obj.class_name,
+                    obj.scale,
+                    obj.params,
+                    meshes,
+                    request.config,
+                    request.mode,
+                    request.frequency_response,
+                    pure=False,
+                )
                 owner[future.key] = (plan, obj)
                 running.add(future)
 

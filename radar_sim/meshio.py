@@ -31,8 +31,10 @@ def load_mesh(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np
     if units not in UNITS:
         raise MeshFileError(f"{path}: unknown units {units!r}; expected one of {', '.join(UNITS)}")
     if path.suffix.lower() not in FORMATS:
-        raise MeshFileError(f"{path}: unsupported mesh format {path.suffix or '(none)'!r}; "
-                            f"expected {', '.join(FORMATS)}")
+        raise MeshFileError(
+            f"{path}: unsupported mesh format {path.suffix or '(none)'!r}; "
+            f"expected {', '.join(FORMATS)}"
+        )
     if not path.is_file():
         raise MeshFileError(f"{path}: no such file")
     try:

@@ -38,9 +38,18 @@ def band_centre_sample(frequency_hz) -> tuple[int, str]:
     return f, f"{shown}\n(the sample nearest the {centre / 1e9:.4g} GHz band centre)"
 
 
-def plot_signature(out: str | os.PathLike, *, aspect_deg, roll_deg, range_m, frequency_hz,
-                   range_profiles: np.ndarray, frequency_response: np.ndarray,
-                   roll: float = 0.0, title: str = "") -> None:
+def plot_signature(
+    out: str | os.PathLike,
+    *,
+    aspect_deg,
+    roll_deg,
+    range_m,
+    frequency_hz,
+    range_profiles: np.ndarray,
+    frequency_response: np.ndarray,
+    roll: float = 0.0,
+    title: str = "",
+) -> None:
     """Write the PNG. Profiles (n_aspect, n_roll, n_range), responses (n_aspect, n_roll, n_freq)."""
     import matplotlib
 
@@ -56,9 +65,15 @@ def plot_signature(out: str | os.PathLike, *, aspect_deg, roll_deg, range_m, fre
 
     fig = plt.figure(figsize=(11, 4.8))
     ax = fig.add_subplot(1, 2, 1)
-    mesh = ax.imshow(image, origin="lower", aspect="auto", cmap="viridis",
-                     vmin=top - DYNAMIC_RANGE_DB, vmax=top,
-                     extent=(range_m[0], range_m[-1], aspect_deg[0], aspect_deg[-1]))
+    mesh = ax.imshow(
+        image,
+        origin="lower",
+        aspect="auto",
+        cmap="viridis",
+        vmin=top - DYNAMIC_RANGE_DB,
+        vmax=top,
+        extent=(range_m[0], range_m[-1], aspect_deg[0], aspect_deg[-1]),
+    )
     ax.set_xlabel("range (m)")
     ax.set_ylabel("aspect (deg)")
     ax.set_title(f"range profile, roll {float(np.asarray(roll_deg)[r]):.4g} deg")

@@ -36,11 +36,12 @@ CIS_PARAMS = np.array([facet.CIS_INV_STEP, facet.CIS_STEP_HI, facet.CIS_STEP_LO,
 _TWO_OVER_SQRT_PI = 2.0 / np.sqrt(np.pi)
 _SQRT_PI = np.sqrt(np.pi)
 # tan(y)/y = Σ_m _TAN[m] y^{2m}; the first omitted coefficient is _TAN_NEXT
-_TAN = np.array([1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835, 1382 / 155925, 21844 / 6081075,
-                 929569 / 638512875])
+_TAN = np.array(
+    [1.0, 1 / 3, 2 / 15, 17 / 315, 62 / 2835, 1382 / 155925, 21844 / 6081075, 929569 / 638512875]
+)
 _TAN_NEXT = 6404582 / 10854718875
-_SERIES_N = 16                        # h_0 … h_15: powers k¹ … k¹⁶
-_SERIES_NEXT = 17.0 / 6402373705728000.0   # (n+1)/(n+2)! of the first omitted term, n = 16
+_SERIES_N = 16  # h_0 … h_15: powers k¹ … k¹⁶
+_SERIES_NEXT = 17.0 / 6402373705728000.0  # (n+1)/(n+2)! of the first omitted term, n = 16
 
 
 @njit(cache=True)
@@ -99,12 +100,21 @@ def _projected(area, area_lo, area_split, f, r0, r1, r2, r_split):
     p = p0 + p1 + p2
     if 12.0 * abs(p) >= abs(p0) + abs(p1) + abs(p2):
         return p
-    e0 = ((area_split[f, 0] * r_split[0] - p0) + area_split[f, 0] * r_split[3]
-          + area_split[f, 3] * r_split[0]) + area_split[f, 3] * r_split[3]
-    e1 = ((area_split[f, 1] * r_split[1] - p1) + area_split[f, 1] * r_split[4]
-          + area_split[f, 4] * r_split[1]) + area_split[f, 4] * r_split[4]
-    e2 = ((area_split[f, 2] * r_split[2] - p2) + area_split[f, 2] * r_split[5]
-          + area_split[f, 5] * r_split[2]) + area_split[f, 5] * r_split[5]
+    e0 = (
+        (area_split[f, 0] * r_split[0] - p0)
+        + area_split[f, 0] * r_split[3]
+        + area_split[f, 3] * r_split[0]
+    ) + area_split[f, 3] * r_split[3]
+    e1 = (
+        (area_split[f, 1] * r_split[1] - p1)
+        + area_split[f, 1] * r_split[4]
+        + area_split[f, 4] * r_split[1]
+    ) + area_split[f, 4] * r_split[4]
+    e2 = (
+        (area_split[f, 2] * r_split[2] - p2)
+        + area_split[f, 2] * r_split[5]
+        + area_split[f, 5] * r_split[2]
+    ) + area_split[f, 5] * r_split[5]
     t, c1 = _two_sum(p0, p1)
     t, c2 = _two_sum(t, p2)
     low = area_lo[f, 0] * r0 + area_lo[f, 1] * r1 + area_lo[f, 2] * r2
@@ -140,12 +150,12 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im, tab, par):
     lo = s0 - s1
     hi = s2 - s1
     x = 2.0 * k.max() * (hi - lo)
-    coef = np.empty(_SERIES_N)         # real parts of (2/√π) P 2^n h_n/(n+2)!, sign of j^n in
+    coef = np.empty(_SERIES_N)  # real parts of (2/√π) P 2^n h_n/(n+2)!, sign of j^n in
     h = 1.0
     lo_pow = 1.0
     fact = 2.0
     scale = _TWO_OVER_SQRT_PI * proj
-    bound = 1.0                        # x^n (n+1)/(n+2)! of the next term
+    bound = 1.0  # x^n (n+1)/(n+2)! of the next term
     terms = _SERIES_N
     for n in range(_SERIES_N):
         if n:
@@ -165,10 +175,10 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im, tab, par):
     for i in range(len(k)):
         kk = k[i]
         k2 = kk * kk
-        pr = 0.0                                   # even n: real, Horner in k²
+        pr = 0.0  # even n: real, Horner in k²
         for n in range(top_even, -1, -2):
             pr = pr * k2 + coef[n]
-        pi = 0.0                                   # odd n: imaginary, k·(Horner in k²)
+        pi = 0.0  # odd n: imaginary, k·(Horner in k²)
         for n in range(top_odd, 0, -2):
             pi = pi * k2 + coef[n]
         pr *= kk
@@ -197,13 +207,33 @@ def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2, tab, p
         t = _TAN[terms - 1]
         for m in range(terms - 2, -1, -1):
             t = t * y2 + _TAN[m]
-        amp = -e * d * t                            # times j
+        amp = -e * d * t  # times j
         row[i] += complex(-amp * (im[i] + im2[i]), amp * (re[i] + re2[i]))
 
 
 @njit(cache=True)
-def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, k, two_dk,
-                 tol, phase_error, inv_h, b_min, n_terms, two_k_mid, mom, out, tab, par):
+def first_bounce(
+    v,
+    faces,
+    area,
+    area_lo,
+    area_split,
+    dirs,
+    blocked,
+    two_sided,
+    k,
+    two_dk,
+    tol,
+    phase_error,
+    inv_h,
+    b_min,
+    n_terms,
+    two_k_mid,
+    mom,
+    out,
+    tab,
+    par,
+):
     """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights (n_terms = 0: their
     frequency sums added to ``out`` directly), special facets added to ``out`` (n_dirs, n_k);
     returns the facets left for the stable integral as (face, direction) index pairs, their
@@ -255,20 +285,25 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
                 w[i2] += q * a
                 continue
             if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
-                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1], tab,
-                            par)
+                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1], tab, par)
                 continue
             d_min = min(aa, bb, cc)
             ke = k_lo * d_max
-            if ke > 0.0 and (_TAN_NEXT * (k_hi * d_min) ** 16 / ke
-                             + phase_error * (1.0 / ke + 1.0 / (ke * ke))) <= tol:
-                if aa == d_min:                      # pair (0, 1), third 2
+            if (
+                ke > 0.0
+                and (
+                    _TAN_NEXT * (k_hi * d_min) ** 16 / ke
+                    + phase_error * (1.0 / ke + 1.0 / (ke * ke))
+                )
+                <= tol
+            ):
+                if aa == d_min:  # pair (0, 1), third 2
                     pi_, pj, pm = i0, i1, i2
                     si, sj, sm = s0, s1, s2
-                elif bb == d_min:                    # pair (1, 2), third 0
+                elif bb == d_min:  # pair (1, 2), third 0
                     pi_, pj, pm = i1, i2, i0
                     si, sj, sm = s1, s2, s0
-                else:                                # pair (2, 0), third 1
+                else:  # pair (2, 0), third 1
                     pi_, pj, pm = i2, i0, i1
                     si, sj, sm = s2, s0, s1
                 e = 0.5 * (si + sj) - sm
@@ -277,8 +312,23 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
                 w[pi_] += 0.5 * dd
                 w[pj] += 0.5 * dd
                 w[pm] -= dd
-                _add_pair_tan(row, k, two_dk, tol, dd, e, g, si, sj, scratch[0], scratch[1],
-                              scratch[2], scratch[3], tab, par)
+                _add_pair_tan(
+                    row,
+                    k,
+                    two_dk,
+                    tol,
+                    dd,
+                    e,
+                    g,
+                    si,
+                    sj,
+                    scratch[0],
+                    scratch[1],
+                    scratch[2],
+                    scratch[3],
+                    tab,
+                    par,
+                )
                 continue
             if n_st == cap:
                 cap *= 2
@@ -294,7 +344,7 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
             st_val[n_st, 2] = s1
             st_val[n_st, 3] = s2
             n_st += 1
-        if n_terms == 0:                              # few vertices: direct sums
+        if n_terms == 0:  # few vertices: direct sums
             for i in range(n_v):
                 if w[i] != 0.0:
                     _phasors(s[i], k, two_dk, scratch[0], scratch[1], tab, par)
@@ -309,7 +359,7 @@ def first_bounce(v, faces, area, area_lo, area_split, dirs, blocked, two_sided, 
             if wi == 0.0:
                 continue
             bf = math.floor(s[i] * inv_h + 0.5)
-            delta = s[i] - bf * h                     # exact: h is a power of two
+            delta = s[i] - bf * h  # exact: h is a power of two
             u = delta * two_over_h
             c, sn = _cis_of_product(delta, two_k_mid, tab, par)
             wr = wi * c

@@ -56,13 +56,22 @@ def analytic_label(cls: str, scale: np.ndarray, aspect_deg, roll_deg, range_m) -
     corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * scale / 2
     proj = los @ corners.T  # (a, r, 8)
     r = np.asarray(range_m)[None, None, None, :]
-    amp = np.exp(-((r - proj[..., None]) / 0.1) ** 2) * np.exp(2j * np.pi * proj[..., None] / 0.03)
+    amp = np.exp(-(((r - proj[..., None]) / 0.1) ** 2)) * np.exp(
+        2j * np.pi * proj[..., None] / 0.03
+    )
     return (STRENGTH[cls] * amp.sum(axis=2)).astype(np.complex64)
 
 
-def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_class: int = 2,
-                 n_shards: int = 2, grid: tuple[int, int, int] = (7, 5, 16), seed: int = 0,
-                 n_val_per_class: int = 0, ood: tuple[int, ...] = ()) -> Path:
+def make_dataset(
+    directory: str | Path,
+    objects_per_class: int = 4,
+    n_test_per_class: int = 2,
+    n_shards: int = 2,
+    grid: tuple[int, int, int] = (7, 5, 16),
+    seed: int = 0,
+    n_val_per_class: int = 0,
+    ood: tuple[int, ...] = (),
+) -> Path:
     """Write ``n_shards`` labelled shards into ``directory``; return it. Per class, the first
     ``n_test_per_class`` objects are test, the next ``n_val_per_class`` val, the rest train.
     ``ood``: variant numbers appended to every object (copies of its last variant), as OOD
@@ -77,32 +86,60 @@ def make_dataset(directory: str | Path, objects_per_class: int = 4, n_test_per_c
     for c, cls in enumerate(CLASSES):
         for j in range(objects_per_class):
             scale = np.round(rng.uniform(0.3, 1.5, 3), 3)
-            meshes = [MeshRecord(variant=v, vertices=m.vertices.astype(np.float32),
-                                 faces=m.faces.astype(np.int32), hausdorff=0.0,
-                                 params={"fixture": cls, "n_faces": len(m.faces)})
-                      for v, m in enumerate(variants(cls, scale))]
-            meshes += [MeshRecord(v, meshes[-1].vertices, meshes[-1].faces, 0.0,
-                                  {"remesher": "fixture"}) for v in ood]
-            objects.append(ObjectRecord(id=len(objects), class_index=c, scale=scale,
-                                        seed=seed * 1000 + len(objects),
-                                        split="test" if j < n_test_per_class else "val"
-                                        if j < n_test_per_class + n_val_per_class else "train",
-                                        meshes=meshes))
+            meshes = [
+                MeshRecord(
+                    variant=v,
+                    vertices=m.vertices.astype(np.float32),
+                    faces=m.faces.astype(np.int32),
+                    hausdorff=0.0,
+                    params={"fixture": cls, "n_faces": len(m.faces)},
+                )
+                for v, m in enumerate(variants(cls, scale))
+            ]
+            meshes += [
+                MeshRecord(v, meshes[-1].vertices, meshes[-1].faces, 0.0, {"remesher": "fixture"})
+                for v in ood
+            ]
+            objects.append(
+                ObjectRecord(
+                    id=len(objects),
+                    class_index=c,
+                    scale=scale,
+                    seed=seed * 1000 + len(objects),
+                    split="test"
+                    if j < n_test_per_class
+                    else "val"
+                    if j < n_test_per_class + n_val_per_class
+                    else "train",
+                    meshes=meshes,
+                )
+            )
     for k in range(n_shards):
         part = objects[k::n_shards]
         path = directory / shard_name(k)
         write_shard(path, part, CLASSES, {"fixture": True, "seed": seed}, "0.1.0")
-        labels = np.stack([analytic_label(CLASSES[o.class_index], o.scale, aspect, roll, rng_m)
-                           for o in part])
+        labels = np.stack(
+            [analytic_label(CLASSES[o.class_index], o.scale, aspect, roll, rng_m) for o in part]
+        )
 
         def add_radar(f: h5py.File, labels=labels):
-            write_radar(f, attrs={"config": json.dumps({"fixture": "analytic corners"}),
-                                  "simulation_rule": json.dumps({"fixture": True}),
-                                  "options": json.dumps({"fixture": True})},
-                        coordinates={"aspect_deg": aspect, "roll_deg": roll, "range_m": rng_m,
-                                     "frequency_hz": np.linspace(8e9, 12e9, grid[2])},
-                        object_ids=f["objects/id"][()], modes=["convex"] * len(labels),
-                        responses=labels)
+            write_radar(
+                f,
+                attrs={
+                    "config": json.dumps({"fixture": "analytic corners"}),
+                    "simulation_rule": json.dumps({"fixture": True}),
+                    "options": json.dumps({"fixture": True}),
+                },
+                coordinates={
+                    "aspect_deg": aspect,
+                    "roll_deg": roll,
+                    "range_m": rng_m,
+                    "frequency_hz": np.linspace(8e9, 12e9, grid[2]),
+                },
+                object_ids=f["objects/id"][()],
+                modes=["convex"] * len(labels),
+                responses=labels,
+            )
 
         rewrite_atomically(path, add_radar)
     return directory

@@ -14,7 +14,7 @@ SCALES = [(1.0, 1.4, 1.8), (0.2, 2.0, 2.0), (2.0, 2.0, 0.2)]
 def brute_force_to(dense, points):
     """Distance from each point to the nearest of ``dense`` (one point at a time: small memory)."""
     out = np.empty(len(points))
-    d2 = (dense ** 2).sum(axis=1)
+    d2 = (dense**2).sum(axis=1)
     for i, p in enumerate(points):
         out[i] = math.sqrt(max(0.0, (d2 - 2 * dense @ p).min() + p @ p))
     return out
@@ -37,8 +37,9 @@ def test_sphere_distance_is_exact():
 def test_box_distance_is_exact_inside_and_outside():
     solid = analytic.solid_for("cube", (1.0, 2.0, 3.0))
     p = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [1.5, 2.0, 0.0], [0.5, 1.0, 1.5]])
-    np.testing.assert_allclose(analytic.surface_distance(solid, p),
-                               [0.5, 0.1, math.hypot(1.0, 1.0), 0.0], atol=1e-15)
+    np.testing.assert_allclose(
+        analytic.surface_distance(solid, p), [0.5, 0.1, math.hypot(1.0, 1.0), 0.0], atol=1e-15
+    )
 
 
 def test_circular_cylinder_and_torus_distances_are_exact():
@@ -48,8 +49,7 @@ def test_circular_cylinder_and_torus_distances_are_exact():
     rho, z = np.hypot(p[:, 0], p[:, 1]), p[:, 2]
     side = np.hypot(rho - 1, np.maximum(np.abs(z) - 1, 0))
     cap = np.where(rho <= 1, np.abs(np.abs(z) - 1), np.hypot(rho - 1, np.abs(z) - 1))
-    np.testing.assert_allclose(analytic.surface_distance(cyl, p), np.minimum(side, cap),
-                               atol=1e-12)
+    np.testing.assert_allclose(analytic.surface_distance(cyl, p), np.minimum(side, cap), atol=1e-12)
     torus = analytic.solid_for("torus", (2.5, 2.5, 0.5))  # Blender's default: R 1, r 0.25
     exact = np.abs(np.hypot(rho - 1.0, z) - 0.25)
     np.testing.assert_allclose(analytic.surface_distance(torus, p), exact, atol=1e-12)
@@ -66,8 +66,9 @@ def test_circular_cone_distance_is_exact():
     t = np.clip(((q - a) @ (b - a)) / ((b - a) @ (b - a)), 0, 1)
     side = np.linalg.norm(q - (a + t[:, None] * (b - a)), axis=1)
     base = np.where(q[:, 0] <= 1, np.abs(q[:, 1] + 1), np.hypot(q[:, 0] - 1, q[:, 1] + 1))
-    np.testing.assert_allclose(analytic.surface_distance(cone, p), np.minimum(side, base),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        analytic.surface_distance(cone, p), np.minimum(side, base), atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("kind", ["cylinder", "sphere", "cone", "torus"])
@@ -79,8 +80,8 @@ def test_distance_matches_brute_force_on_elliptic_shapes(kind, scale):
     spacing = 0.01
     d = analytic.surface_distance(solid, p)
     bf = brute_force(solid, p, spacing)
-    assert np.all(d <= bf + 1e-9)             # never above a true surface point's distance
-    assert np.all(bf - d <= spacing)          # and within the samples' spacing of the nearest
+    assert np.all(d <= bf + 1e-9)  # never above a true surface point's distance
+    assert np.all(bf - d <= spacing)  # and within the samples' spacing of the nearest
 
 
 @pytest.mark.parametrize("kind", analytic.KINDS)
@@ -92,7 +93,7 @@ def test_simulation_mesh_is_closed_outward_and_on_the_surface(kind, scale):
     assert meshcheck.defect(v, f, primitives.get(kind).euler) is None
     assert trimesh.Trimesh(v, f, process=False).volume > 0  # outward
     np.testing.assert_allclose(v.max(axis=0) - v.min(axis=0), scale, rtol=1e-12)
-    assert analytic.surface_distance(solid, v[::max(1, len(v) // 3000)]).max() < 1e-12
+    assert analytic.surface_distance(solid, v[:: max(1, len(v) // 3000)]).max() < 1e-12
     again = analytic.simulation_mesh(solid, 12e9)
     assert np.array_equal(v, again[0]) and np.array_equal(f, again[1])
 
@@ -100,13 +101,17 @@ def test_simulation_mesh_is_closed_outward_and_on_the_surface(kind, scale):
 def test_simulation_mesh_volume_converges_to_the_smooth_solid():
     # volumes of the smooth solids: box, elliptic cylinder, ellipsoid, cone, torus
     a, b, c = 0.5, 0.7, 0.9
-    exact = {"cube": 8 * a * b * c, "cylinder": math.pi * a * b * 2 * c,
-             "sphere": 4 / 3 * math.pi * a * b * c, "cone": math.pi * a * b * 2 * c / 3}
+    exact = {
+        "cube": 8 * a * b * c,
+        "cylinder": math.pi * a * b * 2 * c,
+        "sphere": 4 / 3 * math.pi * a * b * c,
+        "cone": math.pi * a * b * 2 * c / 3,
+    }
     for kind, volume in exact.items():
         v, f = analytic.simulation_mesh(analytic.solid_for(kind, (2 * a, 2 * b, 2 * c)), 12e9)
         assert trimesh.Trimesh(v, f, process=False).volume == pytest.approx(volume, rel=2e-4)
     s = np.array([1.0, 1.4, 0.3]) / np.array([2.5, 2.5, 0.5])
-    torus = 2 * math.pi ** 2 * 1.0 * 0.25 ** 2 * s.prod()
+    torus = 2 * math.pi**2 * 1.0 * 0.25**2 * s.prod()
     v, f = analytic.simulation_mesh(analytic.solid_for("torus", (1.0, 1.4, 0.3)), 12e9)
     assert trimesh.Trimesh(v, f, process=False).volume == pytest.approx(torus, rel=1e-3)
 
@@ -124,8 +129,10 @@ def test_strip_edges_follow_the_rule():
 def test_smaller_objects_and_lower_frequencies_get_fewer_faces():
     big = analytic.solid_for("sphere", (2.0, 2.0, 2.0))
     small = analytic.solid_for("sphere", (0.2, 0.2, 0.2))
-    n = {k: len(analytic.simulation_mesh(s, f)[1]) for k, (s, f) in
-         {"big": (big, 12e9), "small": (small, 12e9), "low": (big, 6e9)}.items()}
+    n = {
+        k: len(analytic.simulation_mesh(s, f)[1])
+        for k, (s, f) in {"big": (big, 12e9), "small": (small, 12e9), "low": (big, 6e9)}.items()
+    }
     assert n["small"] < n["big"] / 50 and n["low"] < n["big"] / 3
     assert len(analytic.simulation_mesh(analytic.solid_for("cube", (2, 2, 2)), 12e9)[1]) == 12
 
@@ -185,11 +192,13 @@ def _ellipsoid_implicit(axes):
 
     def f(x):
         return (x * x * inv).sum(axis=1) - 1.0, 2.0 * x * inv, np.broadcast_to(2.0 * inv, x.shape)
+
     return f
 
 
-@pytest.mark.parametrize("axes", [(0.5, 0.7, 0.9), (0.05, 1.0, 1.0), (1.0, 1.0, 0.1),
-                                  (0.3, 1.2), (1.0, 0.02)])
+@pytest.mark.parametrize(
+    "axes", [(0.5, 0.7, 0.9), (0.05, 1.0, 1.0), (1.0, 1.0, 0.1), (0.3, 1.2), (1.0, 0.02)]
+)
 def test_compiled_newton_is_bit_identical_to_the_numpy_iteration(axes):
     """ellipsoid_closest.closest repeats analytic._closest_on_implicit's arithmetic exactly:
     the stored distances depend on every last bit (dataset fingerprints)."""
@@ -201,11 +210,12 @@ def test_compiled_newton_is_bit_identical_to_the_numpy_iteration(axes):
     on = u / np.linalg.norm(u / a, axis=1, keepdims=True)  # on the surface
     p = on * rng.uniform(0.0, 2.0, (4000, 1)) ** rng.choice([1, 3], (4000, 1))
     starts = on[rng.permutation(4000)]
-    starts[: 3000] = on[: 3000] + 0.02 * rng.standard_normal((3000, len(a)))  # near, off it
+    starts[:3000] = on[:3000] + 0.02 * rng.standard_normal((3000, len(a)))  # near, off it
     x_ref, ok_ref = analytic._closest_on_implicit(p, starts, _ellipsoid_implicit(a))
     scale = np.abs(p).max() + np.abs(starts).max() + 1e-300
-    x, value = ellipsoid_closest.closest(p, starts, 1.0 / a ** 2, 1e-14 * scale,
-                                         analytic.NEWTON_STEPS)
+    x, value = ellipsoid_closest.closest(
+        p, starts, 1.0 / a**2, 1e-14 * scale, analytic.NEWTON_STEPS
+    )
     ok = (np.abs(value) < 1e-12) & np.all(np.isfinite(x), axis=1)
     assert np.array_equal(x, x_ref, equal_nan=True)
     assert np.array_equal(ok, ok_ref)

@@ -27,8 +27,11 @@ SCALE = np.array([0.6, 1.7, 1.1])
 @pytest.fixture(scope="module")
 def objects():
     """Two objects of every default class, 30 variants each."""
-    return {(name, seed): blender.object_meshes(name, SCALE, seed, 30)
-            for name in primitives.DEFAULT_CLASSES for seed in (1, 2)}
+    return {
+        (name, seed): blender.object_meshes(name, SCALE, seed, 30)
+        for name in primitives.DEFAULT_CLASSES
+        for seed in (1, 2)
+    }
 
 
 @pytest.fixture(scope="module")
@@ -54,11 +57,13 @@ def point_triangle_distance(p, a, b, c):
         # regions in reverse order of Ericson's tests, so that the first test that holds wins
         w = ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[..., None]
         q = np.where(((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0))[..., None], b + w * (c - b), q)
-        q = np.where(((vb <= 0) & (d2 >= 0) & (d6 <= 0))[..., None],
-                     a + ac * (d2 / (d2 - d6))[..., None], q)
+        q = np.where(
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0))[..., None], a + ac * (d2 / (d2 - d6))[..., None], q
+        )
         q = np.where(((d6 >= 0) & (d5 <= d6))[..., None], c, q)
-        q = np.where(((vc <= 0) & (d1 >= 0) & (d3 <= 0))[..., None],
-                     a + ab * (d1 / (d1 - d3))[..., None], q)
+        q = np.where(
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0))[..., None], a + ab * (d1 / (d1 - d3))[..., None], q
+        )
         q = np.where(((d3 >= 0) & (d4 <= d3))[..., None], b, q)
         q = np.where(((d1 <= 0) & (d2 <= 0))[..., None], a, q)
     return np.sqrt(((p - q) ** 2).sum(-1))
@@ -82,28 +87,33 @@ def surface_distance(points, v, f):
         which = np.repeat(np.arange(len(points)), [len(n) for n in near])
         if len(which):
             cand = tri[members[np.concatenate(near).astype(np.int64)]]
-            np.minimum.at(best, which,
-                          point_triangle_distance(points[which], *cand.transpose(1, 0, 2)))
+            np.minimum.at(
+                best, which, point_triangle_distance(points[which], *cand.transpose(1, 0, 2))
+            )
     return best
 
 
 def samples(v, f):
     """Vertices, edge midpoints and centroids (not the sampling verify.py uses)."""
-    edges = np.unique(np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1),
-                      axis=0)
+    edges = np.unique(
+        np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0
+    )
     return np.vstack([v, v[edges].mean(axis=1), v[f].mean(axis=1)])
 
 
 def brute_hausdorff(va, fa, vb, fb):
     va, vb = va.astype(np.float64), vb.astype(np.float64)
-    d = max(surface_distance(samples(va, fa), vb, fb).max(),
-            surface_distance(samples(vb, fb), va, fa).max())
+    d = max(
+        surface_distance(samples(va, fa), vb, fb).max(),
+        surface_distance(samples(vb, fb), va, fa).max(),
+    )
     return d / np.linalg.norm(va.max(axis=0) - va.min(axis=0))
 
 
 def degree_signature(v, f):
-    edges = np.unique(np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1),
-                      axis=0)
+    edges = np.unique(
+        np.sort(np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0
+    )
     return len(v), tuple(np.sort(np.bincount(edges.ravel(), minlength=len(v))))
 
 
@@ -193,17 +203,22 @@ def test_every_registered_primitive_builds_and_verifies(name):
     for m in meshes:
         t = trimesh.Trimesh(m.vertices, m.faces, process=False)
         assert t.is_watertight and t.euler_number == spec.euler and t.volume > 0
-        assert brute_hausdorff(meshes[0].vertices, meshes[0].faces, m.vertices, m.faces) \
-            <= verify.tolerance(name, m.params)
+        assert brute_hausdorff(
+            meshes[0].vertices, meshes[0].faces, m.vertices, m.faces
+        ) <= verify.tolerance(name, m.params)
 
 
 def test_a_new_primitive_takes_one_registry_entry(monkeypatch):
-    prism = primitives.Primitive(operator="primitive_cylinder_add", planar=True,
-                                 extents=(3 ** 0.5, 2.0, 2.0), options={"vertices": 6})
+    prism = primitives.Primitive(
+        operator="primitive_cylinder_add",
+        planar=True,
+        extents=(3**0.5, 2.0, 2.0),
+        options={"vertices": 6},
+    )
     monkeypatch.setitem(primitives.PRIMITIVES, "hex_prism", prism)
     meshes = blender.object_meshes("hex_prism", SCALE, 0, 10)
     # a regular hexagon of circumradius 1 has area 3 sqrt(3) / 2; scaled to SCALE's x, y
-    volume = 3 * 3 ** 0.5 / 2 * (SCALE[0] / 3 ** 0.5) * (SCALE[1] / 2) * SCALE[2]
+    volume = 3 * 3**0.5 / 2 * (SCALE[0] / 3**0.5) * (SCALE[1] / 2) * SCALE[2]
     for m in meshes:
         t = trimesh.Trimesh(m.vertices, m.faces, process=False)
         assert t.is_watertight and t.volume == pytest.approx(volume, rel=1e-6)
@@ -222,8 +237,12 @@ def test_same_call_gives_the_same_arrays_whatever_came_before():
 def digest(meshes):
     h = hashlib.sha256()
     for m in meshes:
-        h.update(m.vertices.tobytes() + m.faces.tobytes() + repr(m.hausdorff).encode()
-                 + json.dumps(m.params, sort_keys=True).encode())
+        h.update(
+            m.vertices.tobytes()
+            + m.faces.tobytes()
+            + repr(m.hausdorff).encode()
+            + json.dumps(m.params, sort_keys=True).encode()
+        )
     return h.hexdigest()
 
 
@@ -233,8 +252,9 @@ def test_threads_of_one_process_get_the_same_arrays():
     calls = [("cube", 21), ("sphere", 22), ("cylinder", 23), ("cube", 24)]
     alone = [digest(blender.object_meshes(name, SCALE, seed, 3)) for name, seed in calls]
     with ThreadPoolExecutor(4) as pool:
-        together = list(pool.map(lambda c: digest(blender.object_meshes(c[0], SCALE, c[1], 3)),
-                                 calls))
+        together = list(
+            pool.map(lambda c: digest(blender.object_meshes(c[0], SCALE, c[1], 3)), calls)
+        )
     assert together == alone
 
 
@@ -261,9 +281,12 @@ print(h.hexdigest())
 def test_same_arrays_in_separate_processes_whatever_ran_before(tmp_path):
     script = tmp_path / "child.py"
     script.write_text(textwrap.dedent(CHILD.format(root=str(ROOT), scale=SCALE.tolist())))
-    runs = [subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True,
-                           check=True).stdout.strip()
-            for mode in ("plain", "other-work-first", "pymeshlab-first")]
+    runs = [
+        subprocess.run(
+            [sys.executable, str(script), mode], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        for mode in ("plain", "other-work-first", "pymeshlab-first")
+    ]
     here = digest(blender.object_meshes("sphere", SCALE, 7, 5))
     assert runs == [here] * 3
 
@@ -281,14 +304,17 @@ def test_stage_benchmark_writes_json_and_refuses_unknown_classes(tmp_path, capsy
         bench.main(["--classes", "cube,prism", "--out", str(out)])
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"class_name": "dodecahedron"}, "unknown primitive class"),
-    ({"scale": np.array([1.0, -1.0, 1.0])}, "3 positive finite extents"),
-    ({"scale": np.array([1.0, np.nan, 1.0])}, "3 positive finite extents"),
-    ({"scale": np.ones(2)}, "3 positive finite extents"),
-    ({"n_variants": 1000}, "n_variants"),
-    ({"seed": -1}, "seed"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"class_name": "dodecahedron"}, "unknown primitive class"),
+        ({"scale": np.array([1.0, -1.0, 1.0])}, "3 positive finite extents"),
+        ({"scale": np.array([1.0, np.nan, 1.0])}, "3 positive finite extents"),
+        ({"scale": np.ones(2)}, "3 positive finite extents"),
+        ({"n_variants": 1000}, "n_variants"),
+        ({"seed": -1}, "seed"),
+    ],
+)
 def test_bad_input_is_refused_with_a_clear_message(kwargs, message):
     call = {"class_name": "cube", "scale": np.ones(3), "seed": 0, "n_variants": 1} | kwargs
     with pytest.raises(ValueError, match=message):

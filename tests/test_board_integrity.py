@@ -65,12 +65,19 @@ def _md_rows(md: str) -> list[str]:
 
 # --- 1. the board claims only what it checked ----------------------------------------------
 
+
 def test_submitted_speed_and_params_are_self_reported_whatever_the_json_says(
-        data, submission, tmp_path):
+    data, submission, tmp_path
+):
     results, pred = submission
-    claim = _edit(Path(results), tmp_path / "fast.json", lambda r: (
-        r["speed"].update(ms_per_mesh=0.0001, hardware="cpu: claimed", self_reported=False),
-        r["model"].update(params=1)))
+    claim = _edit(
+        Path(results),
+        tmp_path / "fast.json",
+        lambda r: (
+            r["speed"].update(ms_per_mesh=0.0001, hardware="cpu: claimed", self_reported=False),
+            r["model"].update(params=1),
+        ),
+    )
     entries, site = tmp_path / "entries", tmp_path / "site"
     run("submit", claim, "--predictions", pred, "--data", data, "--entries", entries)
     (entry,) = store.load_entries(entries)
@@ -81,8 +88,11 @@ def test_submitted_speed_and_params_are_self_reported_whatever_the_json_says(
     html, md = (site / "index.html").read_text(), (site / "LEADERBOARD.md").read_text()
     (row,) = _rows(html)
     assert "0.0001 (self-reported)" in row and ">1 (self-reported)<" in row
-    assert re.search(r'<p class="note self-reported">\(self-reported\): given by the submitter, '
-                     r"not measured by the harness", html)
+    assert re.search(
+        r'<p class="note self-reported">\(self-reported\): given by the submitter, '
+        r"not measured by the harness",
+        html,
+    )
     (md_row,) = _md_rows(md)
     assert "| 0.0001 (self-reported) |" in md_row and "| 1 (self-reported) |" in md_row
     assert "\n(self-reported): given by the submitter, not measured by the harness" in md
@@ -92,10 +102,13 @@ def test_seed_keeps_what_the_harness_measured_unmarked(data, tmp_path):
     rows = tmp_path / "reproduce"
     for row, self_reported in (("measured", False), ("given", True)):
         (rows / row).mkdir(parents=True)
-        offsets = {"measured": None, "given": {"cube": (1.5, 3.0), "cylinder": (2.0, 5.0),
-                                               "sphere": (0.5, 4.0)}}[row]
-        pred = write_predictions(rows / row / "predictions.h5", data,
-                                 **({"offsets": offsets} if offsets else {}))
+        offsets = {
+            "measured": None,
+            "given": {"cube": (1.5, 3.0), "cylinder": (2.0, 5.0), "sphere": (0.5, 4.0)},
+        }[row]
+        pred = write_predictions(
+            rows / row / "predictions.h5", data, **({"offsets": offsets} if offsets else {})
+        )
         res = write_results(rows / row / "results.json", data, pred, name=row, ms_per_mesh=7.5)
         _edit(res, res, lambda r, s=self_reported: r["speed"].update(self_reported=s))
     entries, site = tmp_path / "entries", tmp_path / "site"
@@ -119,8 +132,12 @@ def test_old_entries_without_origin_read_as_submitted(tmp_path):
     parameter count are marked even where the file says ``self_reported: false``."""
     committed = store.load_entries(store.DEFAULT_ENTRIES)  # every one still valid
     model = next(e for e in committed if e["kind"] == "model")
-    physics = next(e for e in committed if e["kind"] == "simulator"
-                   and e["dataset"]["fingerprint"] == model["dataset"]["fingerprint"])
+    physics = next(
+        e
+        for e in committed
+        if e["kind"] == "simulator"
+        and e["dataset"]["fingerprint"] == model["dataset"]["fingerprint"]
+    )
     assert "origin" not in model and model["speed"]["self_reported"] is False
     entries, site = tmp_path / "entries", tmp_path / "site"
     entries.mkdir()
@@ -161,27 +178,54 @@ main(sys.argv[4:])
 
 
 @pytest.mark.parametrize("delay", [0.4, 0.4, 0.4, 0.0, 0.0, 0.0])
-def test_concurrent_submissions_of_the_same_predictions_land_once(data, submission, tmp_path,
-                                                                    delay):
+def test_concurrent_submissions_of_the_same_predictions_land_once(
+    data, submission, tmp_path, delay
+):
     results, pred = submission
     entries, go = tmp_path / "entries", tmp_path / "go"
     go.mkdir()
-    procs = [subprocess.Popen([sys.executable, "-c", CHILD, str(go), str(delay), name, "submit",
-                               str(results), "--predictions", str(pred), "--data", str(data),
-                               "--entries", str(entries), "--name", name, "--unregistered"],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              text=True)
-             for name in ("first", "second")]
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                CHILD,
+                str(go),
+                str(delay),
+                name,
+                "submit",
+                str(results),
+                "--predictions",
+                str(pred),
+                "--data",
+                str(data),
+                "--entries",
+                str(entries),
+                "--name",
+                name,
+                "--unregistered",
+            ],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for name in ("first", "second")
+    ]
     outcomes = [(p.returncode, *out) for p in procs for out in [p.communicate(timeout=120)]]
     assert sorted(rc for rc, _, _ in outcomes) == [0, 1], outcomes
     (err,) = [e.strip() for rc, _, e in outcomes if rc == 1]
-    assert "\n" not in err and err.startswith("leaderboard submit: error: ") \
-        and "already on the board" in err, err
+    assert (
+        "\n" not in err
+        and err.startswith("leaderboard submit: error: ")
+        and "already on the board" in err
+    ), err
     assert len(list(entries.glob("*.json"))) == 1
     assert sorted(p.name for p in entries.iterdir()) == [p.name for p in entries.glob("*.json")]
 
 
 # --- 3. no symbolic link is followed -------------------------------------------------------
+
 
 @pytest.fixture
 def secret(tmp_path) -> Path:
@@ -197,8 +241,9 @@ def _tree(root: Path) -> dict[str, bytes | str]:
     for dirpath, dirnames, filenames in os.walk(root):
         for n in dirnames + filenames:
             p = Path(dirpath) / n
-            out[str(p.relative_to(root))] = (f"-> {os.readlink(p)}" if p.is_symlink()
-                                             else b"" if p.is_dir() else p.read_bytes())
+            out[str(p.relative_to(root))] = (
+                f"-> {os.readlink(p)}" if p.is_symlink() else b"" if p.is_dir() else p.read_bytes()
+            )
     return out
 
 
@@ -209,8 +254,11 @@ def test_render_refuses_an_out_that_is_a_symlink(tmp_path):
     link.symlink_to(target, target_is_directory=True)
     before = _tree(tmp_path)
     msg = refused("render", "--out", link, "--entries", entries)
-    assert msg.startswith("leaderboard render: error: ") and str(link) in msg \
-        and "symbolic link" in msg, msg
+    assert (
+        msg.startswith("leaderboard render: error: ")
+        and str(link) in msg
+        and "symbolic link" in msg
+    ), msg
     assert link.is_symlink() and _tree(tmp_path) == before  # no .new link, target untouched
 
 
@@ -291,6 +339,7 @@ def test_serve_never_follows_a_symlink(tmp_path, secret):
                 return r.status, r.read()
         except urllib.error.HTTPError as exc:
             return exc.code, exc.read()
+
     try:
         assert get("index.html") == (200, b"<p>board</p>") and get("sub/ok.txt") == (200, b"ok")
         for path in ("leak.txt", "hostdir/hostname", "hostdir/", "linked/"):
@@ -307,11 +356,22 @@ def test_serve_never_follows_a_symlink(tmp_path, secret):
 
 # --- 4. links and texts cannot break or reorder the board --------------------------------
 
+
 def test_a_pipe_in_a_link_keeps_the_markdown_row_whole(data, submission, tmp_path):
     results, pred = submission
     entries, site = tmp_path / "entries", tmp_path / "site"
-    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
-        "--link", "https://example.org/a|b?x=(1)")
+    run(
+        "submit",
+        results,
+        "--predictions",
+        pred,
+        "--data",
+        data,
+        "--entries",
+        entries,
+        "--link",
+        "https://example.org/a|b?x=(1)",
+    )
     run("render", "--out", site, "--entries", entries)
     md = (site / "LEADERBOARD.md").read_text()
     header = next(line for line in md.splitlines() if line.startswith("| # | Model |"))
@@ -319,13 +379,25 @@ def test_a_pipe_in_a_link_keeps_the_markdown_row_whole(data, submission, tmp_pat
 
     def cells(line: str) -> int:
         return len(re.split(r"(?<!\\)\|", line))
+
     assert cells(row) == cells(header), row
     assert "(https://example.org/a%7Cb?x=%281%29)" in row
     assert 'href="https://example.org/a|b?x=(1)"' in (site / "index.html").read_text()
 
 
-HIDDEN = ["\u202e", "\u202d", "\u2066", "\u200b", "\u200f", "\ufeff", "\u2028", "\u2029",
-          "\x85", "\x7f", "\t"]
+HIDDEN = [
+    "\u202e",
+    "\u202d",
+    "\u2066",
+    "\u200b",
+    "\u200f",
+    "\ufeff",
+    "\u2028",
+    "\u2029",
+    "\x85",
+    "\x7f",
+    "\t",
+]
 
 
 @pytest.mark.parametrize("char", HIDDEN, ids=[f"U+{ord(c):04X}" for c in HIDDEN])
@@ -335,19 +407,30 @@ def test_entry_texts_refuse_control_and_bidi_characters(char):
     assert store.check_text("Graph AE (v2) – über ² 1.5×", "name")  # ordinary text is fine
 
 
-def test_a_bidi_override_is_refused_in_names_and_any_entry_text(data, submission, tmp_path,
-                                                                 capsys):
+def test_a_bidi_override_is_refused_in_names_and_any_entry_text(data, submission, tmp_path, capsys):
     results, pred = submission
     entries = tmp_path / "entries"
-    msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
-                  "--name", "evil\u202egnp.exe")
+    msg = refused(
+        "submit",
+        results,
+        "--predictions",
+        pred,
+        "--data",
+        data,
+        "--entries",
+        entries,
+        "--name",
+        "evil\u202egnp.exe",
+    )
     assert "U+202E" in msg and "name" in msg
-    hidden = _edit(Path(results), tmp_path / "hidden.json",
-                   lambda r: r["model"].update(name="graph\u200bae"))
+    hidden = _edit(
+        Path(results), tmp_path / "hidden.json", lambda r: r["model"].update(name="graph\u200bae")
+    )
     msg = refused("submit", hidden, "--predictions", pred, "--data", data, "--entries", entries)
     assert "U+200B" in msg and str(hidden) in msg
-    hw = _edit(Path(results), tmp_path / "hw.json",
-               lambda r: r["speed"].update(hardware="cpu: \u202efast"))
+    hw = _edit(
+        Path(results), tmp_path / "hw.json", lambda r: r["speed"].update(hardware="cpu: \u202efast")
+    )
     msg = refused("submit", hw, "--predictions", pred, "--data", data, "--entries", entries)
     assert "speed.hardware" in msg and "U+202E" in msg
     assert not entries.exists()

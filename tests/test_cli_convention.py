@@ -10,29 +10,41 @@ import pytest
 
 from basic_shapes import __version__, infra
 
-TOOLS = {"basic-shapes": "basic_shapes.cli", "radar-sim": "radar_sim.cli",
-         "benchmark": "benchmark.cli", "leaderboard": "leaderboard.cli"}
+TOOLS = {
+    "basic-shapes": "basic_shapes.cli",
+    "radar-sim": "radar_sim.cli",
+    "benchmark": "benchmark.cli",
+    "leaderboard": "leaderboard.cli",
+}
 
 
 @pytest.mark.parametrize("tool", TOOLS)
 def test_every_tool_prints_the_toolkit_version(tool):
-    proc = subprocess.run([sys.executable, "-m", TOOLS[tool], "--version"],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", TOOLS[tool], "--version"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0 and proc.stdout.strip() == f"{tool} {__version__}"
 
 
 def _raising(exc):
     def body(argv):
         raise exc
+
     return body
 
 
-@pytest.mark.parametrize("raised, shown", [
-    (SystemExit("tool run: oops"), "tool run: error: oops"),
-    (SystemExit("tool: error: oops"), "tool run: error: oops"),
-    (SystemExit("data/x.h5: broken"), "tool run: error: data/x.h5: broken"),
-    (ValueError("--data d: empty"), "tool run: error: --data d: empty"),
-])
+@pytest.mark.parametrize(
+    "raised, shown",
+    [
+        (SystemExit("tool run: oops"), "tool run: error: oops"),
+        (SystemExit("tool: error: oops"), "tool run: error: oops"),
+        (SystemExit("data/x.h5: broken"), "tool run: error: data/x.h5: broken"),
+        (ValueError("--data d: empty"), "tool run: error: --data d: empty"),
+    ],
+)
 def test_errors_carry_tool_and_command_once(raised, shown):
     with pytest.raises(SystemExit) as info:
         infra.cli_boundary("tool", _raising(raised), ["run", "--flag"])

@@ -114,9 +114,11 @@ def test_a_corpus_is_a_prefix_of_a_larger_one():
 
 
 def test_same_bytes_in_a_fresh_process():
-    code = ("import sys; sys.path.insert(0, 'tests'); from test_corpus import digest\n"
-            "from benchmark.corpus import procedural_corpus\n"
-            "print(digest(procedural_corpus(12, 9, 200)))")
+    code = (
+        "import sys; sys.path.insert(0, 'tests'); from test_corpus import digest\n"
+        "from benchmark.corpus import procedural_corpus\n"
+        "print(digest(procedural_corpus(12, 9, 200)))"
+    )
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     )
@@ -338,7 +340,7 @@ def test_shapenet_double_sided_faces_keep_one_copy(tmp_path):
     lines = [f"v {x} {y} {z}" for x, y, z in grid]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in up + [t[::-1] for t in up]]  # both sides
     model_path(root, "04379243", "t").write_text("\n".join(lines) + "\n")
-    (v, f, c), = C.load_shapenet(root)
+    ((v, f, c),) = C.load_shapenet(root)
     assert c == 0 and len(v) == 6 and len(f) == 4
     normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     assert np.all(normals[:, 2] > 0)  # the first-listed side is kept

@@ -163,12 +163,14 @@ def test_pyg_view_batches_with_pyg_loader(data):
     assert batch.num_graphs == 4 and batch.y.shape == (4, *data.target_shape)
     # faces are offset per graph by PyG, so they still index their own graph's vertices
     assert batch.face.max() < batch.pos.shape[0] and batch.mesh_uid.tolist() == [
-        int(data.meshes["uid"][r]) for r in ds.rows[:4]]
+        int(data.meshes["uid"][r]) for r in ds.rows[:4]
+    ]
 
 
 def test_any_grid_size(tmp_path):
-    d = BenchmarkData(make_dataset(tmp_path, objects_per_class=2, n_test_per_class=1, n_shards=1,
-                                   grid=(4, 3, 9)))
+    d = BenchmarkData(
+        make_dataset(tmp_path, objects_per_class=2, n_test_per_class=1, n_shards=1, grid=(4, 3, 9))
+    )
     assert d.target_shape == (4, 3, 9) and d.target(0).shape == (4, 3, 9)
 
 
@@ -231,8 +233,13 @@ def test_evaluator_scores_arrays_through_the_harness_path(data, data_dir, tmp_pa
     noisy = oracle.numpy() + rng.normal(0, 3, oracle.shape).astype(np.float32)
     order = rng.permutation(len(uid))
     got = ev.eval({"mesh_uid": uid.numpy()[order], "target_db": noisy[order]})
-    write_predictions(tmp_path / "p.h5", data.fingerprint, uid.numpy(), noisy,
-                      label_fingerprint=data.label_fingerprint)
+    write_predictions(
+        tmp_path / "p.h5",
+        data.fingerprint,
+        uid.numpy(),
+        noisy,
+        label_fingerprint=data.label_fingerprint,
+    )
     assert got == score_predictions(data_dir, tmp_path / "p.h5")
     with pytest.raises(PredictionsError, match="missing 1 of"):
         ev.eval({"mesh_uid": uid[1:], "target_db": oracle[1:]})

@@ -31,7 +31,7 @@ def examples() -> list:
     for doc in DOCS:
         text = doc.read_text()
         for i, m in enumerate(BLOCK.finditer(text)):
-            line = text[:m.start()].count("\n") + 1
+            line = text[: m.start()].count("\n") + 1
             out.append(pytest.param(m.group(1), id=f"{doc.name}:{line}:{i}"))
     return out
 
@@ -40,10 +40,19 @@ def examples() -> list:
 def scratch(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("docs")
     data = root / "tiny-v1"
-    for cmd in (["benchmark.cli", "dataset", "tiny-v1", "--data", str(data), "--workers", "0",
-                 "--quiet"],
-                ["basic_shapes.cli", "export", "--data", str(data), "--format", "g2s", "--out",
-                 str(root / "out")]):
+    for cmd in (
+        ["benchmark.cli", "dataset", "tiny-v1", "--data", str(data), "--workers", "0", "--quiet"],
+        [
+            "basic_shapes.cli",
+            "export",
+            "--data",
+            str(data),
+            "--format",
+            "g2s",
+            "--out",
+            str(root / "out"),
+        ],
+    ):
         proc = subprocess.run([sys.executable, "-m", *cmd], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
     (root / "out" / "demo").mkdir()
@@ -65,12 +74,16 @@ def placeholders(target_shape) -> dict:
     def my_network(batch):
         return np.full((len(batch["scale_m"]), *target_shape), -40.0, np.float32)
 
-    return {"my_model": my_model, "my_network": my_network,
-            "vertices": np.asarray(cube.vertices, np.float32),
-            "faces": np.asarray(cube.faces, np.int32),
-            "frequencies_hz": np.linspace(8e9, 12e9, 16), "freq_hz": np.linspace(8e9, 12e9, 16),
-            "directions": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
-            "aspect_deg": np.array([0.0, 45.0, 90.0])}
+    return {
+        "my_model": my_model,
+        "my_network": my_network,
+        "vertices": np.asarray(cube.vertices, np.float32),
+        "faces": np.asarray(cube.faces, np.int32),
+        "frequencies_hz": np.linspace(8e9, 12e9, 16),
+        "freq_hz": np.linspace(8e9, 12e9, 16),
+        "directions": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+        "aspect_deg": np.array([0.0, 45.0, 90.0]),
+    }
 
 
 def test_every_doc_has_its_examples_collected():

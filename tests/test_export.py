@@ -30,8 +30,13 @@ CONFIG = radar_sim.RadarConfig(name="g2s-test", n_aspect=7, n_roll=4, n_freq=64,
 def raw(tmp_path_factory):
     """3 objects (cube, cylinder, sphere), simple mesh + 2 variants, 2 objects per shard."""
     out = tmp_path_factory.mktemp("g2s") / "raw"
-    cfg = GenerateConfig(classes=("cube", "cylinder", "sphere"), objects_per_class=1,
-                         variants=2, seed=3, objects_per_shard=2)
+    cfg = GenerateConfig(
+        classes=("cube", "cylinder", "sphere"),
+        objects_per_class=1,
+        variants=2,
+        seed=3,
+        objects_per_shard=2,
+    )
     generate(out, cfg, workers=0, progress=False)
     return out
 
@@ -52,13 +57,13 @@ def exported(labelled, tmp_path_factory):
 
 
 def open_like_the_group(directory):
-    return xr.open_mfdataset(sorted(glob(f"{directory}/*.nc")), engine="h5netcdf",
-                             combine="nested", concat_dim="sample")
+    return xr.open_mfdataset(
+        sorted(glob(f"{directory}/*.nc")), engine="h5netcdf", combine="nested", concat_dim="sample"
+    )
 
 
 def digests(directory):
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(directory.iterdir())}
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(directory.iterdir())}
 
 
 def obj_seed(directory, object_id):
@@ -92,8 +97,16 @@ def test_the_groups_loader_reads_labels_and_coordinates(labelled, exported):
     bin_m = C0 / (2 * 64 * 4e9 / 63)  # c / (2 N df), df = 4 GHz / 63 intervals
     np.testing.assert_allclose(ds["range"].values, np.arange(-31, 32) * bin_m, rtol=1e-12)
     assert (ds["frequency"].values == 10e9).all() and (ds["bandwidth"].values == 4e9).all()
-    units = {"rti": "m", "aspect_rad": "rad", "roll_rad": "rad", "range": "m", "scale": "m",
-             "frequency": "Hz", "bandwidth": "Hz", "rep_mesh_vertices": "m"}
+    units = {
+        "rti": "m",
+        "aspect_rad": "rad",
+        "roll_rad": "rad",
+        "range": "m",
+        "scale": "m",
+        "frequency": "Hz",
+        "bandwidth": "Hz",
+        "rep_mesh_vertices": "m",
+    }
     assert {name: ds[name].attrs.get("units") for name in units} == units
 
 
@@ -114,11 +127,11 @@ def test_meshes_are_padded_and_match_the_shards(exported, labelled):
             face = sample["rep_mesh_faces"].values[variant]
             assert sample["rep_mesh_n_vertices"].values[variant] == len(v)
             assert sample["rep_mesh_n_faces"].values[variant] == len(f)
-            np.testing.assert_array_equal(vert[:len(v)], v)
-            np.testing.assert_array_equal(face[:len(f)], f)
-            assert (vert[len(v):] == PAD).all() and (face[len(f):] == PAD).all()
+            np.testing.assert_array_equal(vert[: len(v)], v)
+            np.testing.assert_array_equal(face[: len(f)], f)
+            assert (vert[len(v) :] == PAD).all() and (face[len(f) :] == PAD).all()
             # what a loader that strips trailing all-PAD rows gets back: exactly the mesh
-            assert not (vert[:len(v)] == PAD).all(axis=1).any()
+            assert not (vert[: len(v)] == PAD).all(axis=1).any()
             largest = max(largest, len(v))
     assert n_v == largest + 1 and n_f > 1
     assert ds["rep_mesh_vertices"].attrs["pad_value"] == PAD == ds.attrs["pad_value"]

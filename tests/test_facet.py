@@ -19,7 +19,7 @@ K = 2 * np.pi * np.array([1e9, 8e9, 12e9]) / C0
 
 def dd_ref(x1, x2, x3):
     """exp[j x1, j x2, j x3] for exact float (or mpf) phases."""
-    with mpmath.workdps(80):                 # keep every digit of mpf inputs
+    with mpmath.workdps(80):  # keep every digit of mpf inputs
         xs = sorted(+mpmath.mpf(v) for v in (x1, x2, x3))
     gaps = [g for g in (xs[1] - xs[0], xs[2] - xs[1]) if g != 0]
     big = max([abs(v) for v in xs] + [mpmath.mpf(1)])
@@ -48,8 +48,11 @@ def field_ref(tri, direction, k, two_sided=True):
         r = [mpmath.mpf(float(c)) for c in direction]
         e1 = [v[1][i] - v[0][i] for i in range(3)]
         e2 = [v[2][i] - v[0][i] for i in range(3)]
-        cross = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
-                 e1[0] * e2[1] - e1[1] * e2[0]]
+        cross = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ]
         proj = sum(cross[i] * r[i] for i in range(3)) / 2
         proj = abs(proj) if two_sided else max(proj, 0)
         kk = mpmath.mpf(float(k))
@@ -71,7 +74,7 @@ def tilt(angle):
     return np.array([np.sin(angle), 0.0, np.cos(angle)])
 
 
-TRI = np.array([[0.02, -0.01, 0.05], [0.11, 0.03, 0.05], [0.04, 0.09, 0.05]])   # z = 0.05 plane
+TRI = np.array([[0.02, -0.01, 0.05], [0.11, 0.03, 0.05], [0.04, 0.09, 0.05]])  # z = 0.05 plane
 SQUARE_EDGE = np.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.07, 0.03, 0.0]])  # an edge along y
 
 HARD = {
@@ -158,8 +161,12 @@ def test_divided_difference_hard_phases():
     cases = []
     for base in (0.0, 1.0, 123.456, -400.0, 3.0e5):
         for gap in (0.0, 1e-300, 1e-16, 1e-10, 1e-5, 0.2499, 0.2501, 0.4999, 0.5001, 1.0, 3.0, 1e3):
-            cases += [(base, base, base + gap), (base, base + gap, base + gap),
-                      (base, base + gap, base + 2 * gap), (base + gap, base, base - gap / 3)]
+            cases += [
+                (base, base, base + gap),
+                (base, base + gap, base + gap),
+                (base, base + gap, base + 2 * gap),
+                (base + gap, base, base - gap / 3),
+            ]
     x = np.array(cases)
     got = facet.exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])
     for xi, g in zip(x, got):
@@ -177,12 +184,22 @@ def test_divided_difference_at_its_own_zero():
 
 def test_cis_matches_mpmath_including_fallback_range():
     rng = np.random.default_rng(0)
-    x = np.concatenate([rng.uniform(-1e3, 1e3, 300), rng.uniform(-6e6, 6e6, 100),
-                        [0.0, np.pi, -np.pi / 2, 1e7, -3e7], rng.uniform(-1e-3, 1e-3, 20)])
+    x = np.concatenate(
+        [
+            rng.uniform(-1e3, 1e3, 300),
+            rng.uniform(-6e6, 6e6, 100),
+            [0.0, np.pi, -np.pi / 2, 1e7, -3e7],
+            rng.uniform(-1e-3, 1e-3, 20),
+        ]
+    )
     lo = rng.uniform(-1e-12, 1e-12, len(x))
     with mpmath.workdps(40):
-        ref = np.array([complex(mpmath.expj(mpmath.mpf(float(a)) + mpmath.mpf(float(b))))
-                        for a, b in zip(x, lo)])
+        ref = np.array(
+            [
+                complex(mpmath.expj(mpmath.mpf(float(a)) + mpmath.mpf(float(b))))
+                for a, b in zip(x, lo)
+            ]
+        )
     assert np.max(np.abs(facet.cis(x, lo) - ref)) <= 4e-16 + 2e-16 * np.abs(lo).max()
     assert np.max(np.abs(facet.cis(x[:320]) - np.exp(1j * x[:320]))) < 1e-15
 
@@ -239,16 +256,26 @@ def uv_ellipsoid(segments, rings, axes):
     (near-pair facets) at axis-aligned views, and small facets near the poles."""
     theta = np.pi * np.arange(1, rings) / rings
     phi = 2 * np.pi * np.arange(segments) / segments
-    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
-                     np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments))], -1)
+    ring = np.stack(
+        [
+            np.sin(theta)[:, None] * np.cos(phi),
+            np.sin(theta)[:, None] * np.sin(phi),
+            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
+        ],
+        -1,
+    )
     v = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * axes
     idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
     nxt = np.roll(idx, -1, axis=1)
     south = len(v) - 1
-    f = np.concatenate([np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
-                        np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
-                        np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
-                        np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1)])
+    f = np.concatenate(
+        [
+            np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
+            np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
+            np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
+            np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1),
+        ]
+    )
     return v, f
 
 
@@ -259,8 +286,9 @@ def test_fast_path_matches_stable_sum_on_a_uv_ellipsoid(grid):
     (phasor recurrences of the special facets) and an irregular one."""
     v, f = uv_ellipsoid(48, 40, np.array([0.5, 0.7, 0.9]))
     rng = np.random.default_rng(4)
-    dirs = np.concatenate([np.eye(3), -np.eye(3), [unit(1, 1, 0), unit(0, 1, 1)],
-                           rng.normal(size=(8, 3))])
+    dirs = np.concatenate(
+        [np.eye(3), -np.eye(3), [unit(1, 1, 0), unit(0, 1, 1)], rng.normal(size=(8, 3))]
+    )
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     freqs = np.linspace(8e9, 12e9, 64)
     if grid == "irregular":

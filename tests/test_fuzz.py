@@ -91,7 +91,7 @@ def check(case: str, path: Path, run, expected, refusals) -> str | None:
     try:
         got = run()
     except refusals as exc:
-        named = path.name in str(exc) or str(path.parent) in str(exc)   # the file or its dataset
+        named = path.name in str(exc) or str(path.parent) in str(exc)  # the file or its dataset
         return None if named else f"{case}: refusal without the file: {exc}"
     except Exception as exc:  # any other exception is the finding
         return f"{case}: {type(exc).__name__}: {str(exc)[:120]}"
@@ -105,13 +105,19 @@ def clean(tmp_path_factory):
     with BenchmarkData(data) as d:
         rows = d.mesh_rows("test")
         targets = np.stack([d.target(int(d.meshes["object"][r])) for r in rows]) + 1.0
-        write_predictions(root / "pred.h5", d.fingerprint, d.meshes["uid"][rows], targets,
-                          label_fingerprint=d.label_fingerprint)
+        write_predictions(
+            root / "pred.h5",
+            d.fingerprint,
+            d.meshes["uid"][rows],
+            targets,
+            label_fingerprint=d.label_fingerprint,
+        )
     from benchmark.evaluate import evaluate
     from benchmark.protocol import write_results
 
-    write_results(root / "results.json", evaluate(data, predictions=root / "pred.h5",
-                                                  progress=False))
+    write_results(
+        root / "results.json", evaluate(data, predictions=root / "pred.h5", progress=False)
+    )
     return root
 
 
@@ -127,8 +133,9 @@ def test_flipped_shards_are_refused_or_read_identically(clean, tmp_path):
         shutil.copytree(source, work)
         shard = work / "shard-00000.h5"
         where = flip(shard, rng, regions)
-        problem = check(f"shard case {i} ({where})", shard, lambda w=work: read_shards(w),
-                        expected, ShardError)
+        problem = check(
+            f"shard case {i} ({where})", shard, lambda w=work: read_shards(w), expected, ShardError
+        )
         if problem:
             failures.append(problem)
         shutil.rmtree(work)
@@ -151,8 +158,13 @@ def test_flipped_predictions_are_refused_or_score_identically(clean, tmp_path):
         work = tmp_path / f"pred-{i}.h5"
         shutil.copyfile(source, work)
         where = flip(work, rng, regions)
-        problem = check(f"predictions case {i} ({where})", work, lambda w=work: scored(w),
-                        expected, (PredictionsError, ShardError))
+        problem = check(
+            f"predictions case {i} ({where})",
+            work,
+            lambda w=work: scored(w),
+            expected,
+            (PredictionsError, ShardError),
+        )
         # predictions carry no hash of their own: a flipped value is another prediction, scored
         if problem and "accepted with different content" not in problem:
             failures.append(problem)
@@ -169,9 +181,13 @@ def test_flipped_results_are_refused_or_load_identically(clean, tmp_path):
         work = tmp_path / f"results-{i}.json"
         shutil.copyfile(source, work)
         where = flip(work, rng, [])
-        problem = check(f"results case {i} ({where})", work,
-                        lambda w=work: json.dumps(load_results(w), sort_keys=True),
-                        expected, ResultsError)
+        problem = check(
+            f"results case {i} ({where})",
+            work,
+            lambda w=work: json.dumps(load_results(w), sort_keys=True),
+            expected,
+            ResultsError,
+        )
         # a flipped digit is a different but valid result: load_results cannot know; the
         # board re-scores it against the predictions (tests/test_leaderboard.py)
         if problem and "accepted with different content" not in problem:

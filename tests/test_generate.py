@@ -15,8 +15,18 @@ from basic_shapes import cli
 from basic_shapes.generate import GenerateConfig, plan_objects
 from basic_shapes.shards import Shard, dataset_fingerprint, iter_objects
 
-SMALL = ["--classes", "cube,cylinder,sphere", "--objects-per-class", "2", "--variants", "3",
-         "--objects-per-shard", "2", "--seed", "5"]
+SMALL = [
+    "--classes",
+    "cube,cylinder,sphere",
+    "--objects-per-class",
+    "2",
+    "--variants",
+    "3",
+    "--objects-per-shard",
+    "2",
+    "--seed",
+    "5",
+]
 
 
 def _digests(d):
@@ -97,8 +107,20 @@ def test_split_is_ninety_ten_by_object():
 
 
 def test_resume_after_kill_is_byte_identical(tmp_path):
-    args = ["--classes", "cube", "--objects-per-class", "3", "--variants", "40",
-            "--objects-per-shard", "1", "--seed", "9", "--workers", "0"]
+    args = [
+        "--classes",
+        "cube",
+        "--objects-per-class",
+        "3",
+        "--variants",
+        "40",
+        "--objects-per-shard",
+        "1",
+        "--seed",
+        "9",
+        "--workers",
+        "0",
+    ]
     assert cli.main(["generate", "--data", str(tmp_path / "ref"), *args]) == 0
     out = tmp_path / "killed"
     proc = subprocess.Popen(
@@ -120,14 +142,17 @@ def test_resume_after_kill_is_byte_identical(tmp_path):
     assert not list(out.glob("*.tmp"))
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--classes", "cube,pyramid"], "unknown class pyramid"),
-    (["--objects-per-class", "0"], "argument --objects-per-class: '0' must be >= 1"),
-    (["--variants", "-1"], "argument --variants: '-1' must be >= 0"),
-    (["--variants", "900"], "900-999 for OOD meshes"),
-    (["--ood-variants", "26"], "argument --ood-variants: '26' must be <= 25"),
-    (["--objects-per-class", "100000", "--scale-range", "1.0", "1.1"], "dissimilar scales"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--classes", "cube,pyramid"], "unknown class pyramid"),
+        (["--objects-per-class", "0"], "argument --objects-per-class: '0' must be >= 1"),
+        (["--variants", "-1"], "argument --variants: '-1' must be >= 0"),
+        (["--variants", "900"], "900-999 for OOD meshes"),
+        (["--ood-variants", "26"], "argument --ood-variants: '26' must be <= 25"),
+        (["--objects-per-class", "100000", "--scale-range", "1.0", "1.1"], "dissimilar scales"),
+    ],
+)
 def test_bad_generate_arguments(tmp_path, args, message):
     sizes = ["--objects-per-class", "1", "--variants", "0"]  # the last of a flag wins
     r = _run_cli("generate", "--data", str(tmp_path / "x"), *sizes, *args)

@@ -36,38 +36,48 @@ def stable_sum(v, f, freqs, direction):
 
 # --- errors ----------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("vertices, faces, message", [
-    (np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 0]]), TRI_F, "vertex 2 is not finite"),
-    (np.array([[0, 0, 0], [np.inf, 0, 0], [0, 1, 0]]), TRI_F, "vertex 1 is not finite"),
-    (TRI_V, np.array([[0, 1, 3]]), "face 0 refers to vertex [0, 1, 3]"),
-    (TRI_V, np.array([[0, 1, 2], [-1, 1, 2]]), "face 1 refers to vertex [-1, 1, 2]"),
-    (np.zeros((0, 3)), np.zeros((0, 3), dtype=int), "mesh is empty"),
-    (TRI_V, np.zeros((0, 3), dtype=int), "mesh is empty"),
-    (TRI_V[:, :2], TRI_F, "vertices must have shape (V, 3)"),
-    (TRI_V, np.array([[0, 1, 2, 0]]), "faces must have shape (F, 3)"),
-    (TRI_V, np.array([0, 1, 2]), "faces must have shape (F, 3)"),
-    (TRI_V, TRI_F.astype(float), "faces must be integer vertex indices"),
-    (TRI_V.astype(complex), TRI_F, "vertices must be real numbers"),
-    (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), TRI_F, "no face with non-zero area"),
-    (TRI_V, np.array([[0, 0, 1]]), "no face with non-zero area"),
-])
+
+@pytest.mark.parametrize(
+    "vertices, faces, message",
+    [
+        (np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 0]]), TRI_F, "vertex 2 is not finite"),
+        (np.array([[0, 0, 0], [np.inf, 0, 0], [0, 1, 0]]), TRI_F, "vertex 1 is not finite"),
+        (TRI_V, np.array([[0, 1, 3]]), "face 0 refers to vertex [0, 1, 3]"),
+        (TRI_V, np.array([[0, 1, 2], [-1, 1, 2]]), "face 1 refers to vertex [-1, 1, 2]"),
+        (np.zeros((0, 3)), np.zeros((0, 3), dtype=int), "mesh is empty"),
+        (TRI_V, np.zeros((0, 3), dtype=int), "mesh is empty"),
+        (TRI_V[:, :2], TRI_F, "vertices must have shape (V, 3)"),
+        (TRI_V, np.array([[0, 1, 2, 0]]), "faces must have shape (F, 3)"),
+        (TRI_V, np.array([0, 1, 2]), "faces must have shape (F, 3)"),
+        (TRI_V, TRI_F.astype(float), "faces must be integer vertex indices"),
+        (TRI_V.astype(complex), TRI_F, "vertices must be real numbers"),
+        (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), TRI_F, "no face with non-zero area"),
+        (TRI_V, np.array([[0, 0, 1]]), "no face with non-zero area"),
+    ],
+)
 def test_bad_meshes_raise_one_line_mesh_errors(vertices, faces, message):
-    for call in (lambda: monostatic_field(vertices, faces, [1e10], UP),
-                 lambda: simulate(vertices, faces), lambda: detect_mode(vertices, faces)):
+    for call in (
+        lambda: monostatic_field(vertices, faces, [1e10], UP),
+        lambda: simulate(vertices, faces),
+        lambda: detect_mode(vertices, faces),
+    ):
         with pytest.raises(MeshError) as info:
             call()
         assert message in str(info.value)
         assert "\n" not in str(info.value)
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"frequencies_hz": [0.0]}, "positive Hz"),
-    ({"frequencies_hz": [np.nan]}, "positive Hz"),
-    ({"frequencies_hz": []}, "non-empty"),
-    ({"directions": [[0, 0, 2.0]]}, "unit vectors"),
-    ({"directions": [[0, 1.0]]}, "shape (n, 3)"),
-    ({"mode": "fast"}, "mode must be one of"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"frequencies_hz": [0.0]}, "positive Hz"),
+        ({"frequencies_hz": [np.nan]}, "positive Hz"),
+        ({"frequencies_hz": []}, "non-empty"),
+        ({"directions": [[0, 0, 2.0]]}, "unit vectors"),
+        ({"directions": [[0, 1.0]]}, "shape (n, 3)"),
+        ({"mode": "fast"}, "mode must be one of"),
+    ],
+)
 def test_bad_arguments_raise_value_errors(kwargs, message):
     args = {"frequencies_hz": [1e10], "directions": UP, "mode": "auto"} | kwargs
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
@@ -80,19 +90,23 @@ def test_radar_config_files(tmp_path):
     good.write_text(config.to_json())
     assert RadarConfig.from_file(good) == config
     assert RadarConfig.from_file(good).directions().shape == (20, 3)
-    cases = {"notjson": "{", "list": "[1, 2]", "unknown": json.dumps({"colour": "red"}),
-             "bad": json.dumps({"name": "x", "n_freq": 1}),
-             "even": json.dumps({"name": "x", "n_range": 100}),
-             "fraction": json.dumps({"name": "x", "n_roll": 2.5}),
-             "nameless": json.dumps({"n_roll": 4}),
-             "reserved": json.dumps({"name": "xband-v1", "n_roll": 4}),
-             "huge grid": json.dumps({"name": "x", "n_aspect": 3601, "n_roll": 7200}),
-             "huge axis": json.dumps({"name": "x", "n_aspect": 10**8}),
-             "infinite band": '{"name": "x", "f_stop_hz": Infinity}',
-             "overflow": '{"name": "x", "f_stop_hz": 1e999}',
-             "terahertz": json.dumps({"name": "x", "f_stop_hz": 2e12}),
-             "null": json.dumps({"name": "x", "n_roll": None}),
-             "deep": '{"name": ' + "[" * 5000 + "]" * 5000 + "}"}
+    cases = {
+        "notjson": "{",
+        "list": "[1, 2]",
+        "unknown": json.dumps({"colour": "red"}),
+        "bad": json.dumps({"name": "x", "n_freq": 1}),
+        "even": json.dumps({"name": "x", "n_range": 100}),
+        "fraction": json.dumps({"name": "x", "n_roll": 2.5}),
+        "nameless": json.dumps({"n_roll": 4}),
+        "reserved": json.dumps({"name": "xband-v1", "n_roll": 4}),
+        "huge grid": json.dumps({"name": "x", "n_aspect": 3601, "n_roll": 7200}),
+        "huge axis": json.dumps({"name": "x", "n_aspect": 10**8}),
+        "infinite band": '{"name": "x", "f_stop_hz": Infinity}',
+        "overflow": '{"name": "x", "f_stop_hz": 1e999}',
+        "terahertz": json.dumps({"name": "x", "f_stop_hz": 2e12}),
+        "null": json.dumps({"name": "x", "n_roll": None}),
+        "deep": '{"name": ' + "[" * 5000 + "]" * 5000 + "}",
+    }
     for name, text in cases.items():
         path = tmp_path / f"{name}.json"
         path.write_text(text)
@@ -106,6 +120,7 @@ def test_radar_config_files(tmp_path):
 def test_radar_config_size_bounds_follow_memory():
     """docs/RADAR.md "Config bounds": at most MAX_GRID_SAMPLES grid samples (48 B each)."""
     from radar_sim.config import MAX_GRID_SAMPLES
+
     assert RadarConfig(name="big", n_aspect=2048, n_roll=64, n_freq=128).n_aspect == 2048
     assert 2048 * 64 * 128 == MAX_GRID_SAMPLES
     with pytest.raises(ValueError, match="memory"):
@@ -116,13 +131,14 @@ def test_radar_config_size_bounds_follow_memory():
 
 # --- documented behaviours -------------------------------------------------------------------
 
+
 def test_zero_area_and_duplicate_faces_are_dropped():
     v, f = box()
     extra_v = np.concatenate([v, [[0.05, 0.05, 0.25], [0.1, 0.1, 0.25]]])
-    junk = np.array([[0, 0, 1], [8, 8, 9]])                         # repeated indices
+    junk = np.array([[0, 0, 1], [8, 8, 9]])  # repeated indices
     collinear = np.array([[0.0, 0.0, 0.25], [0.05, 0.05, 0.25], [0.1, 0.1, 0.25]])
     extra_v = np.concatenate([extra_v, collinear])
-    junk = np.concatenate([junk, [[10, 11, 12]], f[:3], f[:2, ::-1]])   # collinear, duplicates
+    junk = np.concatenate([junk, [[10, 11, 12]], f[:3], f[:2, ::-1]])  # collinear, duplicates
     freqs = np.linspace(8e9, 12e9, 16)
     dirs = np.array([[0.3, 0.4, np.sqrt(0.75)], [0.0, 0.0, 1.0], [-0.6, 0.0, -0.8]])
     clean = monostatic_field(v, f, freqs, dirs)
@@ -138,8 +154,10 @@ def test_duplicated_vertices_are_welded():
     soup_f = np.arange(len(soup_v)).reshape(-1, 3)
     dirs = np.array([[0.48, 0.6, 0.64], [0.0, -1.0, 0.0]])
     assert detect_mode(soup_v, soup_f) == "convex"
-    assert np.array_equal(monostatic_field(soup_v, soup_f, [9e9, 1e10], dirs),
-                          monostatic_field(v, f, [9e9, 1e10], dirs))
+    assert np.array_equal(
+        monostatic_field(soup_v, soup_f, [9e9, 1e10], dirs),
+        monostatic_field(v, f, [9e9, 1e10], dirs),
+    )
 
 
 def test_open_and_inward_meshes():
@@ -152,8 +170,9 @@ def test_open_and_inward_meshes():
     inward = f[:, ::-1]
     dirs = np.array([[0.48, 0.6, 0.64]])
     assert detect_mode(v, inward) == "convex"
-    assert np.array_equal(monostatic_field(v, inward, [1e10], dirs),
-                          monostatic_field(v, f, [1e10], dirs))
+    assert np.array_equal(
+        monostatic_field(v, inward, [1e10], dirs), monostatic_field(v, f, [1e10], dirs)
+    )
     # through the missing face the radar sees the inside of the opposite wall
     missing = trimesh.Trimesh(v, f[-2:]).face_normals[0]
     seen = monostatic_field(v, open_f, [1e10], missing, mode="shadowed")
@@ -167,13 +186,13 @@ def test_grazing_switch_is_continuous():
     eps_deg = np.array([-1e-6, 0.0, 1e-6])
     theta = np.radians(90.0 + eps_deg)
     dirs = np.stack([np.sin(theta), 0 * theta, np.cos(theta)], axis=1)
-    dirs[1] = [1.0, 0.0, 0.0]                       # exact grazing for the ±z faces
+    dirs[1] = [1.0, 0.0, 0.0]  # exact grazing for the ±z faces
     freqs = np.linspace(8e9, 12e9, 128)
     got = monostatic_field(v, f, freqs, dirs)
     assert np.all(np.isfinite(got))
     assert np.max(np.abs(got[0] - got[1])) < 1e-4 * np.max(np.abs(got[1]))
     assert np.max(np.abs(got[2] - got[1])) < 1e-4 * np.max(np.abs(got[1]))
-    edge_on = monostatic_field(TRI_V, TRI_F, freqs, dirs[1])     # a plate in z = 0
+    edge_on = monostatic_field(TRI_V, TRI_F, freqs, dirs[1])  # a plate in z = 0
     assert np.all(edge_on == 0)
 
 
@@ -191,24 +210,24 @@ def test_very_small_and_very_large_objects(size, freq):
         a = monostatic_field(plate_v, plate_f, [freq], UP)[0, 0]
         got = monostatic_field(v, f, freqs, direction)[0]
     assert any(issubclass(w.category, UnitsWarning) for w in caught) == (size > 100)
-    exact = np.sqrt(4 * np.pi) * size ** 2 / (C0 / freq)
+    exact = np.sqrt(4 * np.pi) * size**2 / (C0 / freq)
     assert abs(abs(a) - exact) <= 1e-12 * exact
     ref = stable_sum(v, f, freqs, direction)
-    scale = size ** 2 * 2 * np.pi * freqs / C0        # facet scale A k
+    scale = size**2 * 2 * np.pi * freqs / C0  # facet scale A k
     assert np.max(np.abs(got - ref) / scale) <= 1e-9
 
 
 def test_objects_must_fit_the_range_window():
-    v, f = box((3.0, 3.0, 3.0))                      # radius 2.6 m > 1.97 m
+    v, f = box((3.0, 3.0, 3.0))  # radius 2.6 m > 1.97 m
     with pytest.raises(MeshError, match="beyond the ±1.971 m range window of 'xband-v1'$"):
         simulate(v, f)
-    monostatic_field(v, f, [1e10], UP)               # no window there
+    monostatic_field(v, f, [1e10], UP)  # no window there
 
 
 def test_millimetre_meshes():
     """Rule: simulate refuses meshes beyond the range window and says "millimetres" when a
     factor 1000 would make them fit; monostatic_field warns above 100 m of radius."""
-    v, f = box((500.0, 400.0, 300.0))               # a 0.5 m box written in mm
+    v, f = box((500.0, 400.0, 300.0))  # a 0.5 m box written in mm
     with pytest.raises(MeshError, match="looks like millimetres"):
         simulate(v, f)
     with pytest.warns(UnitsWarning, match="millimetres"):
@@ -244,7 +263,7 @@ def test_modes_are_detected_recorded_and_forced():
     config = RadarConfig(name="t", n_aspect=2, n_roll=1)
     assert simulate(v, f, config).mode == "convex"
     assert simulate(v, f, config, mode="shadowed").mode == "shadowed"
-    ell = (manifold3d.Manifold.cube([0.4, 0.1, 0.3]) + manifold3d.Manifold.cube([0.1, 0.4, 0.3]))
+    ell = manifold3d.Manifold.cube([0.4, 0.1, 0.3]) + manifold3d.Manifold.cube([0.1, 0.4, 0.3])
     ell = ell.to_mesh()
     assert (
         detect_mode(np.asarray(ell.vert_properties)[:, :3], np.asarray(ell.tri_verts)) == "bounce2"
@@ -262,11 +281,18 @@ def test_radar_sim_never_imports_bpy_or_torch():
     import subprocess
     import sys
 
-    code = ("import sys, numpy as np, radar_sim\n"
-            "v = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0.0]])\n"
-            "config = radar_sim.RadarConfig(name='t', n_aspect=3, n_roll=2)\n"
-            "radar_sim.simulate(v, [[0, 1, 2]], config, mode='bounce2')\n"
-            "print(sorted(m for m in ('bpy', 'torch') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+    code = (
+        "import sys, numpy as np, radar_sim\n"
+        "v = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0.0]])\n"
+        "config = radar_sim.RadarConfig(name='t', n_aspect=3, n_roll=2)\n"
+        "radar_sim.simulate(v, [[0, 1, 2]], config, mode='bounce2')\n"
+        "print(sorted(m for m in ('bpy', 'torch') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=str(__import__("pathlib").Path(__file__).parents[1]),
+    )
     assert out.stdout.strip() == "[]"

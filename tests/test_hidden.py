@@ -53,7 +53,7 @@ def test_simulation_mesh_volume_and_area_against_closed_form(ratio):
     a, b, c = 0.35, 0.2, 0.3
     v, f = analytic.simulation_mesh(frustum((2 * a, 2 * b, 2 * c), ratio), 12e9)
     volume, _, _ = mesh_volume_area(v, f)
-    exact = 2 * c * math.pi * a * b * (1 + ratio + ratio ** 2) / 3
+    exact = 2 * c * math.pi * a * b * (1 + ratio + ratio**2) / 3
     assert exact * 0.995 <= volume <= exact  # inscribed: below, by the polygon's sagitta
     # circular: the lateral area (side faces, not horizontal) is pi (R + r) slant
     r0 = 0.3
@@ -82,8 +82,16 @@ def test_surface_samples_lie_on_the_surface_and_cover_it():
     assert np.max(profile_distance(s, radius, c, ratio)) < 1e-12
     # every part of the surface is near a sample: the top cap's rim and centre too
     from scipy.spatial import cKDTree
-    probes = np.array([[ratio * radius, 0, c], [0, 0, c], [0, 0, -c], [radius, 0, -c],
-                       [0, (1 + ratio) / 2 * radius, 0.0]])
+
+    probes = np.array(
+        [
+            [ratio * radius, 0, c],
+            [0, 0, c],
+            [0, 0, -c],
+            [radius, 0, -c],
+            [0, (1 + ratio) / 2 * radius, 0.0],
+        ]
+    )
     assert np.max(cKDTree(s).query(probes)[0]) < 0.01
 
 
@@ -94,6 +102,7 @@ def test_elliptic_distance_is_below_the_nearest_dense_sample():
     s = analytic.surface_samples(solid, 0.003)
     p = np.random.default_rng(2).uniform(-0.6, 0.6, (1500, 3))
     from scipy.spatial import cKDTree
+
     nn = cKDTree(s).query(p)[0]
     d = analytic.surface_distance(solid, p)
     assert np.all(d <= nn + 1e-12)
@@ -124,17 +133,36 @@ def test_params_are_drawn_deterministically_from_the_object_seed():
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory):
     out = tmp_path_factory.mktemp("hidden")
-    generate(out, GenerateConfig(classes=("frustum",), objects_per_class=3, variants=3,
-                                 test_fraction=0.34, val_fraction=0.0), workers=0, progress=False)
+    generate(
+        out,
+        GenerateConfig(
+            classes=("frustum",),
+            objects_per_class=3,
+            variants=3,
+            test_fraction=0.34,
+            val_fraction=0.0,
+        ),
+        workers=0,
+        progress=False,
+    )
     return out
 
 
 def test_generated_objects_store_their_drawn_ratio(generated):
     """/objects/params holds the planned ratio, and the simple mesh's top rim (normalised per
     axis) has that radius: the mesh shows what class + scale cannot."""
-    plans = {p.id: p for p in plan_objects(GenerateConfig(
-        classes=("frustum",), objects_per_class=3, variants=3, test_fraction=0.34,
-        val_fraction=0.0))}
+    plans = {
+        p.id: p
+        for p in plan_objects(
+            GenerateConfig(
+                classes=("frustum",),
+                objects_per_class=3,
+                variants=3,
+                test_fraction=0.34,
+                val_fraction=0.0,
+            )
+        )
+    }
     seen = 0
     for path in list_shards(generated):
         with Shard(path) as s:
@@ -143,8 +171,9 @@ def test_generated_objects_store_their_drawn_ratio(generated):
                 params = json.loads(f["objects/params"][k])
                 assert params == plans[int(oid)].params
                 scale = f["objects/scale"][k].astype(np.float64)
-                row = np.flatnonzero((f["meshes/object_index"][()] == k)
-                                     & (f["meshes/variant"][()] == 0))[0]
+                row = np.flatnonzero(
+                    (f["meshes/object_index"][()] == k) & (f["meshes/variant"][()] == 0)
+                )[0]
                 v = s.mesh(int(row))[0].astype(np.float64)
                 top = v[np.isclose(v[:, 2], scale[2] / 2, atol=1e-6)]
                 rim = 2 * np.max(np.hypot(top[:, 0] / scale[0], top[:, 1] / scale[1]))
@@ -176,8 +205,9 @@ def test_labels_depend_on_the_hidden_ratio_by_a_margin():
     scale = (0.5, 0.4, 0.6)
 
     def label(ratio, refinement=1.0):
-        v, f = analytic.simulation_mesh(frustum(scale, ratio), config.f_stop_hz,
-                                        refinement=refinement)
+        v, f = analytic.simulation_mesh(
+            frustum(scale, ratio), config.f_stop_hz, refinement=refinement
+        )
         return db_target(radar_sim.simulate(v, f, config).range_profiles).astype(np.float64)
 
     low, high = label(0.1), label(0.8)
@@ -201,14 +231,18 @@ def test_oracle_picks_neighbours_by_scale_and_hidden_parameter(tmp_path):
     for path in list_shards(directory):
         with h5py.File(path, "r+") as f:
             n = len(f["objects/id"])
-            f["objects/params"][...] = [json.dumps({"top_ratio": float(x)})
-                                        for x in rng.uniform(0, 0.9, n)]
+            f["objects/params"][...] = [
+                json.dumps({"top_ratio": float(x)}) for x in rng.uniform(0, 0.9, n)
+            ]
     with BenchmarkData(directory) as data:
         oracle = OracleReference(References(data))
         assert oracle.keys == ["top_ratio"]
-        ratio = np.array([json.loads(data._shard(int(s)).file["objects/params"][int(r)])
-                          ["top_ratio"] for s, r in zip(data.objects["shard"],
-                                                        data.objects["row"])])
+        ratio = np.array(
+            [
+                json.loads(data._shard(int(s)).file["objects/params"][int(r)])["top_ratio"]
+                for s, r in zip(data.objects["shard"], data.objects["row"])
+            ]
+        )
         x = np.column_stack([np.log(data.objects["scale"]), ratio])
         train = data.object_rows("train")
         x = x / x[train].std(axis=0)
@@ -242,9 +276,11 @@ def test_report_table_shows_the_oracle_only_with_hidden_parameters(tmp_path):
     rng = np.random.default_rng(7)
     for path in list_shards(directory):
         with h5py.File(path, "r+") as f:
-            f["objects/params"][...] = [json.dumps({"top_ratio": float(x)})
-                                        for x in rng.uniform(0, 0.9, len(f["objects/id"]))]
-            f.attrs["fingerprint"] = content_fingerprint(f)   # a new dataset, not an edit
+            f["objects/params"][...] = [
+                json.dumps({"top_ratio": float(x)})
+                for x in rng.uniform(0, 0.9, len(f["objects/id"]))
+            ]
+            f.attrs["fingerprint"] = content_fingerprint(f)  # a new dataset, not an edit
     with BenchmarkData(directory) as data:
         scorers, rows, oracle = report.reference_rows(data)
         own = OracleReference(References(data)).score().per_object()
@@ -252,10 +288,16 @@ def test_report_table_shows_the_oracle_only_with_hidden_parameters(tmp_path):
     assert oracle["simple_mse"] == pytest.approx(float(np.mean(own["simple_mse"])))
     diff = own["simple_mse"] - scorers["class-scale-nn"].per_object()["simple_mse"]
     assert oracle["vs_class_scale_nn"]["simple_mse"]["diff"] == pytest.approx(diff.mean())
-    table = report.build_table("tiny", [0], {}, {"fingerprint": "f", "description": "d"},
-                               scorers, rows, {"command": "c", "hardware": None,
-                                               "python": "3", "timing": None}, oracle)
+    table = report.build_table(
+        "tiny",
+        [0],
+        {},
+        {"fingerprint": "f", "description": "d"},
+        scorers,
+        rows,
+        {"command": "c", "hardware": None, "python": "3", "timing": None},
+        oracle,
+    )
     text = report.render_markdown(table)
     assert "| oracle | " in text and "`top_ratio`" in text
     assert table["strongest_reference"] != "oracle"
-

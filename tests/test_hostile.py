@@ -67,15 +67,19 @@ def snapshot(*dirs: Path) -> dict:
     return out
 
 
-def cli(tool: str, *args, rc: int = 1, phrase: str, watch=(), env=None,
-        preexec=_limit) -> str:
+def cli(tool: str, *args, rc: int = 1, phrase: str, watch=(), env=None, preexec=_limit) -> str:
     """Run ``python -m <tool>.cli args`` bounded; assert a one-line refusal naming ``phrase``."""
     watch = [Path(w) for w in watch]
     before = snapshot(*watch)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", f"{tool}.cli", *map(str, args)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
-                            preexec_fn=preexec, env={**os.environ, **(env or {})})
+    proc = subprocess.Popen(
+        [sys.executable, "-m", f"{tool}.cli", *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
+        preexec_fn=preexec,
+        env={**os.environ, **(env or {})},
+    )
     try:
         out, err = proc.communicate(timeout=TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -85,8 +89,13 @@ def cli(tool: str, *args, rc: int = 1, phrase: str, watch=(), env=None,
     wall = time.perf_counter() - t0
     err = err.decode(errors="replace")
     lines = [line for line in err.splitlines() if line.strip() and not PROGRESS.match(line)]
-    RECORD.append({"case": f"{tool} {' '.join(map(str, args))}"[:160], "rc": proc.returncode,
-                   "seconds": round(wall, 3)})
+    RECORD.append(
+        {
+            "case": f"{tool} {' '.join(map(str, args))}"[:160],
+            "rc": proc.returncode,
+            "seconds": round(wall, 3),
+        }
+    )
     assert proc.returncode == rc, (proc.returncode, err)
     assert len(lines) == 1 and "Traceback" not in err, err
     assert phrase in lines[0], (phrase, lines[0])
@@ -101,14 +110,23 @@ def report():
     path = os.environ.get("HOSTILE_REPORT")
     if path:  # max RSS over every child process of this module (CLI cases and fixtures)
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss // 1024
-        Path(path).write_text(json.dumps({
-            "cli_cases": len(RECORD), "max_seconds": max(r["seconds"] for r in RECORD),
-            "total_seconds": round(sum(r["seconds"] for r in RECORD), 2),
-            "peak_rss_mib_any_child": peak, "memory_limit_gib": MEMORY_LIMIT / 2**30,
-            "cases": RECORD}, indent=1))
+        Path(path).write_text(
+            json.dumps(
+                {
+                    "cli_cases": len(RECORD),
+                    "max_seconds": max(r["seconds"] for r in RECORD),
+                    "total_seconds": round(sum(r["seconds"] for r in RECORD), 2),
+                    "peak_rss_mib_any_child": peak,
+                    "memory_limit_gib": MEMORY_LIMIT / 2**30,
+                    "cases": RECORD,
+                },
+                indent=1,
+            )
+        )
 
 
 # --- shared fixtures ---------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def ws(tmp_path_factory) -> dict:
@@ -123,23 +141,56 @@ def ws(tmp_path_factory) -> dict:
     pred = root / "pred.h5"
     write_predictions(pred, fp, uids, targets, label_fingerprint=labels)
     from benchmark.evaluate import evaluate
+
     results = root / "results.json"
     write_results(results, evaluate(data, predictions=pred, progress=False))
     entries = root / "entries"
-    proc = subprocess.run([sys.executable, "-m", "leaderboard.cli", "submit", results,
-                           "--predictions", pred, "--data", data, "--entries", entries,
-                           "--unregistered"], capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "leaderboard.cli",
+            "submit",
+            results,
+            "--predictions",
+            pred,
+            "--data",
+            data,
+            "--entries",
+            entries,
+            "--unregistered",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert proc.returncode == 0, proc.stderr
-    return {"root": root, "data": data, "pred": pred, "results": results, "entries": entries,
-            "uids": uids, "targets": targets, "fp": fp, "labels": labels, "shape": shape}
+    return {
+        "root": root,
+        "data": data,
+        "pred": pred,
+        "results": results,
+        "entries": entries,
+        "uids": uids,
+        "targets": targets,
+        "fp": fp,
+        "labels": labels,
+        "shape": shape,
+    }
 
 
 def predictions_file(path: Path, ws: dict, target=None, uid=None, attrs=None) -> Path:
     """A predictions file whose /target_db is made by ``target(f, name)`` (default: plain)."""
     with h5py.File(path, "w") as f:
-        f.attrs.update({"format": "basic-shapes-predictions", "version": 1,
-                        "dataset_fingerprint": ws["fp"], "label_fingerprint": ws["labels"],
-                        **(attrs or {})})
+        f.attrs.update(
+            {
+                "format": "basic-shapes-predictions",
+                "version": 1,
+                "dataset_fingerprint": ws["fp"],
+                "label_fingerprint": ws["labels"],
+                **(attrs or {}),
+            }
+        )
         (uid or (lambda f, n: f.create_dataset(n, data=ws["uids"])))(f, "mesh_uid")
         (target or (lambda f, n: f.create_dataset(n, data=ws["targets"])))(f, "target_db")
     return path
@@ -158,6 +209,7 @@ def shard_copy(ws: dict, name: str, edit=None, keep_fingerprint: bool = True) ->
 @pytest.fixture(scope="module")
 def servers():
     """An HTTP server and a TCP service with a banner: neither is a Dask scheduler."""
+
     class Quiet(http.server.SimpleHTTPRequestHandler):
         def log_message(self, *args):
             pass
@@ -172,8 +224,10 @@ def servers():
     banner = socketserver.ThreadingTCPServer(("127.0.0.1", 0), Banner)
     for srv in (http_srv, banner):
         threading.Thread(target=srv.serve_forever, daemon=True).start()
-    yield {"http": f"tcp://127.0.0.1:{http_srv.server_address[1]}",
-           "banner": f"127.0.0.1:{banner.server_address[1]}"}
+    yield {
+        "http": f"tcp://127.0.0.1:{http_srv.server_address[1]}",
+        "banner": f"127.0.0.1:{banner.server_address[1]}",
+    }
     for srv in (http_srv, banner):
         srv.shutdown()
         srv.server_close()
@@ -181,24 +235,48 @@ def servers():
 
 def evaluate_refuses(ws, predictions, phrase, tmp: Path):
     out = tmp / "r.json"
-    cli("benchmark", "evaluate", "--quiet", "--data", ws["data"], "--predictions", predictions,
-        "--out", out, phrase=phrase, watch=[tmp, ws["data"]])
+    cli(
+        "benchmark",
+        "evaluate",
+        "--quiet",
+        "--data",
+        ws["data"],
+        "--predictions",
+        predictions,
+        "--out",
+        out,
+        phrase=phrase,
+        watch=[tmp, ws["data"]],
+    )
     assert not out.exists()
 
 
 def submit_refuses(ws, results, predictions, phrase, data=None):
-    return cli("leaderboard", "submit", results, "--predictions", predictions,
-               "--data", data or ws["data"], "--entries", ws["entries"], "--unregistered",
-               phrase=phrase,
-               watch=[ws["entries"], ws["data"]])
+    return cli(
+        "leaderboard",
+        "submit",
+        results,
+        "--predictions",
+        predictions,
+        "--data",
+        data or ws["data"],
+        "--entries",
+        ws["entries"],
+        "--unregistered",
+        phrase=phrase,
+        watch=[ws["entries"], ws["data"]],
+    )
 
 
 # --- 1. file-read leaks through predictions --------------------------------------------------
 
+
 def test_1_external_storage_is_refused_by_evaluate_and_submit(ws, tmp_path):
     def external(f, name):
-        f.create_dataset(name, ws["targets"].shape, np.float32,
-                         external=[("/etc/passwd", 0, h5py.h5f.UNLIMITED)])
+        f.create_dataset(
+            name, ws["targets"].shape, np.float32, external=[("/etc/passwd", 0, h5py.h5f.UNLIMITED)]
+        )
+
     bad = predictions_file(tmp_path / "ext.h5", ws, target=external)
     evaluate_refuses(ws, bad, "/target_db uses external storage", tmp_path)
     submit_refuses(ws, ws["results"], bad, "/target_db uses external storage")
@@ -211,8 +289,10 @@ def test_1_fifo_predictions_and_fifo_external_targets_do_not_hang(ws, tmp_path):
     submit_refuses(ws, ws["results"], fifo, "not a regular file")
 
     def external(f, name):
-        f.create_dataset(name, ws["targets"].shape, np.float32,
-                         external=[(str(fifo), 0, h5py.h5f.UNLIMITED)])
+        f.create_dataset(
+            name, ws["targets"].shape, np.float32, external=[(str(fifo), 0, h5py.h5f.UNLIMITED)]
+        )
+
     bad = predictions_file(tmp_path / "ext-fifo.h5", ws, target=external)
     submit_refuses(ws, ws["results"], bad, "external storage")
 
@@ -231,12 +311,14 @@ def test_1_links_and_virtual_datasets_are_refused(ws, tmp_path, kind):
             f[name] = h5py.SoftLink("/hidden")
         else:
             f[name] = h5py.ExternalLink(str(src), "/target_db")
+
     bad = predictions_file(tmp_path / f"{kind}.h5", ws, target=target)
     phrase = "virtual dataset" if kind == "virtual" else "/target_db is a link"
     evaluate_refuses(ws, bad, phrase, tmp_path)
 
 
 # --- 2. declared shapes are not trusted --------------------------------------------------------
+
 
 @pytest.mark.parametrize("rows", [2 * 10**8, 10**9, 10**11])
 def test_2_declared_rows_are_checked_against_the_file_size(ws, tmp_path, rows):
@@ -245,6 +327,7 @@ def test_2_declared_rows_are_checked_against_the_file_size(ws, tmp_path, rows):
 
     def huge_uid(f, name):
         f.create_dataset(name, (rows,), np.int64, chunks=(1024,))
+
     bad = predictions_file(tmp_path / "bomb.h5", ws, target=huge, uid=huge_uid)
     assert bad.stat().st_size < 20_000
     t0 = time.perf_counter()
@@ -254,8 +337,13 @@ def test_2_declared_rows_are_checked_against_the_file_size(ws, tmp_path, rows):
 
 def test_2_compressed_bombs_are_bounded(ws, tmp_path):
     def zeros(f, name):  # 45 MB of zeros in ~50 kB: within deflate's ratio, so shape-checked
-        f.create_dataset(name, data=np.zeros((20_000, *ws["shape"]), np.float32),
-                         chunks=(1000, *ws["shape"]), compression="gzip")
+        f.create_dataset(
+            name,
+            data=np.zeros((20_000, *ws["shape"]), np.float32),
+            chunks=(1000, *ws["shape"]),
+            compression="gzip",
+        )
+
     bad = predictions_file(tmp_path / "zip.h5", ws, target=zeros)
     evaluate_refuses(ws, bad, "/target_db is float32(20000", tmp_path)
 
@@ -264,29 +352,53 @@ def test_2_shard_declaring_a_billion_vertices_is_refused(ws):
     def huge(f):
         del f["meshes/vertices"]
         f["meshes"].create_dataset("vertices", (10**9, 3), np.float32, chunks=(4096, 3))
+
     d = shard_copy(ws, "bomb-shard", huge)
     cli("basic_shapes", "info", "--data", d, phrase="/meshes/vertices declares", watch=[d])
 
 
 def test_2_radar_config_sizes_and_generate_capacity_are_bounded(ws, tmp_path):
     mesh = tmp_path / "box.obj"
-    mesh.write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
-                    "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    for fields, phrase in [({"n_aspect": 10**8}, "n_aspect <= 3601"),
-                           ({"n_aspect": 3601, "n_roll": 7200}, "memory"),
-                           ({"n_freq": 10**6, "n_range": 101}, "n_freq <= 65536"),
-                           ({"f_stop_hz": float("inf")}, "Infinity is not allowed"),
-                           ({"f_stop_hz": 1e13}, "f_stop_hz <= 1e+12")]:
+    mesh.write_text(
+        "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    )
+    for fields, phrase in [
+        ({"n_aspect": 10**8}, "n_aspect <= 3601"),
+        ({"n_aspect": 3601, "n_roll": 7200}, "memory"),
+        ({"n_freq": 10**6, "n_range": 101}, "n_freq <= 65536"),
+        ({"f_stop_hz": float("inf")}, "Infinity is not allowed"),
+        ({"f_stop_hz": 1e13}, "f_stop_hz <= 1e+12"),
+    ]:
         cfg = tmp_path / "cfg.json"
         cfg.write_text(json.dumps({"name": "huge", **fields}))
-        cli("radar_sim", "plot", mesh, "--config", cfg, "--out", tmp_path / "x.png",
-            phrase=phrase, watch=[tmp_path])
-    cli("basic_shapes", "generate", "--data", tmp_path / "g", "--objects-per-class", "17000",
-        "--variants", "9", phrase="at most about", watch=[tmp_path])
+        cli(
+            "radar_sim",
+            "plot",
+            mesh,
+            "--config",
+            cfg,
+            "--out",
+            tmp_path / "x.png",
+            phrase=phrase,
+            watch=[tmp_path],
+        )
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        tmp_path / "g",
+        "--objects-per-class",
+        "17000",
+        "--variants",
+        "9",
+        phrase="at most about",
+        watch=[tmp_path],
+    )
     assert not (tmp_path / "g").exists()
 
 
 # --- 3. a submission must not break the board ----------------------------------------------
+
 
 def _results(ws, tmp: Path, edit=None, text=None) -> Path:
     r = json.loads(ws["results"].read_text())
@@ -297,27 +409,42 @@ def _results(ws, tmp: Path, edit=None, text=None) -> Path:
     return out
 
 
-@pytest.mark.parametrize("case, edit, phrase", [
-    ("huge params", lambda r: r["model"].__setitem__("params", 10**400), "model.params"),
-    ("1e13 params", lambda r: r["model"].__setitem__("params", 10**13), "model.params"),
-    ("extra field", lambda r: r.__setitem__("x", "y"), "unknown field(s) x"),
-    ("extra model field", lambda r: r["model"].__setitem__("notes", "x"), "unknown field(s) notes"),
-    ("50 MB field", lambda r: r["model"].__setitem__("notes", "x" * 50_000_000), "larger than"),
-    ("huge metric", lambda r: r["metrics"].__setitem__("simple_mse", 1e300), "simple_mse"),
-    ("negative metric", lambda r: r["metrics"].__setitem__("complex_mse", -1.0), "complex_mse"),
-    ("many classes", lambda r: r["metrics"]["per_class"].update(
-        {f"c{i}": r["metrics"]["per_class"]["cube"] for i in range(100)}), "per_class"),
-])
+@pytest.mark.parametrize(
+    "case, edit, phrase",
+    [
+        ("huge params", lambda r: r["model"].__setitem__("params", 10**400), "model.params"),
+        ("1e13 params", lambda r: r["model"].__setitem__("params", 10**13), "model.params"),
+        ("extra field", lambda r: r.__setitem__("x", "y"), "unknown field(s) x"),
+        (
+            "extra model field",
+            lambda r: r["model"].__setitem__("notes", "x"),
+            "unknown field(s) notes",
+        ),
+        ("50 MB field", lambda r: r["model"].__setitem__("notes", "x" * 50_000_000), "larger than"),
+        ("huge metric", lambda r: r["metrics"].__setitem__("simple_mse", 1e300), "simple_mse"),
+        ("negative metric", lambda r: r["metrics"].__setitem__("complex_mse", -1.0), "complex_mse"),
+        (
+            "many classes",
+            lambda r: r["metrics"]["per_class"].update(
+                {f"c{i}": r["metrics"]["per_class"]["cube"] for i in range(100)}
+            ),
+            "per_class",
+        ),
+    ],
+)
 def test_3_results_with_hostile_fields_are_refused(ws, tmp_path, case, edit, phrase):
     submit_refuses(ws, _results(ws, tmp_path, edit), ws["pred"], phrase)
 
 
-@pytest.mark.parametrize("text, phrase", [
-    ("[" * 100_000 + "]" * 100_000, "nested 100000 deep"),
-    ('{"a": NaN}', "NaN is not allowed"),
-    ('{"a": 1e999}', "out of range"),
-    ("1" * 5000, "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "text, phrase",
+    [
+        ("[" * 100_000 + "]" * 100_000, "nested 100000 deep"),
+        ('{"a": NaN}', "NaN is not allowed"),
+        ('{"a": 1e999}', "out of range"),
+        ("1" * 5000, "not valid JSON"),
+    ],
+)
 def test_3_malformed_results_json_is_refused(ws, tmp_path, text, phrase):
     submit_refuses(ws, _results(ws, tmp_path, text=text), ws["pred"], phrase)
 
@@ -331,9 +458,11 @@ def test_3_duplicate_check_covers_the_content(ws, tmp_path):
     # rows in another order, another chunking: the same data scored
     order = np.arange(len(ws["uids"]))[::-1]
     shuffled = predictions_file(
-        tmp_path / "shuffled.h5", ws,
+        tmp_path / "shuffled.h5",
+        ws,
         target=lambda f, n: f.create_dataset(n, data=ws["targets"][order], chunks=True),
-        uid=lambda f, n: f.create_dataset(n, data=ws["uids"][order]))
+        uid=lambda f, n: f.create_dataset(n, data=ws["uids"][order]),
+    )
     submit_refuses(ws, ws["results"], shuffled, "already on the board")
 
 
@@ -342,16 +471,23 @@ def test_3_render_skips_bad_entries_with_one_warning_each(ws, tmp_path):
     shutil.copytree(ws["entries"], entries)
     (good,) = entries.glob("*.json")
     entry = json.loads(good.read_text())
-    bad = {"deep": "[" * 100_000 + "]" * 100_000,
-           "params": json.dumps({**entry, "id": "bad-params", "params": 10**400}),
-           "big": json.dumps({**entry, "id": "bad-big", "junk": "x" * 50_000_000}),
-           "unknown": json.dumps({**entry, "id": "bad-unknown", "junk": 1})}
+    bad = {
+        "deep": "[" * 100_000 + "]" * 100_000,
+        "params": json.dumps({**entry, "id": "bad-params", "params": 10**400}),
+        "big": json.dumps({**entry, "id": "bad-big", "junk": "x" * 50_000_000}),
+        "unknown": json.dumps({**entry, "id": "bad-unknown", "junk": 1}),
+    }
     for name, text in bad.items():
         (entries / f"bad-{name}.json").write_text(text)
     site = tmp_path / "site"
-    proc = subprocess.run([sys.executable, "-m", "leaderboard.cli", "render", "--out", site,
-                           "--entries", entries], capture_output=True, text=True, cwd=ROOT,
-                          preexec_fn=_limit, timeout=TIMEOUT_S)
+    proc = subprocess.run(
+        [sys.executable, "-m", "leaderboard.cli", "render", "--out", site, "--entries", entries],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        preexec_fn=_limit,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == len(bad), lines
@@ -362,32 +498,71 @@ def test_3_render_skips_bad_entries_with_one_warning_each(ws, tmp_path):
 
 # --- 4. generate touches only its own files ---------------------------------------------------
 
+
 def test_4_generate_keeps_other_peoples_tmp_files(tmp_path):
     out = tmp_path / "g"
     out.mkdir()
     for name in ("notes.tmp", "paper.tex.tmp"):
         (out / name).write_text("mine")
     (out / "shard-00000.h5.tmp").write_text("a leftover of ours")
-    proc = subprocess.run([sys.executable, "-m", "basic_shapes.cli", "generate", "--data", out,
-                           "--classes", "cube", "--objects-per-class", "1", "--variants", "0",
-                           "--workers", "0"], capture_output=True, text=True, cwd=ROOT,
-                          timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "basic_shapes.cli",
+            "generate",
+            "--data",
+            out,
+            "--classes",
+            "cube",
+            "--objects-per-class",
+            "1",
+            "--variants",
+            "0",
+            "--workers",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "generate: 1 objects" in proc.stderr  # the plan, printed before the work
-    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "notes.tmp",
-                                                     "paper.tex.tmp", "shard-00000.h5"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "dataset.json",
+        "notes.tmp",
+        "paper.tex.tmp",
+        "shard-00000.h5",
+    ]
     assert (out / "notes.tmp").read_text() == "mine"
 
 
 # --- 5. hangs ------------------------------------------------------------------------------------
 
+
 def test_5_non_dask_schedulers_are_refused_within_seconds(ws, tmp_path, servers):
-    for address, phrase in [(servers["http"], "no Dask handshake"),
-                            (servers["banner"], "not a Dask scheduler")]:
+    for address, phrase in [
+        (servers["http"], "no Dask handshake"),
+        (servers["banner"], "not a Dask scheduler"),
+    ]:
         t0 = time.perf_counter()
-        cli("basic_shapes", "generate", "--data", tmp_path / "g", "--classes", "cube",
-            "--objects-per-class", "1", "--variants", "0", "--scheduler", address, phrase=phrase,
-            watch=[tmp_path])
+        cli(
+            "basic_shapes",
+            "generate",
+            "--data",
+            tmp_path / "g",
+            "--classes",
+            "cube",
+            "--objects-per-class",
+            "1",
+            "--variants",
+            "0",
+            "--scheduler",
+            address,
+            phrase=phrase,
+            watch=[tmp_path],
+        )
         data = shard_copy(ws, f"label-{len(RECORD)}")
         cli(
             "radar_sim",
@@ -401,29 +576,61 @@ def test_5_non_dask_schedulers_are_refused_within_seconds(ws, tmp_path, servers)
             watch=[data],
         )
         assert time.perf_counter() - t0 < 40
-    cli("basic_shapes", "generate", "--data", tmp_path / "g", "--objects-per-class", "1",
-        "--variants", "0", "--scheduler", "tcp://127.0.0.1:1", phrase="cannot connect",
-        watch=[tmp_path])
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        tmp_path / "g",
+        "--objects-per-class",
+        "1",
+        "--variants",
+        "0",
+        "--scheduler",
+        "tcp://127.0.0.1:1",
+        phrase="cannot connect",
+        watch=[tmp_path],
+    )
 
 
 def test_5_negative_workers_are_refused(tmp_path, ws):
-    cli("basic_shapes", "generate", "--data", tmp_path / "g", "--workers", "-1", rc=2,
-        phrase="argument --workers: '-1' must be >= 0", watch=[tmp_path])
-    cli("radar_sim", "label", "--data", ws["data"], "--workers", "-1", rc=2, phrase="--workers",
-        watch=[ws["data"]])
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        tmp_path / "g",
+        "--workers",
+        "-1",
+        rc=2,
+        phrase="argument --workers: '-1' must be >= 0",
+        watch=[tmp_path],
+    )
+    cli(
+        "radar_sim",
+        "label",
+        "--data",
+        ws["data"],
+        "--workers",
+        "-1",
+        rc=2,
+        phrase="--workers",
+        watch=[ws["data"]],
+    )
 
 
 # --- 6. shard integrity --------------------------------------------------------------------------
 
+
 def _set(name, index, value):
     def edit(f):
         f[name][index] = value
+
     return edit
 
 
 def _del_attr(name):
     def edit(f):
         del f.attrs[name]
+
     return edit
 
 
@@ -436,15 +643,23 @@ SHARD_CASES = {
     "negative class": (_set("objects/class", 0, -1), "/objects/class holds an index"),
     "variant": (_set("meshes/variant", 1, 5000), "/meshes/variant holds a value"),
     "no generator_config": (_del_attr("generator_config"), "missing the generator_config"),
-    "bad generator_config": (lambda f: f.attrs.__setitem__("generator_config", "{"),
-                             "generator_config: not valid JSON"),
-    "list generator_config": (lambda f: f.attrs.__setitem__("generator_config", "[]"),
-                              "generator_config is not a JSON object"),
-    "deep class names": (lambda f: f["objects/class"].attrs.__setitem__("names", "[" * 5000),
-                         "nested 5000 deep"),
+    "bad generator_config": (
+        lambda f: f.attrs.__setitem__("generator_config", "{"),
+        "generator_config: not valid JSON",
+    ),
+    "list generator_config": (
+        lambda f: f.attrs.__setitem__("generator_config", "[]"),
+        "generator_config is not a JSON object",
+    ),
+    "deep class names": (
+        lambda f: f["objects/class"].attrs.__setitem__("names", "[" * 5000),
+        "nested 5000 deep",
+    ),
     "face index": (_set("meshes/faces", 0, [0, 1, 10**6]), "indexes a vertex outside its mesh"),
-    "vertices edited": (_set("meshes/vertices", 0, [9.0, 9.0, 9.0]),
-                        "does not match its stored fingerprint"),
+    "vertices edited": (
+        _set("meshes/vertices", 0, [9.0, 9.0, 9.0]),
+        "does not match its stored fingerprint",
+    ),
 }
 
 
@@ -453,8 +668,19 @@ def test_6_inconsistent_shards_are_refused_by_evaluate(ws, tmp_path, case):
     edit, phrase = SHARD_CASES[case]
     d = shard_copy(ws, f"shard-{case.replace(' ', '-')}", edit)
     out = tmp_path / "r.json"
-    cli("benchmark", "evaluate", "--quiet", "--data", d, "--predictions", ws["pred"],
-        "--out", out, phrase=phrase, watch=[tmp_path, d])
+    cli(
+        "benchmark",
+        "evaluate",
+        "--quiet",
+        "--data",
+        d,
+        "--predictions",
+        ws["pred"],
+        "--out",
+        out,
+        phrase=phrase,
+        watch=[tmp_path, d],
+    )
 
 
 def test_6_bad_offsets_are_refused_by_label_and_export(ws, tmp_path):
@@ -470,8 +696,16 @@ def test_6_bad_offsets_are_refused_by_label_and_export(ws, tmp_path):
         phrase="vertex_offset",
         watch=[d],
     )
-    cli("basic_shapes", "export", "--data", d, "--out", tmp_path / "e", phrase="vertex_offset",
-        watch=[d, tmp_path])
+    cli(
+        "basic_shapes",
+        "export",
+        "--data",
+        d,
+        "--out",
+        tmp_path / "e",
+        phrase="vertex_offset",
+        watch=[d, tmp_path],
+    )
 
 
 def test_6_edited_shard_is_not_resumed_as_done(ws):
@@ -488,8 +722,17 @@ def test_6_edited_shard_is_not_resumed_as_done(ws):
     cfg = Config()
     assert not _is_done(d / shard_name(0), cfg)
     assert _is_done(ws["data"] / shard_name(0), cfg)
-    label = cli("radar_sim", "label", "--data", d, "--overwrite", "--workers", "1",
-                phrase="does not match its stored fingerprint", watch=[d])
+    label = cli(
+        "radar_sim",
+        "label",
+        "--data",
+        d,
+        "--overwrite",
+        "--workers",
+        "1",
+        phrase="does not match its stored fingerprint",
+        watch=[d],
+    )
     assert str(d / shard_name(0)) in label
 
 
@@ -497,8 +740,14 @@ def collinear_dataset(d: Path) -> Path:
     """One cube object whose only mesh has no face of non-zero area."""
     d.mkdir()
     v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]], np.float32) * 0.1  # collinear
-    obj = ObjectRecord(0, 0, np.array([0.3, 0.3, 0.3]), 1, "test",
-                       [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})])
+    obj = ObjectRecord(
+        0,
+        0,
+        np.array([0.3, 0.3, 0.3]),
+        1,
+        "test",
+        [MeshRecord(0, v, np.array([[0, 1, 2], [1, 2, 3]], np.int32), 0.0, {})],
+    )
     write_shard(d / shard_name(0), [obj], ["cube"], {"fixture": True}, "0.1.0")
     return d
 
@@ -521,13 +770,17 @@ def test_10_label_of_a_bad_mesh_prints_one_line_not_a_dask_block(tmp_path):
 
 # --- 7/10. one-line errors instead of tracebacks -------------------------------------------------
 
-@pytest.mark.parametrize("args, phrase", [
-    (["--freq", "0", "--aspect", "0"], "frequencies must be > 0"),
-    (["--freq", "-10", "--aspect", "0"], "frequencies must be > 0"),
-    (["--freq", "10", "--aspect", "0", "--roll", "nan"], "argument --roll"),
-    (["--freq", "10", "--aspect", "0:180:1e-9"], "at most 100000 values"),
-    (["--freq", "10", "--aspect", "0:inf:1"], "argument --aspect"),
-])
+
+@pytest.mark.parametrize(
+    "args, phrase",
+    [
+        (["--freq", "0", "--aspect", "0"], "frequencies must be > 0"),
+        (["--freq", "-10", "--aspect", "0"], "frequencies must be > 0"),
+        (["--freq", "10", "--aspect", "0", "--roll", "nan"], "argument --roll"),
+        (["--freq", "10", "--aspect", "0:180:1e-9"], "at most 100000 values"),
+        (["--freq", "10", "--aspect", "0:inf:1"], "argument --aspect"),
+    ],
+)
 def test_7_rcs_flags(tmp_path, args, phrase):
     mesh = tmp_path / "t.obj"
     mesh.write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 3\n")
@@ -550,48 +803,91 @@ def test_7_plot_into_a_missing_directory(tmp_path, ws):
     )
 
 
-@pytest.mark.parametrize("args, phrase", [
-    (["--min-scale-distance", "0"], "argument --min-scale-distance: '0' must be > 0"),
-    (["--min-scale-distance", "nan"], "argument --min-scale-distance: 'nan' is not a finite"),
-    (["--min-scale-distance", "-1"], "argument --min-scale-distance"),
-    (["--seed", "-3"], "argument --seed: '-3' must be >= 0"),
-    (["--scale-range", "0", "1"], "argument --scale-range"),
-    (["--variants", "1000"], "argument --variants"),
-    (["--objects-per-shard", "0"], "argument --objects-per-shard"),
-    (["--scale-range", "2", "1"], "argument --scale-range: LOW 2 must be < HIGH 1"),
-    (["--classes", ""], "argument --classes: '' names no class"),
-    (["--classes", "cube,cube"], "argument --classes: 'cube,cube' names a class twice"),
-    (["--classes", "box"], "argument --classes: unknown class box"),
-])
+@pytest.mark.parametrize(
+    "args, phrase",
+    [
+        (["--min-scale-distance", "0"], "argument --min-scale-distance: '0' must be > 0"),
+        (["--min-scale-distance", "nan"], "argument --min-scale-distance: 'nan' is not a finite"),
+        (["--min-scale-distance", "-1"], "argument --min-scale-distance"),
+        (["--seed", "-3"], "argument --seed: '-3' must be >= 0"),
+        (["--scale-range", "0", "1"], "argument --scale-range"),
+        (["--variants", "1000"], "argument --variants"),
+        (["--objects-per-shard", "0"], "argument --objects-per-shard"),
+        (["--scale-range", "2", "1"], "argument --scale-range: LOW 2 must be < HIGH 1"),
+        (["--classes", ""], "argument --classes: '' names no class"),
+        (["--classes", "cube,cube"], "argument --classes: 'cube,cube' names a class twice"),
+        (["--classes", "box"], "argument --classes: unknown class box"),
+    ],
+)
 def test_10_generate_flags_name_the_flag(tmp_path, args, phrase):
-    cli("basic_shapes", "generate", "--data", tmp_path / "g", *args, rc=2, phrase=phrase,
-        watch=[tmp_path])
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        tmp_path / "g",
+        *args,
+        rc=2,
+        phrase=phrase,
+        watch=[tmp_path],
+    )
 
 
 def test_7_dataset_json_holding_a_list(tmp_path):
     out = tmp_path / "g"
     out.mkdir()
     (out / "dataset.json").write_text("[]")
-    cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
-        phrase="dataset config is not a JSON object", watch=[tmp_path])
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        out,
+        "--objects-per-class",
+        "1",
+        "--variants",
+        "0",
+        phrase="dataset config is not a JSON object",
+        watch=[tmp_path],
+    )
 
 
 def test_7_another_dataset_points_at_the_data_flag(tmp_path):
     out = tmp_path / "g"
     out.mkdir()
     (out / "dataset.json").write_text(json.dumps({"seed": 1}))
-    cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
-        phrase="use another --data", watch=[tmp_path])
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        out,
+        "--objects-per-class",
+        "1",
+        "--variants",
+        "0",
+        phrase="use another --data",
+        watch=[tmp_path],
+    )
 
 
 def test_8_model_calling_sys_exit_0_is_an_error(ws, tmp_path):
     model = tmp_path / "quitter.py"
-    model.write_text("import sys\n\nclass Quitter:\n    name = 'quitter'\n\n"
-                     "    def predict(self, batch):\n        sys.exit(0)\n")
+    model.write_text(
+        "import sys\n\nclass Quitter:\n    name = 'quitter'\n\n"
+        "    def predict(self, batch):\n        sys.exit(0)\n"
+    )
     out = tmp_path / "r.json"
-    line = cli("benchmark", "evaluate", "--quiet", "--data", ws["data"], "--model",
-               f"{model}:Quitter", "--out", out, phrase="quitter: predict failed: SystemExit",
-               watch=[tmp_path])
+    line = cli(
+        "benchmark",
+        "evaluate",
+        "--quiet",
+        "--data",
+        ws["data"],
+        "--model",
+        f"{model}:Quitter",
+        "--out",
+        out,
+        phrase="quitter: predict failed: SystemExit",
+        watch=[tmp_path],
+    )
     assert "benchmark" in line and not out.exists()
 
 
@@ -615,6 +911,7 @@ def test_debug_flag_shows_the_traceback(tmp_path):
 
 # --- Python API -----------------------------------------------------------------------------------
 
+
 def test_10_api_values_are_checked(ws):
     with pytest.raises(ValueError, match="object id -1 is negative"):
         mesh_uid(-1, 5)
@@ -624,8 +921,10 @@ def test_10_api_values_are_checked(ws):
         infra.load_json("[" * 100_000 + "]" * 100_000)
     with pytest.raises(infra.InputError, match="larger than"):
         infra.load_json("[" + "1," * 100 + "1]", max_bytes=100)
-    assert infra.load_json('{"a": "[[[[", "b": [1, 2.5]}', max_depth=2) == {"a": "[[[[",
-                                                                              "b": [1, 2.5]}
+    assert infra.load_json('{"a": "[[[[", "b": [1, 2.5]}', max_depth=2) == {
+        "a": "[[[[",
+        "b": [1, 2.5],
+    }
 
 
 def test_boundary_turns_expected_and_unexpected_errors_into_one_line():
@@ -634,18 +933,28 @@ def test_boundary_turns_expected_and_unexpected_errors_into_one_line():
     def raising(exc):
         def body(argv):
             raise exc
+
         return body
 
-    for exc, phrase in [(KilledWorker("build-shard-3", "tcp://w:1", 3), "Dask worker died"),
-                        (MemoryError(), "out of memory"),
-                        (ShardError("x.h5: broken"), "x.h5: broken"),
-                        (FileNotFoundError(2, "No such file or directory", "a.h5"),
-                         "a.h5: No such file or directory"),
-                        (OSError(28, "Can't synchronously write data (file write failed: time = "
-                                     "Thu Nov 26 00:43:14 2026\n, filename = 'x.h5.tmp', errno "
-                                     "= 28, error message = 'No space left on device')"),
-                         "tool: error: No space left on device"),
-                        (TypeError("bug\nmore"), "internal error: TypeError: bug")]:
+    for exc, phrase in [
+        (KilledWorker("build-shard-3", "tcp://w:1", 3), "Dask worker died"),
+        (MemoryError(), "out of memory"),
+        (ShardError("x.h5: broken"), "x.h5: broken"),
+        (
+            FileNotFoundError(2, "No such file or directory", "a.h5"),
+            "a.h5: No such file or directory",
+        ),
+        (
+            OSError(
+                28,
+                "Can't synchronously write data (file write failed: time = "
+                "Thu Nov 26 00:43:14 2026\n, filename = 'x.h5.tmp', errno "
+                "= 28, error message = 'No space left on device')",
+            ),
+            "tool: error: No space left on device",
+        ),
+        (TypeError("bug\nmore"), "internal error: TypeError: bug"),
+    ]:
         with pytest.raises(SystemExit) as info:
             infra.cli_boundary("tool", raising(exc), [])
         msg = str(info.value.code)
@@ -664,11 +973,15 @@ def test_10_site_is_published_as_a_whole(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["site"]
     publish(site, {"index.html": b"new", "LEADERBOARD.md": b"new"})
     assert {p.name: p.read_bytes() for p in site.iterdir()} == {
-        "index.html": b"new", "LEADERBOARD.md": b"new", "CNAME": b"mine"}
+        "index.html": b"new",
+        "LEADERBOARD.md": b"new",
+        "CNAME": b"mine",
+    }
 
 
 # --- 11. one error boundary (reliability audit): a dead child, a full disk, huge numbers, deep
 # JSON, read-only data; each refused in one line naming the file (liveness: test_liveness.py)
+
 
 def test_11_a_dead_meshlab_child_is_one_error_naming_the_object(tmp_path, monkeypatch):
     from basic_shapes.generate import ObjectPlan, build_shard
@@ -679,13 +992,18 @@ def test_11_a_dead_meshlab_child_is_one_error_naming_the_object(tmp_path, monkey
             child._proc.kill()
             return child.apply("meshing_remove_duplicate_vertices", np.eye(3), [[0, 1, 2]])
 
-    monkeypatch.setitem(sys.modules, "basic_shapes.blender",
-                        types.SimpleNamespace(object_meshes=killed_child))
+    monkeypatch.setitem(
+        sys.modules, "basic_shapes.blender", types.SimpleNamespace(object_meshes=killed_child)
+    )
     shard = tmp_path / shard_name(0)
-    with pytest.raises(OSError, match=rf"{shard}: object 7 \(cube\): MeshLab child died during "
-                       rf"meshing_remove_duplicate_vertices \(exit code -9\)"):
-        build_shard(str(shard), [ObjectPlan(7, "cube", 0, (0.5, 0.5, 0.5), 1, "train")],
-                    {"variants": 0})
+    with pytest.raises(
+        OSError,
+        match=rf"{shard}: object 7 \(cube\): MeshLab child died during "
+        rf"meshing_remove_duplicate_vertices \(exit code -9\)",
+    ):
+        build_shard(
+            str(shard), [ObjectPlan(7, "cube", 0, (0.5, 0.5, 0.5), 1, "train")], {"variants": 0}
+        )
     assert not shard.exists()
 
 
@@ -710,10 +1028,20 @@ def test_11_huge_coordinates_are_refused_not_overflowed(tmp_path):
     from radar_sim import MeshError, monostatic_field
 
     mesh = tmp_path / "huge.obj"
-    mesh.write_text("v 0 0 0\nv 1e30 0 0\nv 0 1e30 0\nv 0 0 1e30\n"
-                    "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    cli("radar_sim", "rcs", mesh, "--freq", "10", "--aspect", "0",
-        phrase=f"{mesh}: coordinates too large", watch=[tmp_path])
+    mesh.write_text(
+        "v 0 0 0\nv 1e30 0 0\nv 0 1e30 0\nv 0 0 1e30\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    )
+    cli(
+        "radar_sim",
+        "rcs",
+        mesh,
+        "--freq",
+        "10",
+        "--aspect",
+        "0",
+        phrase=f"{mesh}: coordinates too large",
+        watch=[tmp_path],
+    )
     with pytest.raises(MeshError, match="coordinates too large"):
         monostatic_field(np.eye(3) * 1e30, [[0, 1, 2]], np.array([1e10]), np.eye(3))
 
@@ -725,13 +1053,25 @@ def _small_files():
 
 def test_11_a_full_disk_names_the_file(tmp_path):
     out = tmp_path / "g"
-    cli("basic_shapes", "generate", "--data", out, "--objects-per-class", "1", "--variants", "0",
-        phrase=f"{out / 'dataset.json'}: File too large", watch=[tmp_path], preexec=_small_files)
+    cli(
+        "basic_shapes",
+        "generate",
+        "--data",
+        out,
+        "--objects-per-class",
+        "1",
+        "--variants",
+        "0",
+        phrase=f"{out / 'dataset.json'}: File too large",
+        watch=[tmp_path],
+        preexec=_small_files,
+    )
 
 
 def test_11_a_checksum_failure_names_the_file(ws, tmp_path):
     def checksummed(f, name):
         f.create_dataset(name, data=ws["targets"], chunks=(1, *ws["shape"]), fletcher32=True)
+
     bad = predictions_file(tmp_path / "sum.h5", ws, target=checksummed)
     with h5py.File(bad, "r") as f:
         offset = f["target_db"].id.get_chunk_info(0).byte_offset
@@ -745,18 +1085,39 @@ def test_11_a_checksum_failure_names_the_file(ws, tmp_path):
 
 def test_11_a_degenerate_mesh_names_the_shard_and_the_mesh(tmp_path):
     d = collinear_dataset(tmp_path / "bad")
-    cli("radar_sim", "plot", "--data", d, "--object", "0", "--variant", "0", "--out",
-        tmp_path / "x.png", phrase=f"{d / shard_name(0)}: object 0 variant 0: mesh has no face",
-        watch=[tmp_path])
+    cli(
+        "radar_sim",
+        "plot",
+        "--data",
+        d,
+        "--object",
+        "0",
+        "--variant",
+        "0",
+        "--out",
+        tmp_path / "x.png",
+        phrase=f"{d / shard_name(0)}: object 0 variant 0: mesh has no face",
+        watch=[tmp_path],
+    )
 
 
 def test_11_deeply_nested_shard_params_are_refused(ws):
     def deep(f):
         f["objects/params"][0] = "[" * 5000 + "]" * 5000
         f.attrs["fingerprint"] = content_fingerprint(f)  # a consistent, hostile shard
+
     d = shard_copy(ws, "deep-params", deep)
-    cli("radar_sim", "label", "--data", d, "--overwrite", "--workers", "0",
-        phrase="/objects/params[0]: JSON nested 5000 deep", watch=[d])
+    cli(
+        "radar_sim",
+        "label",
+        "--data",
+        d,
+        "--overwrite",
+        "--workers",
+        "0",
+        phrase="/objects/params[0]: JSON nested 5000 deep",
+        watch=[d],
+    )
 
 
 def test_11_checkpoint_config_is_read_with_a_bound(tmp_path):
@@ -787,7 +1148,15 @@ def test_11_label_refuses_a_read_only_dataset_before_any_work(ws):
     for path in [*d.glob("*.h5"), d]:
         path.chmod(0o555 if path.is_dir() else 0o444)
     try:  # refused before planning or simulating, not when the first label is written
-        cli("radar_sim", "label", "--data", d, "--overwrite", phrase=f"{d}: not writable",
-            watch=[d], preexec=_as_plain_user)
+        cli(
+            "radar_sim",
+            "label",
+            "--data",
+            d,
+            "--overwrite",
+            phrase=f"{d}: not writable",
+            watch=[d],
+            preexec=_as_plain_user,
+        )
     finally:
         d.chmod(0o755)

@@ -38,7 +38,7 @@ def scale_labels(directory, shard="shard-00000.h5", factor=10):
 def test_fingerprints_refuse_edited_content(data):
     mesh, labels = dataset_fingerprint(data), label_fingerprint(data)
     scale_labels(data)
-    assert dataset_fingerprint(data) == mesh          # the meshes did not change
+    assert dataset_fingerprint(data) == mesh  # the meshes did not change
     with pytest.raises(ShardError, match="labels .* do not match"):
         label_fingerprint(data)
     flip_vertex(data)
@@ -66,72 +66,186 @@ def test_every_array_of_an_object_is_in_the_mesh_fingerprint(data):
 
 def test_scoring_refuses_tampered_labels(data, tmp_path):
     scale_labels(data)
-    cli("benchmark", "evaluate", "--data", data, "--model",
-        f"benchmark.protocol:{MeanResponseModel.__name__}", "--model-arg", f"data_dir={data}",
-        "--out", tmp_path / "r.json", phrase="do not match their stored fingerprint",
-        watch=[data, tmp_path])
+    cli(
+        "benchmark",
+        "evaluate",
+        "--data",
+        data,
+        "--model",
+        f"benchmark.protocol:{MeanResponseModel.__name__}",
+        "--model-arg",
+        f"data_dir={data}",
+        "--out",
+        tmp_path / "r.json",
+        phrase="do not match their stored fingerprint",
+        watch=[data, tmp_path],
+    )
 
 
-@pytest.mark.parametrize("tool, args", [
-    ("basic-shapes", ("info", "--data", "{data}")),
-    ("basic-shapes", ("export", "--data", "{data}", "--format", "obj", "--out", "{out}")),
-    ("basic-shapes", ("export", "--data", "{data}", "--format", "g2s", "--out", "{out}")),
-    ("basic-shapes", ("show", "--data", "{data}", "--object", "0", "--out", "{tmp}/s.png")),
-    ("radar-sim", ("plot", "--data", "{data}", "--object", "0", "--out", "{tmp}/r.png")),
-])
+@pytest.mark.parametrize(
+    "tool, args",
+    [
+        ("basic-shapes", ("info", "--data", "{data}")),
+        ("basic-shapes", ("export", "--data", "{data}", "--format", "obj", "--out", "{out}")),
+        ("basic-shapes", ("export", "--data", "{data}", "--format", "g2s", "--out", "{out}")),
+        ("basic-shapes", ("show", "--data", "{data}", "--object", "0", "--out", "{tmp}/s.png")),
+        ("radar-sim", ("plot", "--data", "{data}", "--object", "0", "--out", "{tmp}/r.png")),
+    ],
+)
 def test_readers_refuse_a_flipped_vertex(data, tmp_path, tool, args):
     flip_vertex(data)
     out = tmp_path / "out"
     module = tool.replace("-", "_") if tool != "radar-sim" else "radar_sim"
-    cli(module, *(a.format(data=data, out=out, tmp=tmp_path) for a in args),
-        phrase="does not match its stored fingerprint", watch=[data, tmp_path])
+    cli(
+        module,
+        *(a.format(data=data, out=out, tmp=tmp_path) for a in args),
+        phrase="does not match its stored fingerprint",
+        watch=[data, tmp_path],
+    )
     assert not out.exists() and not list(tmp_path.glob("*.png"))
 
 
-@pytest.mark.parametrize("tool, args, phrase", [
-    ("benchmark", ("evaluate", "--data", "{data}", "--predictions", "{p}", "--out", "{p}"),
-     "--out {p} would overwrite the input --predictions"),
-    ("benchmark", ("evaluate", "--data", "{data}", "--predictions", "{p}", "--out",
-                   "{data}/shard-00000.h5"), "would overwrite the input --data"),
-    ("benchmark", ("evaluate", "--data", "{data}", "--model", "m:M", "--out", "{x}",
-                   "--write-predictions", "{x}"), "name the same path"),
-    ("benchmark", ("train", "--data", "{data}", "--out", "{data}/ckpt"),
-     "would overwrite the input --data"),
-    ("basic_shapes", ("export", "--data", "{data}", "--format", "obj", "--out", "{data}"),
-     "would overwrite the input --data"),
-    ("basic_shapes", ("show", "--data", "{data}", "--object", "0", "--out",
-                      "{data}/shard-00001.h5"), "would overwrite the input --data"),
-    ("radar_sim", ("plot", "--data", "{data}", "--object", "0", "--out", "{data}/x.png"),
-     "would overwrite the input --data"),
-    ("leaderboard", ("render", "--entries", "{e}", "--out", "{e}"),
-     "would overwrite the input --entries"),
-    ("leaderboard", ("render", "--entries", "{e}/sub", "--out", "{e}"),
-     "would overwrite the input --entries"),
-])
+@pytest.mark.parametrize(
+    "tool, args, phrase",
+    [
+        (
+            "benchmark",
+            ("evaluate", "--data", "{data}", "--predictions", "{p}", "--out", "{p}"),
+            "--out {p} would overwrite the input --predictions",
+        ),
+        (
+            "benchmark",
+            (
+                "evaluate",
+                "--data",
+                "{data}",
+                "--predictions",
+                "{p}",
+                "--out",
+                "{data}/shard-00000.h5",
+            ),
+            "would overwrite the input --data",
+        ),
+        (
+            "benchmark",
+            (
+                "evaluate",
+                "--data",
+                "{data}",
+                "--model",
+                "m:M",
+                "--out",
+                "{x}",
+                "--write-predictions",
+                "{x}",
+            ),
+            "name the same path",
+        ),
+        (
+            "benchmark",
+            ("train", "--data", "{data}", "--out", "{data}/ckpt"),
+            "would overwrite the input --data",
+        ),
+        (
+            "basic_shapes",
+            ("export", "--data", "{data}", "--format", "obj", "--out", "{data}"),
+            "would overwrite the input --data",
+        ),
+        (
+            "basic_shapes",
+            ("show", "--data", "{data}", "--object", "0", "--out", "{data}/shard-00001.h5"),
+            "would overwrite the input --data",
+        ),
+        (
+            "radar_sim",
+            ("plot", "--data", "{data}", "--object", "0", "--out", "{data}/x.png"),
+            "would overwrite the input --data",
+        ),
+        (
+            "leaderboard",
+            ("render", "--entries", "{e}", "--out", "{e}"),
+            "would overwrite the input --entries",
+        ),
+        (
+            "leaderboard",
+            ("render", "--entries", "{e}/sub", "--out", "{e}"),
+            "would overwrite the input --entries",
+        ),
+    ],
+)
 def test_outputs_never_overwrite_inputs(data, tmp_path, tool, args, phrase):
-    names = {"data": data, "p": tmp_path / "p.h5", "x": tmp_path / "x.json",
-             "e": tmp_path / "entries"}
+    names = {
+        "data": data,
+        "p": tmp_path / "p.h5",
+        "x": tmp_path / "x.json",
+        "e": tmp_path / "entries",
+    }
     (tmp_path / "p.h5").write_bytes(b"predictions")
     (tmp_path / "entries" / "sub").mkdir(parents=True)
-    cli(tool, *(a.format(**names) for a in args), rc=2, phrase=phrase.format(**names),
-        watch=[data, tmp_path])
+    cli(
+        tool,
+        *(a.format(**names) for a in args),
+        rc=2,
+        phrase=phrase.format(**names),
+        watch=[data, tmp_path],
+    )
 
 
-@pytest.mark.parametrize("flag, value, phrase", [
-    ("--epochs", "-1", "must be >= 1"), ("--batch-size", "0", "must be >= 1"),
-    ("--lr", "nan", "not a finite number"), ("--dim", "0", "must be >= 1"),
-    ("--dim", "100000000", "must be <= 4096"), ("--weight-decay", "-1", "must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "flag, value, phrase",
+    [
+        ("--epochs", "-1", "must be >= 1"),
+        ("--batch-size", "0", "must be >= 1"),
+        ("--lr", "nan", "not a finite number"),
+        ("--dim", "0", "must be >= 1"),
+        ("--dim", "100000000", "must be <= 4096"),
+        ("--weight-decay", "-1", "must be >= 0"),
+    ],
+)
 def test_training_flags_are_refused_by_the_parser(data, tmp_path, flag, value, phrase):
-    cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", flag, value, rc=2,
-        phrase=phrase, watch=[data, tmp_path])
+    cli(
+        "benchmark",
+        "train",
+        "--data",
+        data,
+        "--out",
+        tmp_path / "ck",
+        flag,
+        value,
+        rc=2,
+        phrase=phrase,
+        watch=[data, tmp_path],
+    )
 
 
 def test_training_flags_that_contradict_each_other(data, tmp_path):
-    cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", "--n-heads", "3",
-        "--dim", "10", phrase="multiple of n_heads", watch=[data, tmp_path])
-    cli("benchmark", "train", "--data", data, "--out", tmp_path / "ck", "--device", "cuda:99",
-        rc=2, phrase="no such CUDA device", watch=[data, tmp_path])
+    cli(
+        "benchmark",
+        "train",
+        "--data",
+        data,
+        "--out",
+        tmp_path / "ck",
+        "--n-heads",
+        "3",
+        "--dim",
+        "10",
+        phrase="multiple of n_heads",
+        watch=[data, tmp_path],
+    )
+    cli(
+        "benchmark",
+        "train",
+        "--data",
+        data,
+        "--out",
+        tmp_path / "ck",
+        "--device",
+        "cuda:99",
+        rc=2,
+        phrase="no such CUDA device",
+        watch=[data, tmp_path],
+    )
 
 
 def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
@@ -140,13 +254,28 @@ def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
     from benchmark.protocol import write_predictions
 
     with BenchmarkData(data) as d:
-        rows = d.mesh_rows("test")   # the fixture has no OOD meshes
+        rows = d.mesh_rows("test")  # the fixture has no OOD meshes
         db = np.stack([d.target(int(d.meshes["object"][r])) for r in rows])
         pred = tmp_path / "linear.h5"
-        write_predictions(pred, d.fingerprint, d.meshes["uid"][rows], 10 ** (db / 20),
-                          label_fingerprint=d.label_fingerprint)
-    cli("benchmark", "evaluate", "--data", data, "--predictions", pred, "--out",
-        tmp_path / "r.json", phrase="look like linear magnitudes", watch=[data])
+        write_predictions(
+            pred,
+            d.fingerprint,
+            d.meshes["uid"][rows],
+            10 ** (db / 20),
+            label_fingerprint=d.label_fingerprint,
+        )
+    cli(
+        "benchmark",
+        "evaluate",
+        "--data",
+        data,
+        "--predictions",
+        pred,
+        "--out",
+        tmp_path / "r.json",
+        phrase="look like linear magnitudes",
+        watch=[data],
+    )
 
 
 LIGHT_CORE_BLOCKER = """
@@ -175,16 +304,46 @@ def test_scoring_and_submitting_need_only_the_light_core(data, tmp_path):
     with BenchmarkData(data) as d:
         rows = d.mesh_rows("test")
         db = np.stack([d.target(int(d.meshes["object"][r])) for r in rows]) - 3.0
-        write_predictions(tmp_path / "p.h5", d.fingerprint, d.meshes["uid"][rows], db,
-                          label_fingerprint=d.label_fingerprint)
-    runs = [("benchmark.cli", ["evaluate", "--data", str(data), "--predictions",
-                               str(tmp_path / "p.h5"), "--out", str(tmp_path / "r.json")]),
-            ("leaderboard.cli", ["submit", str(tmp_path / "r.json"), "--predictions",
-                                 str(tmp_path / "p.h5"), "--data", str(data), "--entries",
-                                 str(tmp_path / "entries"), "--unregistered"])]
+        write_predictions(
+            tmp_path / "p.h5",
+            d.fingerprint,
+            d.meshes["uid"][rows],
+            db,
+            label_fingerprint=d.label_fingerprint,
+        )
+    runs = [
+        (
+            "benchmark.cli",
+            [
+                "evaluate",
+                "--data",
+                str(data),
+                "--predictions",
+                str(tmp_path / "p.h5"),
+                "--out",
+                str(tmp_path / "r.json"),
+            ],
+        ),
+        (
+            "leaderboard.cli",
+            [
+                "submit",
+                str(tmp_path / "r.json"),
+                "--predictions",
+                str(tmp_path / "p.h5"),
+                "--data",
+                str(data),
+                "--entries",
+                str(tmp_path / "entries"),
+                "--unregistered",
+            ],
+        ),
+    ]
     for module, args in runs:
-        code = (LIGHT_CORE_BLOCKER + f"import runpy; sys.argv = ['x', *{args!r}]\n"
-                f"runpy.run_module({module!r}, run_name='__main__')")
+        code = (
+            LIGHT_CORE_BLOCKER + f"import runpy; sys.argv = ['x', *{args!r}]\n"
+            f"runpy.run_module({module!r}, run_name='__main__')"
+        )
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "entries").glob("*.json"))) == 1
@@ -208,13 +367,27 @@ def test_frequency_unit_slips_are_caught(tmp_path):
 
     cube = trimesh.creation.box(extents=(0.3, 0.3, 0.3))
     cube.export(tmp_path / "cube.stl")
-    cli("radar_sim", "rcs", tmp_path / "cube.stl", "--freq", "10e9", "--aspect", "0", rc=2,
-        phrase="looks like Hz (give 10 for 1e+10 Hz)", watch=[tmp_path])
+    cli(
+        "radar_sim",
+        "rcs",
+        tmp_path / "cube.stl",
+        "--freq",
+        "10e9",
+        "--aspect",
+        "0",
+        rc=2,
+        phrase="looks like Hz (give 10 for 1e+10 Hz)",
+        watch=[tmp_path],
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         radar_sim.rcs(cube.vertices, cube.faces, 10.0, [0.0])
-    assert any(issubclass(w.category, radar_sim.UnitsWarning) and "look like GHz" in
-               str(w.message) and "pass 1e+10" in str(w.message) for w in caught)
+    assert any(
+        issubclass(w.category, radar_sim.UnitsWarning)
+        and "look like GHz" in str(w.message)
+        and "pass 1e+10" in str(w.message)
+        for w in caught
+    )
 
 
 def test_a_disk_too_full_for_a_shard_is_refused_before_writing(data, tmp_path, monkeypatch):

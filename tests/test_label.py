@@ -35,8 +35,15 @@ from radar_sim.label import SIDECAR, LabelRequest, label_directory, select_mesh_
 
 CLASSES = ["cube", "cylinder", "sphere"]
 # An L-band grid keeps the simulation meshes (refined for the top frequency) small in tests.
-LBAND = {"name": "test-lband", "n_aspect": 7, "n_roll": 3, "f_start_hz": 1e9, "f_stop_hz": 2e9,
-         "n_freq": 32, "n_range": 31}
+LBAND = {
+    "name": "test-lband",
+    "n_aspect": 7,
+    "n_roll": 3,
+    "f_start_hz": 1e9,
+    "f_stop_hz": 2e9,
+    "n_freq": 32,
+    "n_range": 31,
+}
 
 
 @pytest.fixture(scope="module")
@@ -84,8 +91,13 @@ def write_dataset(directory, n_objects=6, objects_per_shard=1, corrupt=None):
             meshes.append(MeshRecord(variant, v, np.array(m.faces, np.int32), 0.0, {"n": variant}))
         objects.append(ObjectRecord(oid, cls, scale, 1000 + oid, "train", meshes))
     for i in range(0, n_objects, objects_per_shard):
-        write_shard(directory / shard_name(i // objects_per_shard),
-                    objects[i:i + objects_per_shard], CLASSES, {"seed": 0, "variants": 2}, "0.1.0")
+        write_shard(
+            directory / shard_name(i // objects_per_shard),
+            objects[i : i + objects_per_shard],
+            CLASSES,
+            {"seed": 0, "variants": 2},
+            "0.1.0",
+        )
     return directory
 
 
@@ -101,7 +113,7 @@ def same_label(stored, computed):
     """
     assert stored.dtype == np.complex64
     peak = np.abs(computed).max()
-    np.testing.assert_allclose(stored, computed, rtol=0, atol=2 ** -22 * peak)
+    np.testing.assert_allclose(stored, computed, rtol=0, atol=2**-22 * peak)
 
 
 @pytest.fixture(scope="module")
@@ -138,8 +150,9 @@ def test_labels_are_the_primitives_physics(dataset, labelled):
             objs = s.objects()
             for k in range(s.n_objects):
                 solid = solid_for(CLASSES[objs["class"][k]], objs["scale"][k])
-                r = radar_sim.simulate(*simulation_mesh(solid, config.f_stop_hz), config,
-                                       mode="convex")
+                r = radar_sim.simulate(
+                    *simulation_mesh(solid, config.f_stop_hz), config, mode="convex"
+                )
                 same_label(radar.response(k), r.range_profiles)
                 same_label(radar.frequency_response(k), r.frequency_response)
                 assert radar.modes[k] == "convex"
@@ -171,9 +184,11 @@ def test_sphere_label_matches_an_independent_fine_mesh(tmp_path):
         stored = db_target(s.radar.response(2))
     fine = trimesh.creation.uv_sphere(radius=0.5, count=[256, 256])
     fine.apply_scale(scale)
-    reference = db_target(radar_sim.simulate(fine.vertices, fine.faces,
-                                             radar_sim.RadarConfig(**xband),
-                                             mode="convex").range_profiles)
+    reference = db_target(
+        radar_sim.simulate(
+            fine.vertices, fine.faces, radar_sim.RadarConfig(**xband), mode="convex"
+        ).range_profiles
+    )
     mse = float(np.mean((stored.astype(np.float64) - reference) ** 2))
     assert mse < 1.0, mse
 
@@ -191,8 +206,9 @@ def test_xarray_reads_named_dimensions(labelled):
             assert ds["mesh_response"].dims == ("mesh", "aspect", "roll", "range")
             assert ds["aspect"].attrs["units"] == "degree" and ds["range"].attrs["units"] == "m"
             assert ds["frequency"].attrs["units"] == "Hz"
-            np.testing.assert_array_equal(ds["frequency"].values,
-                                          radar_sim.RadarConfig(**LBAND).frequency_hz)
+            np.testing.assert_array_equal(
+                ds["frequency"].values, radar_sim.RadarConfig(**LBAND).frequency_hz
+            )
             assert ds["object"].values.tolist() == [0]
             with Shard(labelled / shard_name(0)) as s:
                 np.testing.assert_array_equal(ds["response"].values[0], s.radar.response(0))
@@ -253,9 +269,22 @@ def test_killed_run_resumes_per_object_to_identical_bytes(lband, tmp_path):
     work = tmp_path / "work"
     shutil.copytree(raw, work)
     sidecar = work / SIDECAR / "shard-00000"
-    proc = subprocess.Popen([sys.executable, "-m", "radar_sim.cli", "label", "--data", str(work),
-                             "--workers", "1", *args], start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "radar_sim.cli",
+            "label",
+            "--data",
+            str(work),
+            "--workers",
+            "1",
+            *args,
+        ],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
         if sidecar.is_dir() and len(list(sidecar.glob("object-*.h5"))) >= 2:
@@ -266,8 +295,22 @@ def test_killed_run_resumes_per_object_to_identical_bytes(lband, tmp_path):
     finished = len(list(sidecar.glob("object-*.h5")))
     assert 2 <= finished < 12, f"kill was not mid-shard ({finished} of 12 objects finished)"
     assert digests(work) == digests(raw)  # the shard itself is untouched until complete
-    proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "label", "--data", str(work),
-                           "--workers", "2", *args], capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "radar_sim.cli",
+            "label",
+            "--data",
+            str(work),
+            "--workers",
+            "2",
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert f"{finished} finished before an interruption" in proc.stdout
     assert proc.stdout.count("] shard-00000.h5 object") == 12 - finished
     assert digests(work) == digests(done)
@@ -286,11 +329,17 @@ def test_relabelling_with_another_band_changes_the_label_fingerprint(labelled, l
     with BenchmarkData(work) as data:
         shape = data.target_shape
     predictions = tmp_path / "p.h5"
-    write_predictions(predictions, before, np.arange(1), np.zeros((1, *shape), np.float32),
-                      label_fingerprint=labels_before)
+    write_predictions(
+        predictions,
+        before,
+        np.arange(1),
+        np.zeros((1, *shape), np.float32),
+        label_fingerprint=labels_before,
+    )
     other = tmp_path / "sband.json"
-    other.write_text(json.dumps({**LBAND, "name": "test-sband", "f_start_hz": 2e9,
-                                 "f_stop_hz": 3e9}))
+    other.write_text(
+        json.dumps({**LBAND, "name": "test-sband", "f_start_hz": 2e9, "f_stop_hz": 3e9})
+    )
     main(["label", "--data", str(work), "--config", str(other), "--overwrite"])
     assert dataset_fingerprint(work) == before
     assert label_fingerprint(work) != labels_before
@@ -353,7 +402,7 @@ def test_bad_datasets_fail_fast_and_change_nothing(dataset, tmp_path):
     truncated = tmp_path / "truncated"
     shutil.copytree(dataset, truncated)
     data = (truncated / shard_name(3)).read_bytes()
-    (truncated / shard_name(3)).write_bytes(data[:len(data) // 2])
+    (truncated / shard_name(3)).write_bytes(data[: len(data) // 2])
     before = digests(truncated)
     message = _one_line_error(["label", "--data", str(truncated)])
     assert str(truncated / shard_name(3)) in message and "not a readable HDF5 shard" in message
@@ -374,7 +423,9 @@ def test_unreachable_scheduler(dataset, tmp_path):
     work = tmp_path / "data"
     shutil.copytree(dataset, work)
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        message = _one_line_error(["label", "--data", str(work), "--scheduler", "tcp://127.0.0.1:1"])
+        message = _one_line_error(
+            ["label", "--data", str(work), "--scheduler", "tcp://127.0.0.1:1"]
+        )
     assert "cannot use the Dask cluster tcp://127.0.0.1:1" in message
     assert digests(work) == digests(dataset)
 
@@ -382,8 +433,9 @@ def test_unreachable_scheduler(dataset, tmp_path):
 def test_bad_mesh_names_shard_and_object(lband, tmp_path):
     data = write_dataset(tmp_path / "nan", n_objects=2, objects_per_shard=2, corrupt=1)
     before = digests(data)
-    message = _one_line_error(["label", "--data", str(data), "--workers", "1", "--config", lband,
-                               "--mesh-labels", "all"])
+    message = _one_line_error(
+        ["label", "--data", str(data), "--workers", "1", "--config", lband, "--mesh-labels", "all"]
+    )
     assert str(data / shard_name(0)) in message and "object 1" in message
     assert digests(data) == before
 
@@ -411,7 +463,8 @@ def test_info_prints_both_fingerprints(dataset, labelled, capsys):
 
 
 def test_sidecars_of_another_request_are_dropped_only_once_all_shards_are_valid(
-        dataset, labelled, lband, tmp_path, capsys):
+    dataset, labelled, lband, tmp_path, capsys
+):
     work = tmp_path / "data"
     shutil.copytree(dataset, work)
     stale = work / SIDECAR / "shard-00000" / "object-00000.h5"
@@ -419,7 +472,7 @@ def test_sidecars_of_another_request_are_dropped_only_once_all_shards_are_valid(
     with h5py.File(stale, "w") as f:
         f.attrs["request"] = "labels of another config"
     good = (work / shard_name(3)).read_bytes()
-    (work / shard_name(3)).write_bytes(good[:len(good) // 2])
+    (work / shard_name(3)).write_bytes(good[: len(good) // 2])
     assert "not a readable HDF5 shard" in _one_line_error(
         ["label", "--data", str(work), *options(lband)]
     )

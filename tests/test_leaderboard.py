@@ -66,9 +66,12 @@ def response(scale: np.ndarray, object_id: int) -> np.ndarray:
     th = np.radians(ASPECT)[:, None, None]
     ph = np.radians(ROLL)[None, :, None]
     r = RANGE[None, None, :]
-    centre = 0.5 * (scale[0] * np.sin(th) * np.cos(ph) + scale[1] * np.sin(th) * np.sin(ph)
-                    + scale[2] * np.cos(th))
-    amp = np.linalg.norm(scale) * (1 + np.cos(th) ** 2) * np.exp(-((r + centre) / 0.15) ** 2)
+    centre = 0.5 * (
+        scale[0] * np.sin(th) * np.cos(ph)
+        + scale[1] * np.sin(th) * np.sin(ph)
+        + scale[2] * np.cos(th)
+    )
+    amp = np.linalg.norm(scale) * (1 + np.cos(th) ** 2) * np.exp(-(((r + centre) / 0.15) ** 2))
     return ((1e-3 + amp) * np.exp(2j * np.pi * r * (object_id + 1))).astype(np.complex64)
 
 
@@ -94,30 +97,58 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
                 )
                 for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))
             ]
-            objects.append(ObjectRecord(oid, oid // 3, scale, 1000 + oid,
-                                        "test" if oid in TEST_OBJECTS else "train", meshes))
+            objects.append(
+                ObjectRecord(
+                    oid,
+                    oid // 3,
+                    scale,
+                    1000 + oid,
+                    "test" if oid in TEST_OBJECTS else "train",
+                    meshes,
+                )
+            )
         path = directory / f"shard-{shard:05d}.h5"
         write_shard(path, objects, CLASSES, {"salt": salt}, "test")
 
         def add_radar(f, objects=objects):
             rows = [(k, m.variant) for k, o in enumerate(objects) for m in o.meshes]
-            gain = {v: np.float32(10 ** ((SIMPLE_DB if v == 0 else VARIANT_DB) / 20))
-                    for _, v in rows}
-            write_radar(f, attrs={"config": json.dumps({"name": "analytic-test"}),
-                                  "simulation_rule": json.dumps({"test": True})},
-                        coordinates={"aspect_deg": ASPECT, "roll_deg": ROLL, "range_m": RANGE,
-                                     "frequency_hz": np.linspace(8e9, 12e9, len(RANGE))},
-                        object_ids=[o.id for o in objects], modes=["convex"] * len(objects),
-                        responses=(response(o.scale, o.id) for o in objects),
-                        mesh_index=np.arange(len(rows)), mesh_modes=["convex"] * len(rows),
-                        mesh_responses=(response(objects[k].scale, objects[k].id) * gain[v]
-                                        for k, v in rows))
+            gain = {
+                v: np.float32(10 ** ((SIMPLE_DB if v == 0 else VARIANT_DB) / 20)) for _, v in rows
+            }
+            write_radar(
+                f,
+                attrs={
+                    "config": json.dumps({"name": "analytic-test"}),
+                    "simulation_rule": json.dumps({"test": True}),
+                },
+                coordinates={
+                    "aspect_deg": ASPECT,
+                    "roll_deg": ROLL,
+                    "range_m": RANGE,
+                    "frequency_hz": np.linspace(8e9, 12e9, len(RANGE)),
+                },
+                object_ids=[o.id for o in objects],
+                modes=["convex"] * len(objects),
+                responses=(response(o.scale, o.id) for o in objects),
+                mesh_index=np.arange(len(rows)),
+                mesh_modes=["convex"] * len(rows),
+                mesh_responses=(
+                    response(objects[k].scale, objects[k].id) * gain[v] for k, v in rows
+                ),
+            )
+
         rewrite_atomically(path, add_radar)
     return directory
 
 
-def write_predictions(path: Path, data: Path, offsets=OFFSETS, drop: int = 0,
-                      fingerprint: str | None = None, collapse: bool = False) -> Path:
+def write_predictions(
+    path: Path,
+    data: Path,
+    offsets=OFFSETS,
+    drop: int = 0,
+    fingerprint: str | None = None,
+    collapse: bool = False,
+) -> Path:
     """Predictions = exact dB target + per-class offset; ``drop`` omits the last test meshes."""
     uids, rows = [], []
     for oid in TEST_OBJECTS:
@@ -138,10 +169,17 @@ def write_predictions(path: Path, data: Path, offsets=OFFSETS, drop: int = 0,
     return path
 
 
-def write_results(path: Path, data: Path, predictions: Path, name: str = "graph-ae",
-                  metrics: dict | None = None, ms_per_mesh: float = 1.25) -> Path:
+def write_results(
+    path: Path,
+    data: Path,
+    predictions: Path,
+    name: str = "graph-ae",
+    metrics: dict | None = None,
+    ms_per_mesh: float = 1.25,
+) -> Path:
     """A results JSON as `benchmark evaluate` writes it, metrics from the real scorer."""
     from benchmark.protocol import score_predictions
+
     results = {
         "benchmark_version": "0.1.0",
         "dataset_fingerprint": dataset_fingerprint(data),
@@ -158,10 +196,14 @@ def write_results(path: Path, data: Path, predictions: Path, name: str = "graph-
 
 def expected_metrics(offsets=OFFSETS) -> dict:
     """Exact metrics of ``write_predictions`` (equal mesh counts per class: pooled = class mean)."""
-    per_class = {c: {"simple_mse": s * s, "complex_mse": k * k, "variation_mse": (s - k) ** 2}
-                 for c, (s, k) in offsets.items()}
-    return {m: float(np.mean([row[m] for row in per_class.values()]))
-            for m in ("simple_mse", "complex_mse", "variation_mse")} | {"per_class": per_class}
+    per_class = {
+        c: {"simple_mse": s * s, "complex_mse": k * k, "variation_mse": (s - k) ** 2}
+        for c, (s, k) in offsets.items()
+    }
+    return {
+        m: float(np.mean([row[m] for row in per_class.values()]))
+        for m in ("simple_mse", "complex_mse", "variation_mse")
+    } | {"per_class": per_class}
 
 
 @pytest.fixture(scope="module")
@@ -197,11 +239,24 @@ def close(a: float, b: float, rel: float = 1e-4) -> bool:
 
 # --- accepted submissions ---------------------------------------------------------------
 
+
 def test_accepted_submission_is_rescored_and_written(data, submission, tmp_path):
     results, pred = submission
     entries = tmp_path / "entries"
-    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
-        "--name", "Graph AE <b>", "--link", "https://example.org/paper?a=1&b=2")
+    run(
+        "submit",
+        results,
+        "--predictions",
+        pred,
+        "--data",
+        data,
+        "--entries",
+        entries,
+        "--name",
+        "Graph AE <b>",
+        "--link",
+        "https://example.org/paper?a=1&b=2",
+    )
     (path,) = entries.glob("*.json")
     entry = json.loads(path.read_text())
     assert entry["name"] == "Graph AE <b>" and entry["link"] == "https://example.org/paper?a=1&b=2"
@@ -236,6 +291,7 @@ def test_tolerance_accepts_a_rounding_level_difference(data, submission, tmp_pat
 
 
 # --- refused submissions: one-line error, nothing written --------------------------------
+
 
 def _tamper(results: Path, out: Path, edit) -> Path:
     r = json.loads(results.read_text())
@@ -291,10 +347,18 @@ def test_malformed_and_mismatched_files_are_refused(data, submission, tmp_path):
         (_truncated(Path(results), tmp_path / "trunc.json"), pred, data, "trunc.json"),
         (results, _truncated(Path(pred), tmp_path / "trunc.h5"), data, "trunc.h5"),
         (results, pred, other, "another dataset"),
-        (results, write_predictions(tmp_path / "fp.h5", data, fingerprint="cd" * 32), data,
-         "fp.h5: made for dataset cdcdcd"),
-        (results, write_predictions(tmp_path / "missing.h5", data, drop=2), data,
-         "missing.h5: missing 2 of 18 test meshes"),
+        (
+            results,
+            write_predictions(tmp_path / "fp.h5", data, fingerprint="cd" * 32),
+            data,
+            "fp.h5: made for dataset cdcdcd",
+        ),
+        (
+            results,
+            write_predictions(tmp_path / "missing.h5", data, drop=2),
+            data,
+            "missing.h5: missing 2 of 18 test meshes",
+        ),
         (results, tmp_path / "absent.h5", data, "absent.h5"),
         (results, pred, tmp_path / "nowhere", "nowhere"),
     ]
@@ -318,8 +382,18 @@ def test_malformed_and_mismatched_files_are_refused(data, submission, tmp_path):
 def test_bad_link_and_duplicate_are_refused(data, submission, tmp_path):
     results, pred = submission
     entries = tmp_path / "entries"
-    msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
-                  "--link", "javascript:alert(1)")
+    msg = refused(
+        "submit",
+        results,
+        "--predictions",
+        pred,
+        "--data",
+        data,
+        "--entries",
+        entries,
+        "--link",
+        "javascript:alert(1)",
+    )
     assert "not an http" in msg and not entries.exists()
     run("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     before = {p: p.read_bytes() for p in entries.iterdir()}
@@ -329,6 +403,7 @@ def test_bad_link_and_duplicate_are_refused(data, submission, tmp_path):
 
 
 # --- seeding from a `benchmark reproduce` output directory --------------------------------
+
 
 def test_seed_submits_every_row_and_reports_the_rest(data, submission, tmp_path):
     results, pred = submission
@@ -356,6 +431,7 @@ def test_seed_submits_every_row_and_reports_the_rest(data, submission, tmp_path)
 
 # --- rendering -----------------------------------------------------------------------------
 
+
 def png_size(path: Path) -> tuple[int, int]:
     head = path.read_bytes()[:24]
     assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR", path
@@ -365,18 +441,41 @@ def png_size(path: Path) -> tuple[int, int]:
 def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tmp_path):
     results, pred = submission
     entries = tmp_path / "entries"
-    run("submit", results, "--predictions", pred, "--data", data, "--entries", entries,
-        "--name", "Graph AE <b>", "--link", "https://example.org/paper?a=1&b=2")
-    worse = write_predictions(tmp_path / "worse.h5", data,
-                              offsets={c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()})
-    worse_results = write_results(tmp_path / "worse.json", data, worse, name="direct $\\frac{$",
-                                  ms_per_mesh=0.1)
+    run(
+        "submit",
+        results,
+        "--predictions",
+        pred,
+        "--data",
+        data,
+        "--entries",
+        entries,
+        "--name",
+        "Graph AE <b>",
+        "--link",
+        "https://example.org/paper?a=1&b=2",
+    )
+    worse = write_predictions(
+        tmp_path / "worse.h5", data, offsets={c: (s + 1, k + 1) for c, (s, k) in OFFSETS.items()}
+    )
+    worse_results = write_results(
+        tmp_path / "worse.json", data, worse, name="direct $\\frac{$", ms_per_mesh=0.1
+    )
     r = json.loads(worse_results.read_text())
     r["speed"] = {"ms_per_mesh": 0.1, "hardware": None, "self_reported": True}  # --speed-ms
     worse_results.write_text(json.dumps(r))
     run("submit", worse_results, "--predictions", worse, "--data", data, "--entries", entries)
-    run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250",
-        "--hardware", "cpu: test")
+    run(
+        "simulator",
+        "--data",
+        data,
+        "--entries",
+        entries,
+        "--ms-per-mesh",
+        "250",
+        "--hardware",
+        "cpu: test",
+    )
     site = tmp_path / "site"
     site.mkdir()
     (site / "example-000000000000.png").write_bytes(b"stale figure of a dataset no longer shown")
@@ -392,7 +491,11 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     refs = re.findall(r"<tr class=\"reference\">(.*?)</tr>", body, re.S)
     assert len(rows) == 2 and "Graph AE" in rows[0] and "direct" in rows[1]  # by Complex MSE
     assert [re.search(r"reference: ([a-z-]+)", r).group(1) for r in refs] == [
-        "train-mean", "class-mean", "nearest-scale", "class-scale-nn"]
+        "train-mean",
+        "class-mean",
+        "nearest-scale",
+        "class-scale-nn",
+    ]
     # submitted entries: speed and params are claims, marked whatever the results JSON says
     assert "0.1 (self-reported)" in rows[1] and "1.25 (self-reported)" in rows[0]
     assert "1.23 M (self-reported)" in rows[0]
@@ -407,8 +510,9 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     assert table and "[Graph AE \\<b\\>](https://example.org/paper?a=1&b=2)" in table[0], md
     assert md.count("| ref | reference: ") == 4 and "0.1 (self-reported)" in md
     assert f"{exp['complex_mse']:.2f}" in table[0]
-    assert (f"250 (self-reported) ms per mesh on cpu: test; Complex MSE {VARIANT_DB ** 2:.2f} dB²"
-            in md)  # given by hand (--ms-per-mesh), not timed
+    assert (
+        f"250 (self-reported) ms per mesh on cpu: test; Complex MSE {VARIANT_DB**2:.2f} dB²" in md
+    )  # given by hand (--ms-per-mesh), not timed
 
 
 def test_render_skips_a_bad_entry_file_with_a_warning(data, submission, tmp_path, capsys):
@@ -447,6 +551,7 @@ def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_pat
 
 def test_simulator_point_is_the_physics_on_representation_meshes(data, tmp_path):
     from leaderboard.simulator import MEASURED
+
     entries = tmp_path / "entries"
     run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250")
     (path,) = entries.glob("physics-*.json")
@@ -455,18 +560,20 @@ def test_simulator_point_is_the_physics_on_representation_meshes(data, tmp_path)
     assert e["speed"]["ms_per_mesh"] == 250.0
     assert e["dataset"]["label_fingerprint"] == label_fingerprint(data)
     for block in [e["metrics"], *e["metrics"]["per_class"].values()]:
-        assert close(block["simple_mse"], SIMPLE_DB ** 2)
-        assert close(block["complex_mse"], VARIANT_DB ** 2)
+        assert close(block["simple_mse"], SIMPLE_DB**2)
+        assert close(block["complex_mse"], VARIANT_DB**2)
         assert close(block["variation_mse"], (VARIANT_DB - SIMPLE_DB) ** 2)
     bare = tmp_path / "bare"
     shutil.copytree(data, bare)
 
     def drop_mesh_labels(f):
         del f["radar/mesh_response"], f["radar/mesh_mode"], f["radar/mesh"]
+
     for shard in sorted(bare.glob("shard-*.h5")):
         rewrite_atomically(shard, drop_mesh_labels)
-    assert "--mesh-labels all" in refused("simulator", "--data", bare, "--entries", entries,
-                                          "--ms-per-mesh", "300")
+    assert "--mesh-labels all" in refused(
+        "simulator", "--data", bare, "--entries", entries, "--ms-per-mesh", "300"
+    )
     assert json.loads(path.read_text())["speed"]["ms_per_mesh"] == 250.0  # kept
 
 
@@ -476,17 +583,30 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
 
     import radar_sim
     from radar_sim.cli import main as radar_sim_main
+
     real = tmp_path / "real"
     shutil.copytree(data, real)
 
     def drop_labels(f):
         del f["radar"]
+
     for shard in sorted(real.glob("shard-*.h5")):
         rewrite_atomically(shard, drop_labels)
     config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
     (tmp_path / "coarse.json").write_text(json.dumps(config))
-    radar_sim_main(["label", "--data", str(real), "--config", str(tmp_path / "coarse.json"),
-                    "--mesh-labels", "all", "--workers", "1"])
+    radar_sim_main(
+        [
+            "label",
+            "--data",
+            str(real),
+            "--config",
+            str(tmp_path / "coarse.json"),
+            "--mesh-labels",
+            "all",
+            "--workers",
+            "1",
+        ]
+    )
     entries = tmp_path / "entries"
     run("simulator", "--data", real, "--entries", entries)
     e = json.loads(next(entries.glob("physics-*.json")).read_text())
@@ -504,11 +624,11 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
                 k = owner[row]
                 if split[k] == b"test" and variant[row] > 0:
                     d = target_db(f["radar/response"][k]) - target_db(f["radar/mesh_response"][j])
-                    per_object.setdefault(int(ids[k]), []).append(np.mean(d ** 2))
+                    per_object.setdefault(int(ids[k]), []).append(np.mean(d**2))
             # every test mesh, timed ourselves (the entry times a face-count sample of them)
             for row in np.flatnonzero(split[owner] == b"test"):
-                v0, v1 = f["meshes/vertex_offset"][row:row + 2]
-                f0, f1 = f["meshes/face_offset"][row:row + 2]
+                v0, v1 = f["meshes/vertex_offset"][row : row + 2]
+                f0, f1 = f["meshes/face_offset"][row : row + 2]
                 t0 = time.perf_counter()
                 radar_sim.simulate(f["meshes/vertices"][v0:v1], f["meshes/faces"][f0:f1], cfg)
                 per_mesh_seconds.append(time.perf_counter() - t0)
@@ -522,6 +642,7 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
 def test_what_benchmark_evaluate_writes_is_accepted(data, tmp_path):
     """The harness's own output (a reference model run by `benchmark evaluate`) is on the board."""
     from benchmark.cli import main as benchmark_main
+
     results, pred = tmp_path / "results.json", tmp_path / "predictions.h5"
     benchmark_main(
         [
@@ -552,8 +673,18 @@ def test_unregistered_dataset_is_refused_unless_asked(data, tmp_path):
     results = write_results(tmp_path / "results.json", data, pred)
     entries = tmp_path / "e"
     with pytest.raises(SystemExit) as exc:
-        cli.main(["submit", str(results), "--predictions", str(pred), "--data", str(data),
-                  "--entries", str(entries)])
+        cli.main(
+            [
+                "submit",
+                str(results),
+                "--predictions",
+                str(pred),
+                "--data",
+                str(data),
+                "--entries",
+                str(entries),
+            ]
+        )
     assert "not a registered dataset version" in str(exc.value.code)
     assert not entries.exists()
     with pytest.raises(SystemExit) as exc:  # nothing is written into the repository by default
@@ -572,11 +703,15 @@ def test_board_names_the_dataset_version_with_its_grid_and_config():
     assert "version cpu-v1" in text and "31 aspects x 7 rolls x 107 range bins" in text
     assert "xband-v1-31x7x107" in text and "benchmark dataset cpu-v1" in text
     assert describe({**split, "version": None}).startswith("not a registered dataset version")
-    recorded = {**split, "version": "cpu-v1",
-                "fingerprint": versions.get("cpu-v1").fingerprints["mesh"]}
+    recorded = {
+        **split,
+        "version": "cpu-v1",
+        "fingerprint": versions.get("cpu-v1").fingerprints["mesh"],
+    }
     assert "earlier build" not in describe(recorded)
     assert "Scored on an earlier build of cpu-v1 (mesh 390cf5dc" in describe(
-        {**recorded, "fingerprint": "390cf5dc" + "0" * 56})
+        {**recorded, "fingerprint": "390cf5dc" + "0" * 56}
+    )
 
 
 def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path):
@@ -592,13 +727,29 @@ def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path
         rewrite_atomically(shard, lambda f: f.__delitem__("radar"))
     config = {"name": "coarse-test", "n_aspect": 7, "n_roll": 4, "n_freq": 64, "n_range": 51}
     (tmp_path / "coarse.json").write_text(json.dumps(config))
-    radar_sim_main(["label", "--data", str(real), "--config", str(tmp_path / "coarse.json"),
-                    "--mesh-labels", "all", "--workers", "0", "--quiet"])
+    radar_sim_main(
+        [
+            "label",
+            "--data",
+            str(real),
+            "--config",
+            str(tmp_path / "coarse.json"),
+            "--mesh-labels",
+            "all",
+            "--workers",
+            "0",
+            "--quiet",
+        ]
+    )
     with BenchmarkData(real) as d, h5py.File(d.paths[0]) as f:
         simple_row = int(f["meshes/variant"][()].tolist().index(0))  # object 0's simple mesh
         j = f["radar/mesh"][()].tolist().index(simple_row)
         stored = f["radar/mesh_response"][j]
-        obj = int(d.meshes["object"][np.flatnonzero((d.meshes["shard"] == 0)
-                                                     & (d.meshes["row"] == simple_row))[0]])
-        np.testing.assert_allclose(_simple_physics(d, obj), stored, rtol=0, atol=1e-6 * abs(
-            stored).max())
+        obj = int(
+            d.meshes["object"][
+                np.flatnonzero((d.meshes["shard"] == 0) & (d.meshes["row"] == simple_row))[0]
+            ]
+        )
+        np.testing.assert_allclose(
+            _simple_physics(d, obj), stored, rtol=0, atol=1e-6 * abs(stored).max()
+        )

@@ -41,9 +41,14 @@ def snapshot(directory: Path) -> dict:
 
 def run(*args, env=None) -> tuple[subprocess.CompletedProcess, float]:
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", *map(str, args)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=120,
-                          env={**os.environ, cluster.NO_WORKER_ENV: str(TIMEOUT_S), **(env or {})})
+    proc = subprocess.run(
+        [sys.executable, "-m", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        env={**os.environ, cluster.NO_WORKER_ENV: str(TIMEOUT_S), **(env or {})},
+    )
     return proc, time.perf_counter() - t0
 
 
@@ -53,16 +58,45 @@ def test_jobs_on_a_cluster_without_workers_fail_in_one_line(scheduler, tmp_path)
     config.write_text(json.dumps(LBAND))
     before = snapshot(data)
     for args, where in [
-            (["radar_sim.cli", "label", "--data", data, "--config", config, "--quiet",
-              "--scheduler", scheduler], "radar-sim label"),
-            (["basic_shapes.cli", "generate", "--data", tmp_path / "g", "--classes", "cube",
-              "--objects-per-class", "1", "--variants", "0", "--quiet", "--scheduler",
-              scheduler], "basic-shapes generate")]:
+        (
+            [
+                "radar_sim.cli",
+                "label",
+                "--data",
+                data,
+                "--config",
+                config,
+                "--quiet",
+                "--scheduler",
+                scheduler,
+            ],
+            "radar-sim label",
+        ),
+        (
+            [
+                "basic_shapes.cli",
+                "generate",
+                "--data",
+                tmp_path / "g",
+                "--classes",
+                "cube",
+                "--objects-per-class",
+                "1",
+                "--variants",
+                "0",
+                "--quiet",
+                "--scheduler",
+                scheduler,
+            ],
+            "basic-shapes generate",
+        ),
+    ]:
         proc, wall = run(*args)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 1 and len(lines) == 1, proc.stderr
-        assert lines[0].startswith(f"{where}: error: --scheduler {scheduler}: no Dask worker "
-                                   f"for {TIMEOUT_S} s"), lines[0]
+        assert lines[0].startswith(
+            f"{where}: error: --scheduler {scheduler}: no Dask worker for {TIMEOUT_S} s"
+        ), lines[0]
         assert "rerun" in lines[0]
         assert TIMEOUT_S <= wall < TIMEOUT_S + 30
     assert snapshot(data) == before  # nothing half-written: a rerun starts where it stopped
@@ -71,9 +105,21 @@ def test_jobs_on_a_cluster_without_workers_fail_in_one_line(scheduler, tmp_path)
 
 def test_losing_every_worker_fails_within_the_timeout(scheduler, monkeypatch):
     monkeypatch.setenv(cluster.NO_WORKER_ENV, str(TIMEOUT_S))
-    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", scheduler,
-                               "--no-nanny", "--nthreads", "1", "--host", "127.0.0.1"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "distributed.cli.dask_worker",
+            scheduler,
+            "--no-nanny",
+            "--nthreads",
+            "1",
+            "--host",
+            "127.0.0.1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         with Client(scheduler) as client:
             client.wait_for_workers(1, timeout=60)
@@ -96,10 +142,24 @@ def test_ctrl_c_during_label_prints_one_line(tmp_path):
     """SIGINT to the whole process group, as a terminal sends it, while the Dask workers run."""
     data = write_dataset(tmp_path / "data", n_objects=12, objects_per_shard=12)
     sidecar = data / ".labels" / "shard-00000"  # xband-v1: the large objects take seconds
-    proc = subprocess.Popen([sys.executable, "-m", "radar_sim.cli", "label", "--data", data,
-                             "--workers", "1", "--quiet"], cwd=ROOT,
-                            start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "radar_sim.cli",
+            "label",
+            "--data",
+            data,
+            "--workers",
+            "1",
+            "--quiet",
+        ],
+        cwd=ROOT,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.time() + 120
     while proc.poll() is None and not any(sidecar.glob("object-*.h5")):
         assert time.time() < deadline, "no object finished"

@@ -65,7 +65,7 @@ def test_edge_partner_pairs_each_directed_edge_with_its_reverse():
     directed = meshcheck.directed_edges(f)
     n = len(f)
     for k in range(3):  # row k * F + i is face i's edge from corner k to corner k + 1
-        np.testing.assert_array_equal(directed[k * n:(k + 1) * n], f[:, [k, (k + 1) % 3]])
+        np.testing.assert_array_equal(directed[k * n : (k + 1) * n], f[:, [k, (k + 1) % 3]])
     partner = meshcheck.edge_partner(f)
     np.testing.assert_array_equal(directed[partner], directed[:, ::-1])
     np.testing.assert_array_equal(partner[partner], np.arange(3 * n))
@@ -130,8 +130,11 @@ def test_as_arrays_returns_float64_and_int64_and_one_error_type():
 
 
 def test_meshcheck_imports_neither_bpy_nor_torch_nor_pymeshlab():
-    code = ("import sys, basic_shapes.meshcheck\n"
-            "print(sorted(m for m in ('bpy', 'torch', 'pymeshlab') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, cwd=ROOT)
+    code = (
+        "import sys, basic_shapes.meshcheck\n"
+        "print(sorted(m for m in ('bpy', 'torch', 'pymeshlab') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
     assert out.stdout.strip() == "[]"

@@ -34,12 +34,18 @@ def test_two_objects_by_hand():
     s.add(1, np.array([1.0, 3.0]), np.array([1.0, 1.0]), np.array([[1.0, 3.0]]))
     r = s.result()
     assert (r["simple_mse"], r["complex_mse"], r["variation_mse"]) == (1.5, 1.0, 1.5)
-    assert r["per_class"]["cube"] == {"simple_mse": 1.0, "complex_mse": 2.0, "variation_mse": 1.0,
-                                      "n_objects": 1, "simple_mse_ci": [1.0, 1.0],
-                                      "complex_mse_ci": [2.0, 2.0], "variation_mse_ci": [1.0, 1.0],
-                                      **dict.fromkeys(("ood_complex_mse", "ood_complex_mse_ci",
-                                                       "ood_variation_mse",
-                                                       "ood_variation_mse_ci"))}
+    assert r["per_class"]["cube"] == {
+        "simple_mse": 1.0,
+        "complex_mse": 2.0,
+        "variation_mse": 1.0,
+        "n_objects": 1,
+        "simple_mse_ci": [1.0, 1.0],
+        "complex_mse_ci": [2.0, 2.0],
+        "variation_mse_ci": [1.0, 1.0],
+        **dict.fromkeys(
+            ("ood_complex_mse", "ood_complex_mse_ci", "ood_variation_mse", "ood_variation_mse_ci")
+        ),
+    }
     assert r["ood_complex_mse"] is None and r["per_remesher"] == {}  # no OOD meshes
     assert r["per_class"]["cylinder"]["complex_mse"] == 0.0
     assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: nothing to draw
@@ -112,17 +118,26 @@ def _score(cls, t, p, train_mean):
     return score_arrays(cls, t, p, p[:, None], ["a", "b", "c"], train_mean=train_mean)
 
 
-@pytest.mark.parametrize("probe, flagged", [
-    ("constant", True), ("mean+noise", True), ("shrinkage", False), ("oracle", False),
-    ("class-mean", False)])
+@pytest.mark.parametrize(
+    "probe, flagged",
+    [
+        ("constant", True),
+        ("mean+noise", True),
+        ("shrinkage", False),
+        ("oracle", False),
+        ("class-mean", False),
+    ],
+)
 def test_no_skill_probes(probe, flagged):
     c_train, train, cls, t, rng = _probe_world()
     m = train.mean(axis=0)
-    p = {"constant": np.broadcast_to(m, t.shape),
-         "mean+noise": m + rng.normal(0, 10, t.shape),
-         "shrinkage": m + 0.2 * (t - m),
-         "oracle": t,
-         "class-mean": np.stack([train[c_train == c].mean(axis=0) for c in cls])}[probe]
+    p = {
+        "constant": np.broadcast_to(m, t.shape),
+        "mean+noise": m + rng.normal(0, 10, t.shape),
+        "shrinkage": m + 0.2 * (t - m),
+        "oracle": t,
+        "class-mean": np.stack([train[c_train == c].mean(axis=0) for c in cls]),
+    }[probe]
     r = _score(cls, t, p, m)
     assert r["no_skill"] is flagged
     # the decomposition is exact: MSE = A + B - 2C, gain = A - MSE (independent numpy formulae)
@@ -225,16 +240,28 @@ def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():
     n, cls = 12, np.arange(12) % 3
     runs = {}
     for seed in (0, 1):
-        errs = {m: rng.gamma(2.0, 10.0, n) for m in ("simple_mse", "complex_mse",
-                                                      "variation_mse", *ood_keys())}
+        errs = {
+            m: rng.gamma(2.0, 10.0, n)
+            for m in ("simple_mse", "complex_mse", "variation_mse", *ood_keys())
+        }
         errs["ood_complex_mse:delaunay"][:] = np.nan  # a remesher without meshes
         metrics = {m: float(np.nanmean(v)) for m, v in errs.items() if ":" not in m}
         metrics.update(no_skill=False, per_class={"a": {}, "b": {}, "c": {}})
-        runs[seed] = {"train_seconds": 1.0, "results": {
-            "metrics": metrics, "model": {"params": 5}, "speed": {"ms_per_mesh": 1.0},
-            "per_object": {"object_id": list(range(n)), "class_index": cls.tolist(),
-                           **{m: [None if np.isnan(x) else x for x in v.tolist()]
-                              for m, v in errs.items()}}}}
+        runs[seed] = {
+            "train_seconds": 1.0,
+            "results": {
+                "metrics": metrics,
+                "model": {"params": 5},
+                "speed": {"ms_per_mesh": 1.0},
+                "per_object": {
+                    "object_id": list(range(n)),
+                    "class_index": cls.tolist(),
+                    **{
+                        m: [None if np.isnan(x) else x for x in v.tolist()] for m, v in errs.items()
+                    },
+                },
+            },
+        }
     (row,) = table_rows({"graph-basic": runs})
     po = [runs[s]["results"]["per_object"] for s in (0, 1)]
     mean = (np.array(po[0]["ood_complex_mse"]) + po[1]["ood_complex_mse"]) / 2
@@ -247,10 +274,24 @@ def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():
     sub = remesher_table([row], {})
     assert sub[-1].startswith("| graph | none | simple |") and "qem Variation" in sub[-3]
     assert sub[-1].count("|") == 3 + 4 + 1  # embedding, pretraining, training meshes; 2 x 2
-    table = {"preset": "t", "command": "c", "dataset": {"description": "d", "fingerprint": "f"},
-             "hardware": "h", "seeds": [0, 1], "references": {}, "rows": [row], "findings": [],
-             "timing": {"total_s": 60, "rows_trained": 2, "rows_reused": 0, "rows_s": 1,
-                        "jobs": 1, "threads_per_job": 1}}
+    table = {
+        "preset": "t",
+        "command": "c",
+        "dataset": {"description": "d", "fingerprint": "f"},
+        "hardware": "h",
+        "seeds": [0, 1],
+        "references": {},
+        "rows": [row],
+        "findings": [],
+        "timing": {
+            "total_s": 60,
+            "rows_trained": 2,
+            "rows_reused": 0,
+            "rows_s": 1,
+            "jobs": 1,
+            "threads_per_job": 1,
+        },
+    }
     md = render_markdown(table)
     assert "| OOD Complex | OOD Variation |" in md
     assert f"{row['ood_complex_mse']:.1f} ± " in md

@@ -23,9 +23,14 @@ def normalized(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ragged_meshes() -> list[tuple[np.ndarray, np.ndarray]]:
-    return [normalized(m) for m in (trimesh.creation.box(extents=(1.0, 0.5, 0.3)),
-                                    trimesh.creation.icosphere(subdivisions=2),
-                                    trimesh.creation.cylinder(radius=0.4, height=1.0, sections=12))]
+    return [
+        normalized(m)
+        for m in (
+            trimesh.creation.box(extents=(1.0, 0.5, 0.3)),
+            trimesh.creation.icosphere(subdivisions=2),
+            trimesh.creation.cylinder(radius=0.4, height=1.0, sections=12),
+        )
+    ]
 
 
 def resplit(vertices, faces, n, seed):
@@ -43,15 +48,27 @@ def resplit(vertices, faces, n, seed):
 
 def model(name: str, seed: int = 0):
     torch.manual_seed(seed)
-    return build_model(name, N_OUT, n_scale_bins=8, dim=32, embed_layers=2, agg_layers=2,
-                       decoder_hidden=32, codebook_size=16).eval()
+    return build_model(
+        name,
+        N_OUT,
+        n_scale_bins=8,
+        dim=32,
+        embed_layers=2,
+        agg_layers=2,
+        decoder_hidden=32,
+        codebook_size=16,
+    ).eval()
 
 
 # --- features -----------------------------------------------------------------------------
 def brute_force_adjacency(faces) -> set[tuple[int, int]]:
     edges = [{frozenset(p) for p in itertools.combinations(f, 2)} for f in faces]
-    return {(i, j) for i in range(len(faces)) for j in range(len(faces))
-            if i != j and edges[i] & edges[j]}
+    return {
+        (i, j)
+        for i in range(len(faces))
+        for j in range(len(faces))
+        if i != j and edges[i] & edges[j]
+    }
 
 
 def test_face_adjacency_matches_brute_force_on_closed_mesh():
@@ -108,7 +125,7 @@ def test_ragged_batch_shapes_masks_and_padding_independence(name):
     with torch.no_grad():
         pred, _ = m(batch)
         emb, mask, _ = m.embed_faces(batch)
-        alone = [m(collate([x], scale_bin=bins[i:i + 1]))[0][0] for i, x in enumerate(feats)]
+        alone = [m(collate([x], scale_bin=bins[i : i + 1]))[0][0] for i, x in enumerate(feats)]
     assert pred.shape == (3, N_OUT) and torch.isfinite(pred).all()
     if name in FACE_EMBEDDINGS:
         assert emb.shape == (3, max(n_faces), 32) and torch.equal(mask, batch.mask)
@@ -155,8 +172,13 @@ def test_graph_node_features_are_the_projected_concatenation():
     batch = collate([featurize(v, f) for v, f in ragged_meshes()])
     tokens = batch.tokens[batch.mask]
     starts = np.cumsum([0] + [n for _, n in TOKEN_GROUPS])
-    concatenated = torch.cat([table(tokens[:, a:b]).flatten(1)
-                              for table, a, b in zip(g.tables, starts[:-1], starts[1:])], 1)
+    concatenated = torch.cat(
+        [
+            table(tokens[:, a:b]).flatten(1)
+            for table, a, b in zip(g.tables, starts[:-1], starts[1:])
+        ],
+        1,
+    )
     torch.testing.assert_close(g.node_features(batch), g.proj(concatenated), atol=1e-5, rtol=1e-5)
 
 
@@ -234,8 +256,10 @@ def test_invariant_model_same_prediction_for_two_meshings_of_a_box():
     np.testing.assert_allclose(ray_probes(v1, f1), ray_probes(v2, f2), atol=1e-9)
     inv, graph = model("invariant"), model("graph")
     with torch.no_grad():
-        a, b, c = (inv(collate([featurize(v, f, probes=True)]))[0][0]
-                   for v, f in [(v1, f1), (v2, f2), (other.vertices, other.faces)])
+        a, b, c = (
+            inv(collate([featurize(v, f, probes=True)]))[0][0]
+            for v, f in [(v1, f1), (v2, f2), (other.vertices, other.faces)]
+        )
         ga, gb = (graph(collate([featurize(v, f)]))[0][0] for v, f in [(v1, f1), (v2, f2)])
     torch.testing.assert_close(a, b, atol=1e-5, rtol=0)
     assert (a - c).abs().max() > 100 * (a - b).abs().max() + 1e-4  # it does see shape
@@ -264,8 +288,9 @@ def test_blind_model_sees_the_scale_and_not_the_mesh():
     m = model("blind")
     bins = np.array([[1, 2, 3]])
     with torch.no_grad():
-        a, b, c = (m(collate([featurize(mesh.vertices, mesh.faces)], scale_bin=sb))[0][0]
-                   for mesh, sb in [(box, bins), (sphere, bins), (box, bins + 2)])
+        a, b, c = (
+            m(collate([featurize(mesh.vertices, mesh.faces)], scale_bin=sb))[0][0]
+            for mesh, sb in [(box, bins), (sphere, bins), (box, bins + 2)]
+        )
     torch.testing.assert_close(a, b, atol=0, rtol=0)
     assert (a - c).abs().max() > 1e-3
-

@@ -23,21 +23,23 @@ def plate(a, b, n=1, centre=(0.0, 0.0, 0.0)):
     v = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, centre[2])], axis=1)
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     a0, a1, b0, b1 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
-    f = np.concatenate([np.stack([a0, a1, b1], -1).reshape(-1, 3),
-                        np.stack([a0, b1, b0], -1).reshape(-1, 3)])
+    f = np.concatenate(
+        [np.stack([a0, a1, b1], -1).reshape(-1, 3), np.stack([a0, b1, b0], -1).reshape(-1, 3)]
+    )
     return v, f
 
 
 # --- flat plate ------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("side, freq, expected_dbsm", [(1.5, 3e9, 38.04), (5.0, 1e9, 49.41)])
 def test_plate_broadside(side, freq, expected_dbsm):
     v, f = plate(side, side)
     a = monostatic_field(v, f, [freq], [0, 0, 1])[0, 0]
-    exact = 4 * np.pi * side ** 4 / (C0 / freq) ** 2
+    exact = 4 * np.pi * side**4 / (C0 / freq) ** 2
     assert abs(db(abs(a) ** 2) - db(exact)) <= 0.01
     assert abs(db(abs(a) ** 2) - expected_dbsm) <= 0.005
-    back = monostatic_field(v, f, [freq], [0, 0, -1])[0, 0]    # an open plate is two-sided
+    back = monostatic_field(v, f, [freq], [0, 0, -1])[0, 0]  # an open plate is two-sided
     assert abs(abs(back) - abs(a)) <= 1e-12 * abs(a)
 
 
@@ -62,6 +64,7 @@ def test_plate_sinc_pattern():
 
 # --- spheres ---------------------------------------------------------------------------------
 
+
 def mie_backscatter(ka):
     """σ/(πa²) of a perfectly conducting sphere (Mie series, scipy spherical Bessel)."""
     out = []
@@ -70,9 +73,9 @@ def mie_backscatter(ka):
         jn, jnp = special.spherical_jn(n, x), special.spherical_jn(n, x, derivative=True)
         yn, ynp = special.spherical_yn(n, x), special.spherical_yn(n, x, derivative=True)
         hn, hnp = jn + 1j * yn, jnp + 1j * ynp
-        a_n = jn / hn                                  # magnetic (TE) coefficient
-        b_n = (jn + x * jnp) / (hn + x * hnp)          # electric (TM): [x j_n]'/[x h_n]'
-        out.append(abs(np.sum((-1) ** n * (2 * n + 1) * (b_n - a_n))) ** 2 / x ** 2)
+        a_n = jn / hn  # magnetic (TE) coefficient
+        b_n = (jn + x * jnp) / (hn + x * hnp)  # electric (TM): [x j_n]'/[x h_n]'
+        out.append(abs(np.sum((-1) ** n * (2 * n + 1) * (b_n - a_n))) ** 2 / x**2)
     return np.array(out)
 
 
@@ -83,8 +86,9 @@ def po_sphere(ka):
 
 def test_mie_series_limits():
     """The Mie code itself: Rayleigh 9(ka)⁴ for ka << 1, optical limit 1 for ka >> 1."""
-    assert np.allclose(mie_backscatter([1e-3, 1e-2]) / (9 * np.array([1e-3, 1e-2]) ** 4), 1,
-                       rtol=1e-3)
+    assert np.allclose(
+        mie_backscatter([1e-3, 1e-2]) / (9 * np.array([1e-3, 1e-2]) ** 4), 1, rtol=1e-3
+    )
     assert abs(mie_backscatter([300.0])[0] - 1) < 0.02
 
 
@@ -97,7 +101,7 @@ def sphere_response(subdivisions, a, ka):
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     assert detect_mode(mesh.vertices, mesh.faces) == "convex"
     a_field = monostatic_field(mesh.vertices, mesh.faces, freq, dirs)
-    return np.abs(a_field) ** 2 / (np.pi * a ** 2)
+    return np.abs(a_field) ** 2 / (np.pi * a**2)
 
 
 def test_sphere_po_closed_form_and_mie():
@@ -123,6 +127,7 @@ def test_sphere_mie_up_to_ka_100():
 
 # --- cylinder --------------------------------------------------------------------------------
 
+
 def test_cylinder_broadside():
     """σ = 2πaL²/λ at broadside (ka = 50); the faceted mesh also matches the smooth-surface PO
     integral (k/√π) L a ∫ cos φ e^{j2ka cos φ} dφ."""
@@ -132,28 +137,41 @@ def test_cylinder_broadside():
     mesh = trimesh.creation.cylinder(radius=a, height=length, sections=sections)
     dirs = np.array([[1.0, 0.0, 0.0], [np.cos(0.3), np.sin(0.3), 0.0]])
     got = monostatic_field(mesh.vertices, mesh.faces, [freq], dirs)[:, 0]
-    parts = [integrate.quad(lambda p, g=g: np.cos(p) * g(2 * k * a * np.cos(p)), -np.pi / 2,
-                            np.pi / 2, limit=500)[0] for g in (np.cos, np.sin)]
+    parts = [
+        integrate.quad(
+            lambda p, g=g: np.cos(p) * g(2 * k * a * np.cos(p)), -np.pi / 2, np.pi / 2, limit=500
+        )[0]
+        for g in (np.cos, np.sin)
+    ]
     smooth = k / np.sqrt(np.pi) * length * a * (parts[0] + 1j * parts[1])
     assert np.all(np.abs(db(np.abs(got) ** 2 / abs(smooth) ** 2)) <= 0.005)
-    assert np.all(np.abs(db(np.abs(got) ** 2 / (2 * np.pi * a * length ** 2 / lam))) <= 0.02)
+    assert np.all(np.abs(db(np.abs(got) ** 2 / (2 * np.pi * a * length**2 / lam))) <= 0.02)
 
 
 # --- multiple bounces ------------------------------------------------------------------------
 
+
 def test_dihedral_peak_with_second_bounce():
     """90° dihedral of two a x b plates, seen along the bisector: σ = 8πa²b²/λ² within 0.2 dB."""
     a, b, freq = 0.3, 0.4, 10e9
-    v = np.array([[0, 0, -b / 2], [0, 0, b / 2], [0, a, b / 2], [0, a, -b / 2],
-                  [a, 0, b / 2], [a, 0, -b / 2]])
+    v = np.array(
+        [
+            [0, 0, -b / 2],
+            [0, 0, b / 2],
+            [0, a, b / 2],
+            [0, a, -b / 2],
+            [a, 0, b / 2],
+            [a, 0, -b / 2],
+        ]
+    )
     f = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 1], [0, 5, 4]])
     assert detect_mode(v, f) == "bounce2"
     los = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
-    exact = 8 * np.pi * a ** 2 * b ** 2 / (C0 / freq) ** 2
+    exact = 8 * np.pi * a**2 * b**2 / (C0 / freq) ** 2
     got = abs(monostatic_field(v, f, [freq], los)[0, 0]) ** 2
     assert abs(db(got / exact)) <= 0.2
     single = abs(monostatic_field(v, f, [freq], los, mode="shadowed")[0, 0]) ** 2
-    assert db(exact / single) > 30        # the peak is the double bounce
+    assert db(exact / single) > 30  # the peak is the double bounce
 
 
 def test_triangular_trihedral_peak():
@@ -163,12 +181,13 @@ def test_triangular_trihedral_peak():
     v = np.array([[0, 0, 0], [side, 0, 0], [0, side, 0], [0, 0, side]], dtype=float)
     f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1]])
     los = np.ones(3) / np.sqrt(3)
-    exact = 4 * np.pi * side ** 4 / (3 * (C0 / freq) ** 2)
+    exact = 4 * np.pi * side**4 / (3 * (C0 / freq) ** 2)
     got = abs(monostatic_field(v, f, [freq], los, mode="bounce2")[0, 0]) ** 2
     assert abs(db(got / exact)) <= 0.2
 
 
 # --- topology invariance ---------------------------------------------------------------------
+
 
 def subdivided_box(size, n_grid, n_random, seed):
     """A closed box whose faces are Delaunay triangulations of a shared boundary grid (exact
@@ -213,6 +232,7 @@ def test_box_topology_invariance():
 
 # --- range profiles --------------------------------------------------------------------------
 
+
 def test_range_profile_point_scatterer_convention():
     """A 1 m² point scatterer at p has A(f) = exp(+j2k r̂·p); its profile peaks at exactly 1 in
     the bin at range −r̂·p (positive range points away from the radar)."""
@@ -220,7 +240,7 @@ def test_range_profile_point_scatterer_convention():
     k = 2 * np.pi * config.frequency_hz / C0
     dr = config.range_resolution_m
     for m in (0, 7, -20):
-        profile = config.range_profiles(np.exp(2j * k * (-m * dr)))   # r̂·p = −m·dr
+        profile = config.range_profiles(np.exp(2j * k * (-m * dr)))  # r̂·p = −m·dr
         peak = np.argmax(np.abs(profile))
         assert config.range_m[peak] == pytest.approx(m * dr)
         assert abs(profile[peak] - 1) <= 1e-12
@@ -231,11 +251,12 @@ def test_range_profile_point_scatterer_convention():
 def test_range_profile_of_an_offset_plate():
     """A plate facing +x at x = +5 bins, seen from aspect 90° roll 0 (r̂ = +x): nearer the
     radar, so its peak sits at range −5 bins, with the window-weighted mean of √σ(f)."""
-    config = RadarConfig(name="test-3x1", n_aspect=3, n_roll=1, aspect_start_deg=88.0,
-                         aspect_stop_deg=92.0)
+    config = RadarConfig(
+        name="test-3x1", n_aspect=3, n_roll=1, aspect_start_deg=88.0, aspect_stop_deg=92.0
+    )
     dr = config.range_resolution_m
     v, f = plate(0.1, 0.1)
-    v = v[:, [2, 1, 0]]                   # rotate so that the normal is +x
+    v = v[:, [2, 1, 0]]  # rotate so that the normal is +x
     f = f[:, ::-1]
     v[:, 0] = 5 * dr
     result = simulate(v, f, config)
@@ -256,7 +277,7 @@ def test_shadowing_hides_an_occluded_plate():
     back_v, back_f = plate(0.2, 0.2, n=2)
     v = np.concatenate([front_v, back_v])
     f = np.concatenate([front_f, back_f + len(front_v)])
-    exact = np.sqrt(4 * np.pi) * 0.4 ** 2 / (C0 / freq)
+    exact = np.sqrt(4 * np.pi) * 0.4**2 / (C0 / freq)
     shadowed = monostatic_field(v, f, [freq], [0, 0, 1], mode="shadowed")[0, 0]
     culled = monostatic_field(v, f, [freq], [0, 0, 1], mode="convex")[0, 0]
     assert abs(abs(shadowed) - exact) <= 1e-12 * exact

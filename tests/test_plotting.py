@@ -33,15 +33,23 @@ def _boxes(fig):
 
 def test_chart_labels_do_not_overlap():
     # 20 models with almost equal errors (the usual collapsed table) and close references
-    points = [Point(10.0 ** (1 + i / 10), 133.0 + 0.01 * i, f"model-{i}", ci=(80.0, 180.0),
-                    hollow=i % 2 == 0) for i in range(20)]
+    points = [
+        Point(
+            10.0 ** (1 + i / 10),
+            133.0 + 0.01 * i,
+            f"model-{i}",
+            ci=(80.0, 180.0),
+            hollow=i % 2 == 0,
+        )
+        for i in range(20)
+    ]
     refs = {"train-mean": 133.0, "class-mean": 181.0, "nearest-scale": 166.0, "class-nn": 162.0}
     fig = plotting.speed_vs_error(points, refs, simulator=(30.0, 16.8), title="t")
     boxes = _boxes(fig)
     assert len(boxes) == 20 + 4 + 1  # every label drawn once
     items = list(boxes.values())
     for i, a in enumerate(items):
-        for b in items[i + 1:]:
+        for b in items[i + 1 :]:
             assert not a.overlaps(b)
     assert plotting.png(fig)[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -51,4 +59,4 @@ def test_chart_grows_for_many_labels():
     many = plotting.speed_vs_error([Point(1.0 + i, 50.0, f"m{i}") for i in range(60)])
     assert many.get_figheight() > few.get_figheight()
     boxes = list(_boxes(many).values())
-    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])

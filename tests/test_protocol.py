@@ -121,8 +121,9 @@ def test_third_party_file_in_any_row_order_scores_the_same(data_dir, model_run, 
     perm = np.random.default_rng(0).permutation(len(uid))
     shuffled = tmp_path / "shuffled.h5"
     labels = label_fingerprint(data_dir)
-    write_predictions(shuffled, dataset_fingerprint(data_dir), uid[perm], tgt[perm],
-                      label_fingerprint=labels)
+    write_predictions(
+        shuffled, dataset_fingerprint(data_dir), uid[perm], tgt[perm], label_fingerprint=labels
+    )
     assert score_predictions(data_dir, shuffled) == results["metrics"]
     # a different prediction for one mesh changes the numbers: the check can fail
     tgt[perm[0]] += 1.0
@@ -151,8 +152,9 @@ def test_reference_rows_match_the_reference_models_and_the_mean_has_no_skill(dat
     mean = evaluate(
         data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False
     )
-    near = evaluate(data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw),
-                    progress=False)  # k = 3, as the reference
+    near = evaluate(
+        data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw), progress=False
+    )  # k = 3, as the reference
     refs = mean["metrics"]["references"]
     assert set(refs) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
     for model, name in (
@@ -166,7 +168,8 @@ def test_reference_rows_match_the_reference_models_and_the_mean_has_no_skill(dat
     sk = mean["metrics"]["skill"]
     assert sk["reference"] in refs and isinstance(sk["explained_by_class"], bool)
     assert sk["vs_reference"]["complex_mse"]["diff"] == pytest.approx(
-        mean["metrics"]["complex_mse"] - refs[sk["reference"]]["complex_mse"], rel=1e-9)
+        mean["metrics"]["complex_mse"] - refs[sk["reference"]]["complex_mse"], rel=1e-9
+    )
 
 
 class BadShape:
@@ -184,9 +187,14 @@ class NaNs:
         return np.full((len(batch["scale_m"]), 7, 5, 16), np.nan)
 
 
-@pytest.mark.parametrize("model, problem", [(BadShape(), r"float64\(16, 7, 5, 15\), expected"),
-                                            (Crashes(), "predict failed: RuntimeError"),
-                                            (NaNs(), "non-finite")])
+@pytest.mark.parametrize(
+    "model, problem",
+    [
+        (BadShape(), r"float64\(16, 7, 5, 15\), expected"),
+        (Crashes(), "predict failed: RuntimeError"),
+        (NaNs(), "non-finite"),
+    ],
+)
 def test_bad_models_fail_cleanly_and_leave_no_file(data_dir, tmp_path, model, problem):
     out = tmp_path / "p.h5"
     with pytest.raises(ModelError, match=problem) as err:
@@ -355,8 +363,24 @@ def test_cli_evaluate_both_paths(data_dir, model_file, tmp_path, capsys):
         )
         == 0
     )
-    assert main(["evaluate", "--data", str(data_dir), "--predictions", str(preds), "--out", str(r2),
-                 "--name", "geometry-file", "--speed-ms", "2.5"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--data",
+                str(data_dir),
+                "--predictions",
+                str(preds),
+                "--out",
+                str(r2),
+                "--name",
+                "geometry-file",
+                "--speed-ms",
+                "2.5",
+            ]
+        )
+        == 0
+    )
     a, b = load_results(r1), load_results(r2)
     out = capsys.readouterr().out
     assert a["metrics"] == b["metrics"] and "no skill" in out and "ref class-scale-nn" in out
@@ -413,15 +437,31 @@ def test_scoring_and_evaluate_do_not_import_torch(data_dir, model_run):
 def test_dataset_without_test_split_is_refused(tmp_path):
     d = make_dataset(tmp_path / "d", objects_per_class=1, n_test_per_class=0, n_shards=1)
     with pytest.raises(SystemExit) as err:
-        main(["evaluate", "--data", str(d), "--model", "benchmark.protocol:MeanResponseModel",
-              "--model-arg", f"data_dir={d}", "--out", str(tmp_path / "r.json")])
+        main(
+            [
+                "evaluate",
+                "--data",
+                str(d),
+                "--model",
+                "benchmark.protocol:MeanResponseModel",
+                "--model-arg",
+                f"data_dir={d}",
+                "--out",
+                str(tmp_path / "r.json"),
+            ]
+        )
     assert "has no test-split objects" in str(err.value.code)
 
 
 def test_writer_refuses_mismatched_blocks(tmp_path):
     with pytest.raises(PredictionsError, match=r"2 mesh uids but predictions of shape \(3, 4\)"):
-        write_predictions(tmp_path / "p.h5", "0" * 64, np.arange(2), np.zeros((3, 4), np.float32),
-                          label_fingerprint="0" * 64)
+        write_predictions(
+            tmp_path / "p.h5",
+            "0" * 64,
+            np.arange(2),
+            np.zeros((3, 4), np.float32),
+            label_fingerprint="0" * 64,
+        )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -441,17 +481,31 @@ def _random_predictions(data_dir, path, drop_ood=False):
     for shard in sorted(data_dir.glob("shard-*.h5")):
         with h5py.File(shard) as f:
             ids, split, cls = f["objects/id"][()], f["objects/split"][()], f["objects/class"][()]
-            resp, owner, variant = (f["radar/response"][()], f["meshes/object_index"][()],
-                                    f["meshes/variant"][()])
+            resp, owner, variant = (
+                f["radar/response"][()],
+                f["meshes/object_index"][()],
+                f["meshes/variant"][()],
+            )
         for k in np.flatnonzero(split == b"test"):
             t = 20 * np.log10(np.maximum(np.abs(resp[k].astype(np.complex128)), 1e-4))
-            objs.append((int(ids[k]), int(cls[k]), t.astype(np.float32),
-                         sorted(variant[owner == k].tolist())))
+            objs.append(
+                (
+                    int(ids[k]),
+                    int(cls[k]),
+                    t.astype(np.float32),
+                    sorted(variant[owner == k].tolist()),
+                )
+            )
     uids = [i * 1000 + v for i, _, _, vs in objs for v in vs if not (drop_ood and v >= 900)]
     rows = rng.normal(-40, 15, (len(uids), 7, 5, 16)).astype(np.float32)
     with BenchmarkData(data_dir) as data:
-        write_predictions(path, data.fingerprint, np.array(uids, np.int64), rows,
-                          label_fingerprint=data.label_fingerprint)
+        write_predictions(
+            path,
+            data.fingerprint,
+            np.array(uids, np.int64),
+            rows,
+            label_fingerprint=data.label_fingerprint,
+        )
     return dict(zip(uids, rows.astype(np.float64))), objs
 
 

@@ -25,8 +25,11 @@ def plate(scale=1.0) -> trimesh.Trimesh:
 
 def table(out: str) -> np.ndarray:
     """The dBsm values printed by `radar-sim rcs` (rows: aspects, columns: frequencies)."""
-    rows = [line.split() for line in out.splitlines()
-            if line and not line.startswith(("#", "aspect_deg"))]
+    rows = [
+        line.split()
+        for line in out.splitlines()
+        if line and not line.startswith(("#", "aspect_deg"))
+    ]
     return np.array(rows, float)[:, 1:]
 
 
@@ -42,8 +45,22 @@ def test_rcs_of_plate_matches_broadside_formula(tmp_path):
     path = tmp_path / "plate.obj"
     plate().export(path)
     freqs = np.array([8.0, 10.0, 12.0])
-    proc = subprocess.run([sys.executable, "-m", "radar_sim.cli", "rcs", str(path), "--freq",
-                           "8,10,12", "--aspect", "0"], capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "radar_sim.cli",
+            "rcs",
+            str(path),
+            "--freq",
+            "8,10,12",
+            "--aspect",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert "dBsm" in proc.stdout and "units m" in proc.stdout
     lam = C / (freqs * 1e9)
     expected = 10 * np.log10(4 * np.pi * SIDE**4 / lam**2)  # 4 pi A^2 / lambda^2
@@ -66,17 +83,20 @@ def test_units_and_formats_agree(tmp_path, capsys, fmt):
 
 
 def test_rcs_bad_files(tmp_path):
-    assert "no such file" in one_line_error(["rcs", str(tmp_path / "x.obj"), "--freq", "10",
-                                             "--aspect", "0"])
+    assert "no such file" in one_line_error(
+        ["rcs", str(tmp_path / "x.obj"), "--freq", "10", "--aspect", "0"]
+    )
     (tmp_path / "junk.stl").write_bytes(b"\x00\x01 not an stl at all")
     message = one_line_error(["rcs", str(tmp_path / "junk.stl"), "--freq", "10", "--aspect", "0"])
     assert str(tmp_path / "junk.stl") in message
     (tmp_path / "m.dae").write_text("<xml/>")
-    assert "unsupported mesh format" in one_line_error(["rcs", str(tmp_path / "m.dae"), "--freq",
-                                                        "10", "--aspect", "0"])
+    assert "unsupported mesh format" in one_line_error(
+        ["rcs", str(tmp_path / "m.dae"), "--freq", "10", "--aspect", "0"]
+    )
     (tmp_path / "nan.obj").write_text("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    assert "NaN" in one_line_error(["rcs", str(tmp_path / "nan.obj"), "--freq", "10",
-                                    "--aspect", "0"])
+    assert "NaN" in one_line_error(
+        ["rcs", str(tmp_path / "nan.obj"), "--freq", "10", "--aspect", "0"]
+    )
 
 
 def _check_png(path):
@@ -106,13 +126,15 @@ def test_plot_mesh_file_and_dataset(tmp_path):
         ]
     )
     _check_png(tmp_path / "o1.png")
-    assert "no object with id 7" in one_line_error(["plot", "--data", str(data), "--object", "7",
-                                                    "--out", str(tmp_path / "o7.png")])
+    assert "no object with id 7" in one_line_error(
+        ["plot", "--data", str(data), "--object", "7", "--out", str(tmp_path / "o7.png")]
+    )
     assert "--object" in one_line_error(
         ["plot", "--data", str(data), "--out", str(tmp_path / "o.png")]
     )
-    assert "no such file or directory" in one_line_error(["plot", str(tmp_path / "nope"),
-                                                          "--out", str(tmp_path / "n.png")])
+    assert "no such file or directory" in one_line_error(
+        ["plot", str(tmp_path / "nope"), "--out", str(tmp_path / "n.png")]
+    )
 
 
 def test_plot_uses_stored_labels(tmp_path):
@@ -145,8 +167,9 @@ def test_millimetre_file_read_as_metres_is_flagged(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert "extent 50 x 50 x 50 m" in out
     lam = C / 10e9
-    np.testing.assert_allclose(table(out)[0, 0], 10 * np.log10(4 * np.pi * 50.0 ** 4 / lam ** 2),
-                               atol=0.01)
+    np.testing.assert_allclose(
+        table(out)[0, 0], 10 * np.log10(4 * np.pi * 50.0**4 / lam**2), atol=0.01
+    )
     assert "50 m across, 1668 wavelengths at 10 GHz" in err and "pass --units mm" in err
     main(["rcs", str(tmp_path / "cube_mm.stl"), "--units", "mm", *args])
     out, err = capsys.readouterr()
@@ -166,8 +189,23 @@ def test_generated_spheres_never_take_the_bounce_path(tmp_path):
     from radar_sim import detect_mode
     from radar_sim.geometry import prepare
 
-    generate(["generate", "--data", str(tmp_path / "d"), "--classes", "sphere",
-              "--objects-per-class", "3", "--variants", "19", "--seed", "0", "--workers", "1"])
+    generate(
+        [
+            "generate",
+            "--data",
+            str(tmp_path / "d"),
+            "--classes",
+            "sphere",
+            "--objects-per-class",
+            "3",
+            "--variants",
+            "19",
+            "--seed",
+            "0",
+            "--workers",
+            "1",
+        ]
+    )
     modes, strict = [], []
     with Shard(next((tmp_path / "d").glob("shard-*.h5"))) as s:
         for i in range(s.n_meshes):
@@ -178,7 +216,7 @@ def test_generated_spheres_never_take_the_bounce_path(tmp_path):
     assert "shadowed" in modes  # some meshes are folded, so the test exercises the probe
     torus = trimesh.creation.torus(0.3, 0.1)
     assert detect_mode(torus.vertices, torus.faces) == "bounce2"
-    ell = (manifold3d.Manifold.cube([0.4, 0.1, 0.3]) + manifold3d.Manifold.cube([0.1, 0.4, 0.3]))
+    ell = manifold3d.Manifold.cube([0.4, 0.1, 0.3]) + manifold3d.Manifold.cube([0.1, 0.4, 0.3])
     ell = ell.to_mesh()
     ell_vertices = np.asarray(ell.vert_properties)[:, :3]
     assert detect_mode(ell_vertices, np.asarray(ell.tri_verts)) == "bounce2"

@@ -31,8 +31,9 @@ def small(tmp_path_factory):
     """One cube with two complex variants, and a small radar config file."""
     tmp = tmp_path_factory.mktemp("plot")
     config = tmp / "small.json"
-    config.write_text(json.dumps({"name": "small", "n_aspect": 7, "n_roll": 3, "n_freq": 64,
-                                  "n_range": 63}))
+    config.write_text(
+        json.dumps({"name": "small", "n_aspect": 7, "n_roll": 3, "n_freq": 64, "n_range": 63})
+    )
     return write_dataset(tmp / "data", n_objects=1), config
 
 
@@ -47,16 +48,40 @@ def test_variant_simulates_that_mesh(small, tmp_path):
     expected = radar_sim.simulate(vertices, faces, radar_sim.RadarConfig.from_file(config))
     np.testing.assert_array_equal(response, expected.frequency_response)
     np.testing.assert_array_equal(profiles, expected.range_profiles)
-    main(["plot", "--data", str(data), "--object", "0", "--variant", "2", "--config", str(config),
-          "--out", str(tmp_path / "v2.png")])
+    main(
+        [
+            "plot",
+            "--data",
+            str(data),
+            "--object",
+            "0",
+            "--variant",
+            "2",
+            "--config",
+            str(config),
+            "--out",
+            str(tmp_path / "v2.png"),
+        ]
+    )
     assert (tmp_path / "v2.png").stat().st_size > 10_000
 
 
 def test_variant_errors(small, tmp_path):
     data, config = small
     with pytest.raises(SystemExit) as exc:
-        main(["plot", "--data", str(data), "--object", "0", "--variant", "5", "--out",
-              str(tmp_path / "x.png")])
+        main(
+            [
+                "plot",
+                "--data",
+                str(data),
+                "--object",
+                "0",
+                "--variant",
+                "5",
+                "--out",
+                str(tmp_path / "x.png"),
+            ]
+        )
     assert "object 0 has no variant 5 (--variant 0..2)" in str(exc.value.code)
     mesh = tmp_path / "box.ply"
     trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(mesh)

@@ -25,14 +25,23 @@ def plate(a, b, n, normal):
     v = {"z": flat, "x": flat[:, [2, 0, 1]], "y": flat[:, [1, 2, 0]]}[normal]
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     a0, a1, b0, b1 = idx[:-1, :-1], idx[1:, :-1], idx[:-1, 1:], idx[1:, 1:]
-    f = np.concatenate([np.stack([a0, a1, b1], -1).reshape(-1, 3),
-                        np.stack([a0, b1, b0], -1).reshape(-1, 3)])
+    f = np.concatenate(
+        [np.stack([a0, a1, b1], -1).reshape(-1, 3), np.stack([a0, b1, b0], -1).reshape(-1, 3)]
+    )
     return v, f
 
 
-@pytest.mark.parametrize("normal, aspect, roll", [("z", 0.0, 0.0), ("z", 180.0, 77.0),
-                                                  ("x", 90.0, 0.0), ("x", 90.0, 180.0),
-                                                  ("y", 90.0, 90.0), ("y", 90.0, 270.0)])
+@pytest.mark.parametrize(
+    "normal, aspect, roll",
+    [
+        ("z", 0.0, 0.0),
+        ("z", 180.0, 77.0),
+        ("x", 90.0, 0.0),
+        ("x", 90.0, 180.0),
+        ("y", 90.0, 90.0),
+        ("y", 90.0, 270.0),
+    ],
+)
 def test_plate_broadside_is_four_pi_area_squared_over_lambda_squared(normal, aspect, roll):
     """Broadside along each axis, reached through the documented (aspect, roll) convention."""
     side = 0.5
@@ -40,7 +49,7 @@ def test_plate_broadside_is_four_pi_area_squared_over_lambda_squared(normal, asp
     v, f = plate(side, side, 1, normal)
     a = radar_sim.rcs(v, f, freqs, aspect, roll)
     assert a.shape == (1, 4) and a.dtype == np.complex128
-    exact = 4 * np.pi * side ** 4 / (C0 / freqs) ** 2
+    exact = 4 * np.pi * side**4 / (C0 / freqs) ** 2
     np.testing.assert_allclose(np.abs(a[0]) ** 2, exact, rtol=1e-9)
 
 
@@ -53,8 +62,14 @@ def test_plate_sinc_pattern_swept_in_roll():
     roll = np.linspace(-80, 80, 161)
     got = np.abs(radar_sim.rcs(v, f, freq, np.full(roll.shape, 90.0), roll)[:, 0]) ** 2
     phi = np.radians(roll)
-    exact = (4 * np.pi * (a * b) ** 2 / (C0 / freq) ** 2 * np.cos(phi) ** 2
-             * np.sinc(k * a * np.sin(phi) / np.pi) ** 2)
+    exact = (
+        4
+        * np.pi
+        * (a * b) ** 2
+        / (C0 / freq) ** 2
+        * np.cos(phi) ** 2
+        * np.sinc(k * a * np.sin(phi) / np.pi) ** 2
+    )
     shown = exact > exact.max() * 1e-6
     assert shown.sum() > 140
     assert np.max(np.abs(db(got[shown]) - db(exact[shown]))) <= 0.01
@@ -72,7 +87,7 @@ def test_po_sphere_closed_form():
     sigma = np.abs(radar_sim.rcs(mesh.vertices, mesh.faces, freqs, aspects, 30.0)) ** 2
     assert sigma.shape == (5, 3)
     po = np.abs(1 + 1j * (1 - np.exp(-2j * ka)) / (2 * ka)) ** 2
-    assert np.max(np.abs(db(sigma / (np.pi * radius ** 2) / po))) <= 0.05
+    assert np.max(np.abs(db(sigma / (np.pi * radius**2) / po))) <= 0.05
 
 
 def test_same_numbers_as_simulate_on_its_grid():
@@ -90,9 +105,12 @@ def test_line_of_sight_convention_and_errors():
     los = line_of_sight([0, 90, 90, 180], [0, 0, 90, 0])
     np.testing.assert_array_equal(los, [[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 0, -1]])
     t, p = np.radians(30.0), np.radians(200.0)
-    np.testing.assert_allclose(line_of_sight(30.0, 200.0)[0],
-                               [np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)],
-                               rtol=0, atol=1e-16)
+    np.testing.assert_allclose(
+        line_of_sight(30.0, 200.0)[0],
+        [np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)],
+        rtol=0,
+        atol=1e-16,
+    )
     with pytest.raises(ValueError, match="roll_deg must be one finite angle or one per aspect"):
         line_of_sight([0, 10, 20], [0, 1])
     with pytest.raises(ValueError, match="aspect_deg must be a non-empty 1-D array"):

@@ -35,7 +35,7 @@ from benchmark import versions
 
 FOREIGN_CPU = {
     "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "
-                                "AVX512_SPR",
+    "AVX512_SPR",
     "OPENBLAS_CORETYPE": "Haswell",
     "OPENBLAS_NUM_THREADS": "1",
     "NUMBA_CPU_NAME": "generic",
@@ -43,9 +43,13 @@ FOREIGN_CPU = {
 
 
 def dataset_cli(*args, env=None, cwd=None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "benchmark.cli", "dataset", *args],
-                          capture_output=True, text=True, env={**os.environ, **(env or {})},
-                          cwd=cwd)
+    return subprocess.run(
+        [sys.executable, "-m", "benchmark.cli", "dataset", *args],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **(env or {})},
+        cwd=cwd,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -63,22 +67,31 @@ def tiny(tmp_path_factory) -> Path:
 def test_tiny_v1_is_a_slice_of_everything(tiny):
     """Every class, test objects with OOD meshes of all three remeshers, and labels."""
     expected = versions.get("tiny-v1").manifest
-    variants = {m["variant"] for s in expected["shards"] for o in s["objects"]
-                for m in o["meshes"]}
+    variants = {m["variant"] for s in expected["shards"] for o in s["objects"] for m in o["meshes"]}
     assert {0, 1, 2} <= variants
-    assert {v // 25 for v in variants if v >= 900} == {36, 37, 38}   # isotropic, qem, delaunay
+    assert {v // 25 for v in variants if v >= 900} == {36, 37, 38}  # isotropic, qem, delaunay
     assert all("label" in o for s in expected["shards"] for o in s["objects"])
 
 
 def test_rebuild_under_a_foreign_cpu_matches_the_manifest(tmp_path):
     """Another CPU's arithmetic, one worker, another memory layout: the same bytes."""
     data = tmp_path / "foreign"
-    env = {**FOREIGN_CPU, "PADDING": "x" * 4099}   # moves the stack and environment
+    env = {**FOREIGN_CPU, "PADDING": "x" * 4099}  # moves the stack and environment
     setarch = shutil.which("setarch")
-    cmd = [sys.executable, "-m", "benchmark.cli", "dataset", "tiny-v1", "--data", str(data),
-           "--workers", "1", "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "benchmark.cli",
+        "dataset",
+        "tiny-v1",
+        "--data",
+        str(data),
+        "--workers",
+        "1",
+        "--quiet",
+    ]
     if setarch and subprocess.run([setarch, "x86_64", "-R", "true"]).returncode == 0:
-        cmd = [setarch, "x86_64", "-R", *cmd]   # no address randomization at all
+        cmd = [setarch, "x86_64", "-R", *cmd]  # no address randomization at all
     proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **env})
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
@@ -130,7 +143,8 @@ def server(tmp_path):
     root = tmp_path / "www"
     root.mkdir()
     httpd = http.server.ThreadingHTTPServer(
-        ("127.0.0.1", 0), functools.partial(_Quiet, directory=str(root)))
+        ("127.0.0.1", 0), functools.partial(_Quiet, directory=str(root))
+    )
     thread = threading.Thread(target=httpd.serve_forever, daemon=True)
     thread.start()
     yield root, f"http://127.0.0.1:{httpd.server_address[1]}"
@@ -143,8 +157,7 @@ def test_pack_then_fetch_over_http_gives_the_recorded_bytes(tiny, server, tmp_pa
     proc = dataset_cli("tiny-v1", "--pack", str(root / "tiny-v1.tar"), "--data", str(tiny))
     assert proc.returncode == 0, proc.stderr
     target = tmp_path / "fetched"
-    proc = dataset_cli("tiny-v1", "--from", f"{url}/tiny-v1.tar", "--data", str(target),
-                       "--quiet")
+    proc = dataset_cli("tiny-v1", "--from", f"{url}/tiny-v1.tar", "--data", str(target), "--quiet")
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["matches_recorded"] is True
@@ -173,18 +186,21 @@ def test_corrupted_and_foreign_archives_are_refused(tiny, server, tmp_path):
     with tarfile.open(good) as tar:
         members = {m.name: tar.extractfile(m).read() for m in tar.getmembers()}
     shard = bytearray(members["shard-00000.h5"])
-    shard[len(shard) // 2] ^= 0x01                      # one flipped bit in the shard
+    shard[len(shard) // 2] ^= 0x01  # one flipped bit in the shard
     _tar(root / "flipped.tar", {**members, "shard-00000.h5": bytes(shard)})
     _tar(root / "foreign.tar", {"notes.txt": b"hello"})
     _tar(root / "escape.tar", {**members, "../evil.h5": b"x"})
     (root / "truncated.tar").write_bytes(good.read_bytes()[:5000])
-    cases = {"flipped.tar": "does not match the sha256", "foreign.tar": "unexpected member",
-             "escape.tar": "unexpected member", "truncated.tar": "tar",
-             "missing.tar": "cannot download"}
+    cases = {
+        "flipped.tar": "does not match the sha256",
+        "foreign.tar": "unexpected member",
+        "escape.tar": "unexpected member",
+        "truncated.tar": "tar",
+        "missing.tar": "cannot download",
+    }
     for name, message in cases.items():
         target = tmp_path / f"out-{name}"
-        proc = dataset_cli("tiny-v1", "--from", f"{url}/{name}", "--data", str(target),
-                           "--quiet")
+        proc = dataset_cli("tiny-v1", "--from", f"{url}/{name}", "--data", str(target), "--quiet")
         assert proc.returncode == 1, name
         assert message in proc.stderr and proc.stderr.strip().count("\n") == 0, proc.stderr
         assert not target.exists(), name
@@ -204,8 +220,7 @@ def test_fetch_refuses_a_directory_that_holds_data(tiny, tmp_path):
 def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
     """--shards builds only some shards; they are checked against those of the manifest."""
     data = tmp_path / "slice"
-    proc = dataset_cli("tiny-v1", "--data", str(data), "--shards", "0", "--workers", "0",
-                       "--quiet")
+    proc = dataset_cli("tiny-v1", "--data", str(data), "--shards", "0", "--workers", "0", "--quiet")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["matches_recorded"] is True
     proc = dataset_cli("tiny-v1", "--data", str(tmp_path / "x"), "--shards", "7", "--quiet")

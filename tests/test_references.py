@@ -17,8 +17,12 @@ CLASSES = ("cube", "cylinder", "sphere", "cone", "torus")
 def generated(tmp_path_factory):
     """Real Blender meshes of every primitive: 8 objects per class, simple + 4 variants."""
     out = tmp_path_factory.mktemp("gen")
-    generate(out, GenerateConfig(classes=CLASSES, objects_per_class=8, variants=4, seed=11),
-             workers=0, progress=False)
+    generate(
+        out,
+        GenerateConfig(classes=CLASSES, objects_per_class=8, variants=4, seed=11),
+        workers=0,
+        progress=False,
+    )
     return out
 
 
@@ -26,19 +30,23 @@ def test_class_from_normals_on_real_meshes_of_every_variant(generated):
     objs = list(iter_objects(generated))
     train = [(o, m) for k, (_, o, m) in enumerate(objs) if k % 2 == 0]
     held = [(o, m) for k, (_, o, m) in enumerate(objs) if k % 2 == 1]
-    clf = MeshClassifier(np.stack([normal_descriptor(m[0][1], m[0][2]) for _, m in train]),
-                         np.array([CLASSES.index(o["class"]) for o, _ in train]))
+    clf = MeshClassifier(
+        np.stack([normal_descriptor(m[0][1], m[0][2]) for _, m in train]),
+        np.array([CLASSES.index(o["class"]) for o, _ in train]),
+    )
     right = {False: [], True: []}  # OOD mesh? -> hits
     for o, meshes in held:  # held-out objects, every variant (remeshed, cut, decimated)
         for variant, v, f in meshes:
             right[bool(is_ood_variant(variant))].append(
-                clf.predict(v, f) == CLASSES.index(o["class"]))
+                clf.predict(v, f) == CLASSES.index(o["class"])
+            )
     assert len(right[False]) == 100 and np.mean(right[False]) >= 0.97, np.mean(right[False])
     # meshes from remeshers the reference never saw: it degrades (12 of these 18 right when
     # measured; the reason the reference rows are scored on OOD meshes too), but stays far
     # above chance (1/5)
-    print("class from the mesh, accuracy regular / OOD:", np.mean(right[False]),
-          np.mean(right[True]))
+    print(
+        "class from the mesh, accuracy regular / OOD:", np.mean(right[False]), np.mean(right[True])
+    )
     assert len(right[True]) == 18 and np.mean(right[True]) >= 0.5, np.mean(right[True])
 
 
@@ -74,25 +82,30 @@ def test_reference_predictions_by_hand(tmp_path):
             c = data.objects["class_index"][obj]
             p = refs.predictions(int(obj))
             same = train[data.objects["class_index"][train] == c]
-            np.testing.assert_allclose(p["class-mean"][0],
-                                       np.mean([data.target(o) for o in same], 0), rtol=1e-6)
+            np.testing.assert_allclose(
+                p["class-mean"][0], np.mean([data.target(o) for o in same], 0), rtol=1e-6
+            )
             log_scale = np.log(data.objects["scale"])
             d = np.linalg.norm(log_scale[train] - log_scale[obj], axis=1)
             near = train[np.argsort(d, kind="stable")[:3]]
-            np.testing.assert_allclose(p["nearest-scale"][0],
-                                       np.mean([data.target(o) for o in near], 0), rtol=1e-6)
+            np.testing.assert_allclose(
+                p["nearest-scale"][0], np.mean([data.target(o) for o in near], 0), rtol=1e-6
+            )
             # the fixture's meshes are boxes, cylinders and icospheres: the class is read right
             dc = np.where(data.objects["class_index"][train] == c, d, np.inf)
             near = train[np.argsort(dc, kind="stable")[:3]]
             expected = np.mean([data.target(o) for o in near], 0)
-            np.testing.assert_allclose(p["class-scale-nn"], np.broadcast_to(
-                expected, p["class-scale-nn"].shape), rtol=1e-6)
+            np.testing.assert_allclose(
+                p["class-scale-nn"], np.broadcast_to(expected, p["class-scale-nn"].shape), rtol=1e-6
+            )
 
 
 def test_strongest_reference_is_the_lowest_complex_mse():
-    rows = {"train-mean": {"simple_mse": 5.0, "complex_mse": 9.0},
-            "class-mean": {"simple_mse": 1.0, "complex_mse": 7.0},
-            "nearest-scale": {"simple_mse": 3.0, "complex_mse": 3.0}}
+    rows = {
+        "train-mean": {"simple_mse": 5.0, "complex_mse": 9.0},
+        "class-mean": {"simple_mse": 1.0, "complex_mse": 7.0},
+        "nearest-scale": {"simple_mse": 3.0, "complex_mse": 3.0},
+    }
     assert strongest(rows) == "nearest-scale"
     rows["nearest-scale"]["complex_mse"] = None
     assert strongest(rows) == "class-mean"

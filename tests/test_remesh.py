@@ -31,9 +31,11 @@ def _ood(cls, scale, seed, per=2):
     return simple, remesh.ood_meshes(cls, scale, seed, simple.vertices, simple.faces, per)
 
 
-@pytest.fixture(scope="module", params=[(c, k) for c in ("cube", "cylinder", "sphere")
-                                        for k in range(len(SCALES))],
-                ids=lambda p: f"{p[0]}-{p[1]}")
+@pytest.fixture(
+    scope="module",
+    params=[(c, k) for c in ("cube", "cylinder", "sphere") for k in range(len(SCALES))],
+    ids=lambda p: f"{p[0]}-{p[1]}",
+)
 def ood(request):
     cls, k = request.param
     return (cls, SCALES[k], *_ood(cls, SCALES[k], seed=7 + k))
@@ -75,7 +77,7 @@ def _ray(cls, half, p, n):
     qb = 2 * (p[:, :k] * n[:, :k] / a[:k] ** 2).sum(1)
     qc = ((p[:, :k] / a[:k]) ** 2).sum(1) - 1
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(qa > 1e-12, (-qb + np.sqrt(qb ** 2 - 4 * qa * qc)) / (2 * qa), np.inf)
+        t = np.where(qa > 1e-12, (-qb + np.sqrt(qb**2 - 4 * qa * qc)) / (2 * qa), np.inf)
         if cls == "cylinder":
             cap = (np.sign(n[:, 2]) * a[2] - p[:, 2]) / n[:, 2]
             t = np.minimum(t, np.where(np.abs(n[:, 2]) > 1e-12, cap, np.inf))
@@ -85,7 +87,7 @@ def _ray(cls, half, p, n):
 def _depth(cls, half, p, n):
     """Upper bound on the distance to the surface: the shortest of the rays along the face
     normal, the implicit function's gradient and (cylinder) the axis."""
-    g = p / half ** 2
+    g = p / half**2
     if cls == "cylinder":
         g[:, 2] = 0
     norm = np.linalg.norm(g, axis=1, keepdims=True)
@@ -110,8 +112,9 @@ def test_same_shape_as_the_primitive_by_independent_geometry(ood):
             in_face, _ = _box_faces(v, f, half)
             assert in_face.all()
             assert t.volume == pytest.approx(np.prod(scale), rel=1e-5)
-            assert t.area == pytest.approx(2 * (scale[0] * scale[1] + scale[1] * scale[2]
-                                                + scale[0] * scale[2]), rel=1e-5)
+            assert t.area == pytest.approx(
+                2 * (scale[0] * scale[1] + scale[1] * scale[2] + scale[0] * scale[2]), rel=1e-5
+            )
             continue
         if cls == "sphere":
             np.testing.assert_allclose(((v / half) ** 2).sum(1), 1.0, atol=1e-5)
@@ -160,18 +163,21 @@ def test_repeatable_across_processes_whatever_ran_before():
             h.update(json.dumps(r.params, sort_keys=True).encode())
         here[cls] = h.hexdigest()
     env = {**os.environ, "OMP_NUM_THREADS": "3"}  # MeshLab's results depend on its threads
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                       check=False, env=env)
+    r = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=False, env=env
+    )
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout.strip().splitlines()[-1]) == here
 
 
 def test_variant_numbers_name_the_remesher():
     assert not is_ood_variant(0) and not is_ood_variant(899) and is_ood_variant(999)
-    np.testing.assert_array_equal(is_ood_variant(np.array([0, 99, 900, 950])),
-                                  [False, False, True, True])
-    assert [ood_remesher(ood_variant(r, k)) for r in OOD_REMESHERS for k in (0, 24)] == \
-        [r for r in OOD_REMESHERS for _ in (0, 24)]
+    np.testing.assert_array_equal(
+        is_ood_variant(np.array([0, 99, 900, 950])), [False, False, True, True]
+    )
+    assert [ood_remesher(ood_variant(r, k)) for r in OOD_REMESHERS for k in (0, 24)] == [
+        r for r in OOD_REMESHERS for _ in (0, 24)
+    ]
     assert ood_remesher(5) is None
     assert mesh_uid(3, ood_variant("delaunay", 2)) == 3952
     with pytest.raises(ValueError, match="remesher"):
@@ -219,14 +225,20 @@ def test_isotropic_remesh_independent_of_memory_layout(tmp_path):
         print(hashlib.sha256(v.tobytes() + f.tobytes()).hexdigest())
     """
     arch = subprocess.run(["uname", "-m"], capture_output=True, text=True).stdout.strip()
-    fixed = shutil.which("setarch") and not subprocess.run(
-        ["setarch", arch, "-R", "true"], capture_output=True).returncode
+    fixed = (
+        shutil.which("setarch")
+        and not subprocess.run(["setarch", arch, "-R", "true"], capture_output=True).returncode
+    )
     prefix = ["setarch", arch, "-R"] if fixed else []
     found = set()
     for seed in range(1, 9):
-        r = subprocess.run([*prefix, sys.executable, "-c", script],
-                           capture_output=True, text=True, check=False,
-                           env={**os.environ, "PYTHONHASHSEED": str(seed)})
+        r = subprocess.run(
+            [*prefix, sys.executable, "-c", script],
+            capture_output=True,
+            text=True,
+            check=False,
+            env={**os.environ, "PYTHONHASHSEED": str(seed)},
+        )
         assert r.returncode == 0, r.stderr
         found.add(r.stdout.strip().splitlines()[-1])
     assert len(found) == 1, f"{len(found)} different remeshes in 8 processes"

@@ -43,8 +43,13 @@ def test_too_many_objects_fail_clearly():
     with pytest.raises(ScaleError, match="at most"):
         sample_scales(capacity((1.0, 1.2), 0.05) + 1, np.random.default_rng(0), (1.0, 1.2), 0.05)
     with pytest.raises(ScaleError, match="placed only"):  # under the bound, but packing fails
-        sample_scales(capacity((1.0, 1.2), 0.05), np.random.default_rng(0), (1.0, 1.2), 0.05,
-                      max_tries_per_object=20)
+        sample_scales(
+            capacity((1.0, 1.2), 0.05),
+            np.random.default_rng(0),
+            (1.0, 1.2),
+            0.05,
+            max_tries_per_object=20,
+        )
 
 
 def test_scale_range_must_fit_the_radar_window():

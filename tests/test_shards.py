@@ -23,10 +23,14 @@ from basic_shapes.shards import (
 def _objects():
     box = trimesh.creation.box((1.0, 2.0, 0.5))
     fine = box.subdivide().subdivide()
-    meshes = [MeshRecord(0, box.vertices, box.faces, 0.0, {"kind": "simple"}),
-              MeshRecord(1, fine.vertices, fine.faces, 1e-7, {"kind": "subdivided"})]
-    return [ObjectRecord(7, 0, np.array([1.0, 2.0, 0.5]), 42, "train", meshes),
-            ObjectRecord(8, 0, np.array([1.0, 2.0, 0.5]), 43, "test", meshes[:1])]
+    meshes = [
+        MeshRecord(0, box.vertices, box.faces, 0.0, {"kind": "simple"}),
+        MeshRecord(1, fine.vertices, fine.faces, 1e-7, {"kind": "subdivided"}),
+    ]
+    return [
+        ObjectRecord(7, 0, np.array([1.0, 2.0, 0.5]), 42, "train", meshes),
+        ObjectRecord(8, 0, np.array([1.0, 2.0, 0.5]), 43, "test", meshes[:1]),
+    ]
 
 
 def test_round_trip(tmp_path):
@@ -92,18 +96,32 @@ def test_truncated_and_foreign_files_are_refused(tmp_path):
         Shard(partial)
 
 
-GRID = {"aspect_deg": np.array([0.0, 90.0]), "roll_deg": np.array([0.0, 120.0, 240.0]),
-        "range_m": np.linspace(-1, 1, 5), "frequency_hz": np.linspace(8e9, 12e9, 7)}
+GRID = {
+    "aspect_deg": np.array([0.0, 90.0]),
+    "roll_deg": np.array([0.0, 120.0, 240.0]),
+    "range_m": np.linspace(-1, 1, 5),
+    "frequency_hz": np.linspace(8e9, 12e9, 7),
+}
 ATTRS = {"config": '{"name": "t"}', "simulation_rule": '{"rule": 1}', "options": "{}"}
 
 
 def _labelled(path, responses, attrs=ATTRS, mesh_index=(0, 2)):
     """A two-object shard with labels ``responses`` (2, 2, 3, 5) and physics on two meshes."""
     write_shard(path, _objects(), ["cube"], {"seed": 0}, "0.1.0")
-    rewrite_atomically(path, lambda f: write_radar(
-        f, attrs=attrs, coordinates=GRID, object_ids=[7, 8], modes=["convex", "shadowed"],
-        responses=iter(responses), mesh_index=np.array(mesh_index),
-        mesh_modes=["convex"] * len(mesh_index), mesh_responses=responses[:len(mesh_index)]))
+    rewrite_atomically(
+        path,
+        lambda f: write_radar(
+            f,
+            attrs=attrs,
+            coordinates=GRID,
+            object_ids=[7, 8],
+            modes=["convex", "shadowed"],
+            responses=iter(responses),
+            mesh_index=np.array(mesh_index),
+            mesh_modes=["convex"] * len(mesh_index),
+            mesh_responses=responses[: len(mesh_index)],
+        ),
+    )
     return path
 
 
@@ -125,15 +143,22 @@ def test_radar_round_trip_and_fingerprint(tmp_path):
         assert not r.has_frequency_response and r.config == {"name": "t"}
         # sha256 over config, rule, the label bytes and the per-mesh physics (its rows, then
         # its responses), written independently here
-        h = hashlib.sha256(b'{"name": "t"}\0{"rule": 1}\0' + resp.tobytes() + b"\0mesh\0"
-                           + np.array([0, 2], np.int64).tobytes() + resp[:2].tobytes()).hexdigest()
+        h = hashlib.sha256(
+            b'{"name": "t"}\0{"rule": 1}\0'
+            + resp.tobytes()
+            + b"\0mesh\0"
+            + np.array([0, 2], np.int64).tobytes()
+            + resp[:2].tobytes()
+        ).hexdigest()
         assert r.fingerprint == r.computed_fingerprint() == h
     assert label_fingerprint(tmp_path) == hashlib.sha256(h.encode()).hexdigest()
     again = _labelled(tmp_path / "again.h5", resp)
     assert again.read_bytes() == (tmp_path / "shard-00000.h5").read_bytes()
-    other = [_labelled(tmp_path / "b.h5", _responses(1)),
-             _labelled(tmp_path / "c.h5", resp, {**ATTRS, "config": '{"name": "u"}'}),
-             _labelled(tmp_path / "d.h5", resp, {**ATTRS, "simulation_rule": '{"rule": 2}'})]
+    other = [
+        _labelled(tmp_path / "b.h5", _responses(1)),
+        _labelled(tmp_path / "c.h5", resp, {**ATTRS, "config": '{"name": "u"}'}),
+        _labelled(tmp_path / "d.h5", resp, {**ATTRS, "simulation_rule": '{"rule": 2}'}),
+    ]
     fingerprints = set()
     with Shard(again) as s:
         meshes = s.fingerprint
@@ -144,14 +169,25 @@ def test_radar_round_trip_and_fingerprint(tmp_path):
     assert len(fingerprints) == 3 and h not in fingerprints
 
 
-@pytest.mark.parametrize("edit, problem", [
-    (lambda g: g.__delitem__("mode"), "truncated /radar group, missing mode"),
-    (lambda g: (g.__delitem__("response"), g.create_dataset("response", data=np.zeros(
-        (2, 2, 3, 4), np.complex64))), r"/radar/response is complex64\(2, 2, 3, 4\), expected"),
-    (lambda g: g["object"].__setitem__(0, 99), "/radar/object does not list the shard's objects"),
-    (lambda g: g["mesh"].__setitem__(1, 3), r"/radar/mesh holds rows outside 0\.\.2"),
-    (lambda g: g.attrs.__delitem__("label_fingerprint"), "no label_fingerprint"),
-])
+@pytest.mark.parametrize(
+    "edit, problem",
+    [
+        (lambda g: g.__delitem__("mode"), "truncated /radar group, missing mode"),
+        (
+            lambda g: (
+                g.__delitem__("response"),
+                g.create_dataset("response", data=np.zeros((2, 2, 3, 4), np.complex64)),
+            ),
+            r"/radar/response is complex64\(2, 2, 3, 4\), expected",
+        ),
+        (
+            lambda g: g["object"].__setitem__(0, 99),
+            "/radar/object does not list the shard's objects",
+        ),
+        (lambda g: g["mesh"].__setitem__(1, 3), r"/radar/mesh holds rows outside 0\.\.2"),
+        (lambda g: g.attrs.__delitem__("label_fingerprint"), "no label_fingerprint"),
+    ],
+)
 def test_malformed_radar_groups_are_refused(tmp_path, edit, problem):
     path = _labelled(tmp_path / "shard-00000.h5", _responses())
     rewrite_atomically(path, lambda f: edit(f["radar"]))

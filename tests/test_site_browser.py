@@ -20,8 +20,16 @@ from leaderboard.serve import make_server
 from test_leaderboard import CLASSES, make_dataset, write_predictions, write_results
 
 CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 # name -> (simple offset, complex offset, ms per mesh); same offsets for every class, so
 # Simple MSE = s^2, Complex MSE = c^2, Variation MSE = (s - c)^2 exactly.
 MODELS = {"zeta-net": (1.0, 2.0, 3.0), "alpha-net": (3.0, 1.0, 0.2), "mid-net": (2.0, 2.5, 40.0)}
@@ -34,15 +42,35 @@ def site(tmp_path_factory):
     entries = root / "entries"
     for name, (s, c, ms) in MODELS.items():
         pred = write_predictions(root / f"{name}.h5", data, offsets={k: (s, c) for k in CLASSES})
-        cli.main(["submit", str(write_results(root / f"{name}.json", data, pred, name=name,
-                                              ms_per_mesh=ms)),
-                  "--predictions", str(pred), "--data", str(data), "--entries", str(entries),
-                  "--unregistered"])
+        cli.main(
+            [
+                "submit",
+                str(write_results(root / f"{name}.json", data, pred, name=name, ms_per_mesh=ms)),
+                "--predictions",
+                str(pred),
+                "--data",
+                str(data),
+                "--entries",
+                str(entries),
+                "--unregistered",
+            ]
+        )
     flat = write_predictions(root / "flat.h5", data, collapse=True)
-    cli.main(["submit", str(write_results(root / "flat.json", data, flat, name="flat-net",
-                                          ms_per_mesh=0.01)),
-              "--predictions", str(flat), "--data", str(data), "--entries", str(entries),
-              "--link", "https://example.org/flat", "--unregistered"])
+    cli.main(
+        [
+            "submit",
+            str(write_results(root / "flat.json", data, flat, name="flat-net", ms_per_mesh=0.01)),
+            "--predictions",
+            str(flat),
+            "--data",
+            str(data),
+            "--entries",
+            str(entries),
+            "--link",
+            "https://example.org/flat",
+            "--unregistered",
+        ]
+    )
     cli.main(["simulator", "--data", str(data), "--entries", str(entries), "--ms-per-mesh", "120"])
     cli.main(["render", "--out", str(root / "site"), "--entries", str(entries)])
     server = make_server(root / "site", port=0)
@@ -55,8 +83,9 @@ def site(tmp_path_factory):
 
 def _names(page) -> list[str]:
     """Model rows in page order (the harness's reference rows sort with them, left out here)."""
-    names = page.eval_on_selector_all("table.board tbody tr",
-                                      "rows => rows.map(r => r.cells[1].firstChild.textContent)")
+    names = page.eval_on_selector_all(
+        "table.board tbody tr", "rows => rows.map(r => r.cells[1].firstChild.textContent)"
+    )
     return [n for n in names if not n.startswith("reference: ")]
 
 
@@ -93,8 +122,10 @@ def test_page_sorts_renders_images_and_stays_local(site):
             assert _names(page) == ["alpha-net", "flat-net", "mid-net", "zeta-net"]
             assert header.get_attribute("aria-sort") is None
 
-            per_class = page.locator("table.per-class thead th",  # not "OOD Variation MSE"
-                                     has_text=re.compile(r"^Variation MSE"))
+            per_class = page.locator(
+                "table.per-class thead th",  # not "OOD Variation MSE"
+                has_text=re.compile(r"^Variation MSE"),
+            )
             per_class.locator("button").click()
             values = page.eval_on_selector_all(
                 "table.per-class tbody tr",
@@ -102,8 +133,10 @@ def test_page_sorts_renders_images_and_stays_local(site):
             )
             assert len(values) == 4 * len(CLASSES) and values == sorted(values)
 
-            images = page.evaluate("Array.from(document.images).map(i => [i.getAttribute('src'), "
-                                   "i.complete, i.naturalWidth, i.naturalHeight])")
+            images = page.evaluate(
+                "Array.from(document.images).map(i => [i.getAttribute('src'), "
+                "i.complete, i.naturalWidth, i.naturalHeight])"
+            )
             assert len(images) == 2, images
             for src, complete, width, height in images:
                 assert complete and width > 0 and height > 0, src

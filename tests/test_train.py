@@ -34,15 +34,27 @@ from benchmark.train import (
 )
 from tests.benchmark_fixture import make_dataset
 
-TINY = dict(dim=16, embed_layers=1, agg_layers=1, n_heads=2, decoder_hidden=32, codebook_size=16,
-            epochs=2, batch_size=4, pretrain_meshes=20, pretrain_epochs=1, pretrain_max_faces=100)
+TINY = dict(
+    dim=16,
+    embed_layers=1,
+    agg_layers=1,
+    n_heads=2,
+    decoder_hidden=32,
+    codebook_size=16,
+    epochs=2,
+    batch_size=4,
+    pretrain_meshes=20,
+    pretrain_epochs=1,
+    pretrain_max_faces=100,
+)
 TINY_LR = TrainConfig().lr
 
 
 @pytest.fixture(scope="module")
 def data_dir(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("bs"), objects_per_class=4, n_test_per_class=1,
-                        grid=(3, 2, 8))
+    return make_dataset(
+        tmp_path_factory.mktemp("bs"), objects_per_class=4, n_test_per_class=1, grid=(3, 2, 8)
+    )
 
 
 def run(data_dir, **kw):
@@ -94,8 +106,19 @@ def test_autoencoder_reconstruction_loss_decreases():
     model = build_model("graph", 4, 4, dim=32, embed_layers=2)
     task = PretrainTask(model, ReconstructionHead(32, hidden=64))
     groups = [np.array([i]) for i in range(len(examples))]
-    history = fit(task, examples, groups, epochs=30, batch_size=8, lr=3e-3, weight_decay=0.0,
-                  seed=0, desc="ae", device=torch.device("cpu"), progress=False)
+    history = fit(
+        task,
+        examples,
+        groups,
+        epochs=30,
+        batch_size=8,
+        lr=3e-3,
+        weight_decay=0.0,
+        seed=0,
+        desc="ae",
+        device=torch.device("cpu"),
+        progress=False,
+    )
     assert history[-1]["ce"] < 0.6 * history[0]["ce"]
     assert history[-1]["acc"] > history[0]["acc"] + 0.3  # 9 coordinates x 128 levels: chance is 1%
 
@@ -111,8 +134,13 @@ def test_checkpoint_round_trip_with_weights_only(data_dir, tmp_path):
         adapter = CheckpointModel(tmp_path / "ck", batch_size="2")  # CLI model args are strings
         pred = adapter.predict(batch)
         from benchmark.models import collate, featurize
-        direct = model(collate([featurize(v, f) for v, f in zip(batch["vertices"], batch["faces"])],
-                               scale_bin=batch["scale_bins"]))[0]
+
+        direct = model(
+            collate(
+                [featurize(v, f) for v, f in zip(batch["vertices"], batch["faces"])],
+                scale_bin=batch["scale_bins"],
+            )
+        )[0]
     assert pred.shape == (len(rows), 3, 2, 8)
     np.testing.assert_allclose(pred.reshape(len(rows), -1), direct.detach().numpy(), atol=1e-4)
     assert (adapter.name, adapter.embedding, adapter.regime) == ("token-basic", "token", "basic")
@@ -131,8 +159,9 @@ def test_checkpoint_with_pickled_code_is_refused(data_dir, tmp_path):
 
 def test_ddp_world_size_one_matches_single_process(data_dir, tmp_path):
     single, _ = run(data_dir, embedding="graph", regime="basic")
-    torch.distributed.init_process_group("gloo", init_method=f"file://{tmp_path / 'store'}",
-                                         rank=0, world_size=1)
+    torch.distributed.init_process_group(
+        "gloo", init_method=f"file://{tmp_path / 'store'}", rank=0, world_size=1
+    )
     try:
         ddp, _ = run(data_dir, embedding="graph", regime="basic")
     finally:
@@ -142,9 +171,23 @@ def test_ddp_world_size_one_matches_single_process(data_dir, tmp_path):
 
 def test_train_cli_writes_checkpoint_and_results(data_dir, tmp_path, capsys):
     flags = [f"--{k.replace('_', '-')}={v}" for k, v in TINY.items()]
-    benchmark_main(["train", "--data", str(data_dir), "--out", str(tmp_path / "ck"),
-                    "--embedding", "direct", "--regime", "ideal", "--results",
-                    str(tmp_path / "r.json"), "--quiet", *flags])
+    benchmark_main(
+        [
+            "train",
+            "--data",
+            str(data_dir),
+            "--out",
+            str(tmp_path / "ck"),
+            "--embedding",
+            "direct",
+            "--regime",
+            "ideal",
+            "--results",
+            str(tmp_path / "r.json"),
+            "--quiet",
+            *flags,
+        ]
+    )
     results = load_results(tmp_path / "r.json")
     assert results["model"] == {
         "name": "direct-ideal",
@@ -156,10 +199,16 @@ def test_train_cli_writes_checkpoint_and_results(data_dir, tmp_path, capsys):
     assert "direct-ideal: checkpoint in" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv,message", [
-    (["--data", "/nonexistent/bs"], "/nonexistent/bs: no such dataset directory"),
-    (["--embedding", "invariant", "--regime", "autoencoder"], "has no face embedding to pretrain"),
-])
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["--data", "/nonexistent/bs"], "/nonexistent/bs: no such dataset directory"),
+        (
+            ["--embedding", "invariant", "--regime", "autoencoder"],
+            "has no face embedding to pretrain",
+        ),
+    ],
+)
 def test_train_cli_bad_input(data_dir, tmp_path, argv, message):
     base = {"--data": str(data_dir), "--out": str(tmp_path / "ck")}
     for k, v in zip(argv[::2], argv[1::2]):
@@ -199,8 +248,12 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         assert row["speed"]["threads"] >= 1 and "timed alone" in row["speed"]["hardware"]
     assert [r["name"] for r in table["rows"][-2:]] == ["invariant-basic", "blind-basic"]
     assert table["rows"][-1]["variation_mse"] == 0.0  # blind to the mesh
-    assert set(table["references"]) == {"train-mean", "class-mean", "nearest-scale",
-                                        "class-scale-nn"}
+    assert set(table["references"]) == {
+        "train-mean",
+        "class-mean",
+        "nearest-scale",
+        "class-scale-nn",
+    }
     md = (out / "table.md").read_text()
     # the main table, and the per-remesher sub-table of the OOD meshes: header, 4 refs, 14 rows
     assert md.count("\n| ") == 15 + 4 + 19 and table["command"] in md
@@ -230,8 +283,9 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         is None
     )
     assert len(list(entries.glob("*.json"))) == 14
-    assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} \
-        == {"tiny-v1"}  # reproduce built the registered version, and submit identified it
+    assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} == {
+        "tiny-v1"
+    }  # reproduce built the registered version, and submit identified it
     assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None
     assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])
 
@@ -257,11 +311,18 @@ def test_report_rebuilds_the_table_from_results_alone(tiny, tmp_path, capsys):
     data = str(tiny / "data")
     for configs in (True, False):
         d = _committed(tiny, tmp_path / f"configs-{configs}", configs)
-        benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(d),
-                        "--quiet"])
+        benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(d), "--quiet"])
         again = json.loads((d / "table.json").read_text())
-        for key in ("preset", "preset_config", "dataset", "seeds", "references",
-                    "strongest_reference", "findings", "no_findings"):
+        for key in (
+            "preset",
+            "preset_config",
+            "dataset",
+            "seeds",
+            "references",
+            "strongest_reference",
+            "findings",
+            "no_findings",
+        ):
             assert again[key] == table[key], key
         assert again["command"].startswith("benchmark report --preset tiny")
         assert again["timing"] is None and again["hardware"] is None
@@ -280,24 +341,29 @@ def test_report_refuses_missing_or_misplaced_results_in_one_line(tiny, tmp_path)
     data = str(tiny / "data")
     with pytest.raises(SystemExit) as info:
         benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(tmp_path)])
-    assert info.value.code == (f"benchmark report: error: {tmp_path / 'results'}: no such "
-                               f"directory (expected the results/ folder of a `benchmark "
-                               f"reproduce --out`)")
+    assert info.value.code == (
+        f"benchmark report: error: {tmp_path / 'results'}: no such "
+        f"directory (expected the results/ folder of a `benchmark "
+        f"reproduce --out`)"
+    )
     d = _committed(tiny, tmp_path / "d", configs=False)
     seed0 = d / "results" / "graph-basic" / "seed-0" / "results.json"
     (seed0.parent.parent / "seed-1").mkdir()
     seed0.rename(seed0.parent.parent / "seed-1" / "results.json")  # a file in the wrong place
     with pytest.raises(SystemExit) as info:
-        benchmark_main(["report", "--preset", "tiny", "--data", data, "--out", str(d),
-                        "--seeds", "0,1"])
-    assert info.value.code.endswith("seed-1/results.json: holds the results of graph-basic "
-                                    "seed 0, not graph-basic seed 1")
+        benchmark_main(
+            ["report", "--preset", "tiny", "--data", data, "--out", str(d), "--seeds", "0,1"]
+        )
+    assert info.value.code.endswith(
+        "seed-1/results.json: holds the results of graph-basic seed 0, not graph-basic seed 1"
+    )
     assert "\n" not in info.value.code and not (d / "table.json").exists()
     d = _committed(tiny, tmp_path / "c", configs=True)
     with pytest.raises(SystemExit) as info:  # the tiny run's results are not the small preset's
         benchmark_main(["report", "--preset", "small", "--data", data, "--out", str(d)])
-    assert info.value.code.endswith("seed-0/config.json: trained with dim=16, not the small "
-                                    "preset's 32; is --preset right?")
+    assert info.value.code.endswith(
+        "seed-0/config.json: trained with dim=16, not the small preset's 32; is --preset right?"
+    )
     assert not (d / "table.json").exists()
 
 
@@ -312,11 +378,20 @@ def _paper_shaped_rows(n: int = 90, seed: int = 0) -> list[dict]:
     rows = []
 
     def row(e, r, simple, complex_, variation):
-        noisy = [list(x * (1 + 0.01 * rng.standard_normal(n)))
-                 for x in (simple, complex_, variation)]
-        return {"name": f"{e}-{r}", "embedding": e, "regime": r,
-                "per_object": {"class_index": cls.tolist(), "simple_mse": noisy[0],
-                               "complex_mse": noisy[1], "variation_mse": noisy[2]}}
+        noisy = [
+            list(x * (1 + 0.01 * rng.standard_normal(n))) for x in (simple, complex_, variation)
+        ]
+        return {
+            "name": f"{e}-{r}",
+            "embedding": e,
+            "regime": r,
+            "per_object": {
+                "class_index": cls.tolist(),
+                "simple_mse": noisy[0],
+                "complex_mse": noisy[1],
+                "variation_mse": noisy[2],
+            },
+        }
 
     for e, r in ROWS[:9]:
         q = quality[e] * factor[r]
@@ -345,7 +420,8 @@ def test_findings_are_decided_by_paired_intervals():
     # plant a reversal (token-ideal varies more than every token row) and a tie
     by = {r["name"]: r for r in rows}
     by["token-ideal"]["per_object"]["variation_mse"] = [
-        10 * x for x in by["token-basic"]["per_object"]["variation_mse"]]
+        10 * x for x in by["token-basic"]["per_object"]["variation_mse"]
+    ]
     by["graph-basic"]["per_object"] = {**by["direct-basic"]["per_object"]}
     f = {x["claim"].split(" (")[0]: x for x in findings(rows)}
     ideal = f["every non-Ideal model falls short of its Ideal model on Variation MSE"]
@@ -369,10 +445,19 @@ def test_rows_average_seeds_per_object_with_std_and_interval():
         errs = {m: rng.gamma(2.0, 10.0, n) for m in ("simple_mse", "complex_mse", "variation_mse")}
         metrics = {m: float(v.mean()) for m, v in errs.items()}
         metrics.update(no_skill=seed == 0, per_class={"a": {}, "b": {}, "c": {}})
-        runs[seed] = {"train_seconds": 10.0 + seed, "results": {
-            "metrics": metrics, "model": {"params": 5}, "speed": {"ms_per_mesh": 1.0},
-            "per_object": {"object_id": list(range(n)), "class_index": cls.tolist(),
-                           **{m: v.tolist() for m, v in errs.items()}}}}
+        runs[seed] = {
+            "train_seconds": 10.0 + seed,
+            "results": {
+                "metrics": metrics,
+                "model": {"params": 5},
+                "speed": {"ms_per_mesh": 1.0},
+                "per_object": {
+                    "object_id": list(range(n)),
+                    "class_index": cls.tolist(),
+                    **{m: v.tolist() for m, v in errs.items()},
+                },
+            },
+        }
     (row,) = table_rows({"graph-basic": runs})
     per_seed = np.array([runs[s]["results"]["per_object"]["complex_mse"] for s in (0, 1, 2)])
     assert row["seeds"] == [0, 1, 2] and row["train_seconds"] == 11.0
@@ -384,8 +469,9 @@ def test_rows_average_seeds_per_object_with_std_and_interval():
 
 
 def test_validation_split_selects_the_checkpoint(tmp_path):
-    d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
-                     grid=(3, 2, 8))
+    d = make_dataset(
+        tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1, grid=(3, 2, 8)
+    )
     with BenchmarkData(d) as data:
         model, config = train(TrainConfig(**{**TINY, "epochs": 4}), data, progress=False)
         val, _ = benchmark_examples(data, "basic", False, data.scale_bins, split="val")
@@ -398,37 +484,51 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     # the returned weights are the selected epoch's: their val MSE is the recorded one
     again = validation_mse(model, val, 4, torch.device("cpu"))
     assert again == pytest.approx(sel["val_mse"], rel=1e-5)
-    with BenchmarkData(make_dataset(tmp_path / "nv", objects_per_class=3, n_test_per_class=1,
-                                    grid=(3, 2, 8))) as data:
+    with BenchmarkData(
+        make_dataset(tmp_path / "nv", objects_per_class=3, n_test_per_class=1, grid=(3, 2, 8))
+    ) as data:
         _, config = train(TrainConfig(**TINY), data, progress=False)
-    assert config["selection"] == {"on": "last epoch (no val split)", "epoch": 1, "val_mse": None,
-                                   "epochs_trained": 2, "epochs_to_plateau": None,
-                                   "patience": None, "capped": None}
+    assert config["selection"] == {
+        "on": "last epoch (no val split)",
+        "epoch": 1,
+        "val_mse": None,
+        "epochs_trained": 2,
+        "epochs_to_plateau": None,
+        "patience": None,
+        "capped": None,
+    }
 
 
-@pytest.mark.parametrize("curve,patience,stop_after,best,halvings", [
-    ([9, 8, 7, 7.5, 7.2, 7.1, 7.3], 3, 6, 2, 1),  # 3 epochs without a new best after epoch 2
-    ([5, 5, 5, 5], 2, 3, 0, 1),  # a tie is no improvement: the first epoch stays the best
-    ([3, 2, 2.5, 2.6, 1.9, 2, 2.1, 2.2, 2.3], 4, 9, 4, 2),  # halved at each plateau's midpoint
-    ([4, 3, 2, 1], 2, None, 3, 0),  # still improving: never stops
-])
+@pytest.mark.parametrize(
+    "curve,patience,stop_after,best,halvings",
+    [
+        ([9, 8, 7, 7.5, 7.2, 7.1, 7.3], 3, 6, 2, 1),  # 3 epochs without a new best after epoch 2
+        ([5, 5, 5, 5], 2, 3, 0, 1),  # a tie is no improvement: the first epoch stays the best
+        ([3, 2, 2.5, 2.6, 1.9, 2, 2.1, 2.2, 2.3], 4, 9, 4, 2),  # halved at each plateau's midpoint
+        ([4, 3, 2, 1], 2, None, 3, 0),  # still improving: never stops
+    ],
+)
 def test_plateau_stops_at_the_right_epoch(curve, patience, stop_after, best, halvings):
     from benchmark.train import plateau
 
     stops = [n for n in range(1, len(curve) + 1) if plateau(curve[:n], patience)["stop"]]
     assert (stops[0] if stops else None) == stop_after
-    state = plateau(curve[:stop_after or len(curve)], patience)
+    state = plateau(curve[: stop_after or len(curve)], patience)
     assert (state["best"], state["halvings"]) == (best, halvings)
 
 
-@pytest.mark.parametrize("curve,epochs,trained,capped", [
-    ([5, 3, 4, 6, 7, 8, 9, 10], 8, 4, False),  # plateau: stopped 2 epochs after the best
-    ([5, 4, 3, 2], 4, 4, True),  # the cap ended a run that was still improving
-    ([5, 4, 3, 3.5], 4, 4, True),  # the best is within the last `patience` epochs at the cap
-    ([5, 3, 4, 4.5], 4, 4, False),  # at the cap, but the plateau had been reached
-])
-def test_early_stopping_restores_the_best_epoch_and_flags_the_cap(tmp_path, monkeypatch, curve,
-                                                                  epochs, trained, capped):
+@pytest.mark.parametrize(
+    "curve,epochs,trained,capped",
+    [
+        ([5, 3, 4, 6, 7, 8, 9, 10], 8, 4, False),  # plateau: stopped 2 epochs after the best
+        ([5, 4, 3, 2], 4, 4, True),  # the cap ended a run that was still improving
+        ([5, 4, 3, 3.5], 4, 4, True),  # the best is within the last `patience` epochs at the cap
+        ([5, 3, 4, 4.5], 4, 4, False),  # at the cap, but the plateau had been reached
+    ],
+)
+def test_early_stopping_restores_the_best_epoch_and_flags_the_cap(
+    tmp_path, monkeypatch, curve, epochs, trained, capped
+):
     """On a scripted validation curve (patience 2): training stops at the plateau, the model
     returned holds the weights of the best epoch, and ``capped`` says whether the cap ended
     a run that was still improving."""
@@ -441,11 +541,13 @@ def test_early_stopping_restores_the_best_epoch_and_flags_the_cap(tmp_path, monk
         return float(curve[len(snapshots) - 1])
 
     monkeypatch.setattr(train_module, "validation_mse", scripted)
-    d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
-                     grid=(3, 2, 8))
+    d = make_dataset(
+        tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1, grid=(3, 2, 8)
+    )
     with BenchmarkData(d) as data:
-        model, config = train(TrainConfig(**{**TINY, "epochs": epochs, "patience": 2}), data,
-                              progress=False)
+        model, config = train(
+            TrainConfig(**{**TINY, "epochs": epochs, "patience": 2}), data, progress=False
+        )
     hist, sel = config["history"]["train"], config["selection"]
     best = int(np.argmin(curve[:trained]))
     assert len(hist) == len(snapshots) == trained == sel["epochs_trained"]
@@ -461,11 +563,11 @@ def test_learning_rate_is_halved_at_half_the_patience(tmp_path, monkeypatch):
 
     curve = iter([5.0, 3.0, 4.0, 4.5, 4.2, 4.1, 4.0])
     monkeypatch.setattr(train_module, "validation_mse", lambda *a: next(curve))
-    d = make_dataset(tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1,
-                     grid=(3, 2, 8))
+    d = make_dataset(
+        tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1, grid=(3, 2, 8)
+    )
     with BenchmarkData(d) as data:
-        _, config = train(TrainConfig(**{**TINY, "epochs": 8, "patience": 4}), data,
-                          progress=False)
+        _, config = train(TrainConfig(**{**TINY, "epochs": 8, "patience": 4}), data, progress=False)
     lr = [h["lr"] for h in config["history"]["train"]]
     assert len(lr) == 6  # stopped once the best (epoch 1) was 4 epochs old
     assert lr[1] == lr[2] == lr[3] == TINY_LR  # after the warm-up (here one step)
@@ -486,10 +588,16 @@ def test_classification_pretraining_on_a_shapenet_layout(data_dir, tmp_path):
             path = root / synset / f"m{k}" / "models" / "model_normalized.obj"
             path.parent.mkdir(parents=True)
             mesh.export(path)
-    (root / "taxonomy.json").write_text(json.dumps([
-        {"synsetId": "02691156", "name": "airplane", "children": []},
-        {"synsetId": "03001627", "name": "chair", "children": []}]))
-    model, config = run(data_dir, embedding="graph", regime="classification", shapenet=str(root),
-                        pretrain_epochs=3)
+    (root / "taxonomy.json").write_text(
+        json.dumps(
+            [
+                {"synsetId": "02691156", "name": "airplane", "children": []},
+                {"synsetId": "03001627", "name": "chair", "children": []},
+            ]
+        )
+    )
+    model, config = run(
+        data_dir, embedding="graph", regime="classification", shapenet=str(root), pretrain_epochs=3
+    )
     assert config["train"]["shapenet"] == str(root) and len(config["history"]["pretrain"]) == 3
     assert set(config["history"]["pretrain"][0]) == {"loss", "ce", "acc", "lr"}

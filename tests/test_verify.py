@@ -12,8 +12,22 @@ def box(extents, center=(0.0, 0.0, 0.0)):
     """Closed, outward-oriented triangulated box."""
     e = np.asarray(extents, float) / 2
     v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * e
-    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    f = np.array(
+        [
+            [0, 1, 3],
+            [0, 3, 2],
+            [4, 6, 7],
+            [4, 7, 5],
+            [0, 4, 5],
+            [0, 5, 1],
+            [2, 3, 7],
+            [2, 7, 6],
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 5, 7],
+            [1, 7, 3],
+        ]
+    )
     return v + np.asarray(center), f
 
 
@@ -21,9 +35,13 @@ def prism(n, radius=1.0, height=2.0, phase=0.0):
     """Regular n-gon prism (vertices on the circle), caps fanned from their centres."""
     t = phase + 2 * np.pi * np.arange(n) / n
     ring = np.column_stack([radius * np.cos(t), radius * np.sin(t)])
-    v = np.vstack([np.column_stack([ring, np.full(n, -height / 2)]),
-                   np.column_stack([ring, np.full(n, height / 2)]),
-                   [[0, 0, -height / 2], [0, 0, height / 2]]])
+    v = np.vstack(
+        [
+            np.column_stack([ring, np.full(n, -height / 2)]),
+            np.column_stack([ring, np.full(n, height / 2)]),
+            [[0, 0, -height / 2], [0, 0, height / 2]],
+        ]
+    )
     f = []
     for i in range(n):
         j = (i + 1) % n
@@ -153,14 +171,17 @@ def test_primitive_tolerance_per_class_and_variant_kind():
     spec = primitives.get("cylinder")
     inscribed = {"resolution": {"vertices": 24}, "decimate": {"kind": "none"}}
     assert verify.primitive_tolerance("cylinder", inscribed) == pytest.approx(
-        (1 - math.cos(math.pi / 24)) / 2 + verify.PLANAR_TOLERANCE)
+        (1 - math.cos(math.pi / 24)) / 2 + verify.PLANAR_TOLERANCE
+    )
     decimated = {"resolution": {"vertices": 24}, "decimate": {"kind": "collapse"}}
     assert verify.primitive_tolerance("cylinder", decimated) == pytest.approx(
-        verify.tolerance("cylinder", decimated) + spec.gap(spec.default_resolution()) / 2)
+        verify.tolerance("cylinder", decimated) + spec.gap(spec.default_resolution()) / 2
+    )
     # the simple mesh of the largest object is ~0.5 wavelength from the primitive at 12 GHz
     rel = verify.primitive_tolerance("cylinder", {"resolution": {"vertices": 32}})
     assert verify.in_wavelengths(rel, (2.0, 2.0, 2.0)) == pytest.approx(
-        rel * math.sqrt(12) / (299_792_458.0 / 12e9))
+        rel * math.sqrt(12) / (299_792_458.0 / 12e9)
+    )
 
 
 def test_the_writer_stores_primitive_distances_and_object_params(tmp_path):
@@ -171,8 +192,13 @@ def test_the_writer_stores_primitive_distances_and_object_params(tmp_path):
     v, f = box((1.0, 2.0, 3.0))
     meshes = [MeshRecord(0, v, f, 0.0, {}, 1e-9), MeshRecord(1, v, f, 2e-7, {}, 3e-8)]
     path = tmp_path / "s.h5"
-    write_shard(path, [ObjectRecord(0, 0, np.array([1.0, 2.0, 3.0]), 1, "train", meshes)],
-                ["cube"], {}, "test")
+    write_shard(
+        path,
+        [ObjectRecord(0, 0, np.array([1.0, 2.0, 3.0]), 1, "train", meshes)],
+        ["cube"],
+        {},
+        "test",
+    )
     with h5py.File(path) as h5:
         assert h5["meshes/primitive_distance"][()].tolist() == [1e-9, 3e-8]
         assert h5["objects/params"].asstr()[()].tolist() == ["{}"]
@@ -185,9 +211,16 @@ def _meshlab_per_sample(samples, v, f):
     ms = pm.MeshSet()
     ms.add_mesh(pm.Mesh(vertex_matrix=np.asarray(v, float), face_matrix=np.asarray(f, np.int32)))
     ms.add_mesh(pm.Mesh(vertex_matrix=samples))
-    r = ms.get_hausdorff_distance(sampledmesh=1, targetmesh=0, samplevert=True, sampleedge=False,
-                                  sampleface=False, samplenum=len(samples), savesample=True,
-                                  maxdist=pm.PureValue(1e30))
+    r = ms.get_hausdorff_distance(
+        sampledmesh=1,
+        targetmesh=0,
+        samplevert=True,
+        sampleedge=False,
+        sampleface=False,
+        samplenum=len(samples),
+        savesample=True,
+        maxdist=pm.PureValue(1e30),
+    )
     return ms.mesh(2).vertex_scalar_array(), r["max"]
 
 
@@ -197,8 +230,11 @@ def _test_meshes():
     slivers whose edges run through the surface samples (MeshLab's near-edge rule); float32
     vertices, as generated meshes have."""
     rng = np.random.default_rng(7)
-    for kind, scale in [("cube", (0.3, 1.1, 0.7)), ("cylinder", (1.0, 0.4, 1.6)),
-                        ("sphere", (0.5, 1.2, 0.9))]:
+    for kind, scale in [
+        ("cube", (0.3, 1.1, 0.7)),
+        ("cylinder", (1.0, 0.4, 1.6)),
+        ("sphere", (0.5, 1.2, 0.9)),
+    ]:
         solid = analytic.solid_for(kind, scale)
         v, f = analytic.simulation_mesh(solid, 3e8)
         yield solid, v.astype(np.float32), f
@@ -234,7 +270,7 @@ def test_meshlab_bounds_bracket_meshlab_and_keep_its_maximum():
         ff = np.asarray(f, np.int64)
         vv = np.asarray(v, float)
         planes = meshlab_bounds._planes(vv, ff)
-        tau = meshlab_bounds.TAU * solid.diagonal ** 2
+        tau = meshlab_bounds.TAU * solid.diagonal**2
         rho = meshlab_bounds.RHO * solid.diagonal
         lower = meshlab_bounds._lower(samples, vv, ff, planes, tau, rho)
         assert np.all(lower - rho <= per_sample)
@@ -242,8 +278,9 @@ def test_meshlab_bounds_bracket_meshlab_and_keep_its_maximum():
         start, items = meshlab_bounds._face_cells(vv, ff, bounds.origin, bounds.cell, bounds.dims)
         first = meshlab_bounds._first_inside(samples, cells, planes, start, items, tau)
         every = np.arange(len(samples))
-        upper = meshlab_bounds._upper(samples, cells, every, first, vv, ff, planes, start, items,
-                                      tau)
+        upper = meshlab_bounds._upper(
+            samples, cells, every, first, vv, ff, planes, start, items, tau
+        )
         assert np.all(per_sample <= upper + rho)
         picked, near = bounds.candidates(v, f)
         assert len(picked) < len(samples) / 4

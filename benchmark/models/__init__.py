@@ -43,15 +43,24 @@ class Embedding:
 
 REGISTRY: dict[str, Embedding] = {
     "direct": Embedding(lambda dim, **_: DirectEmbedding(dim), face=True, colour="tab:blue"),
-    "graph": Embedding(lambda dim, embed_layers, **_: GraphEmbedding(dim, embed_layers),
-                       face=True, colour="tab:orange"),
-    "token": Embedding(lambda dim, embed_layers, codebook_size, n_quantizers, **_:
-                       TokenEmbedding(dim, embed_layers, codebook_size, n_quantizers),
-                       face=True, colour="tab:green"),
-    "invariant": Embedding(lambda dim, **_: ProbeEmbedding(dim), face=False, colour="tab:red",
-                           probes=True, cost=0.5),
-    "blind": Embedding(lambda dim, **_: BlindEmbedding(dim), face=False, colour="tab:gray",
-                       cost=0.3),
+    "graph": Embedding(
+        lambda dim, embed_layers, **_: GraphEmbedding(dim, embed_layers),
+        face=True,
+        colour="tab:orange",
+    ),
+    "token": Embedding(
+        lambda dim, embed_layers, codebook_size, n_quantizers, **_: TokenEmbedding(
+            dim, embed_layers, codebook_size, n_quantizers
+        ),
+        face=True,
+        colour="tab:green",
+    ),
+    "invariant": Embedding(
+        lambda dim, **_: ProbeEmbedding(dim), face=False, colour="tab:red", probes=True, cost=0.5
+    ),
+    "blind": Embedding(
+        lambda dim, **_: BlindEmbedding(dim), face=False, colour="tab:gray", cost=0.3
+    ),
 }
 """Adding an embedding is one entry here: the CLI choices, the table's rows and the plot's
 colours all derive from it."""
@@ -112,18 +121,30 @@ class ReconstructionHead(nn.Module):
         return ce + aux, {"ce": ce.item(), "acc": acc.item()}
 
 
-def build_model(name: str, n_outputs: int, n_scale_bins: int, dim: int = 64,
-                embed_layers: int = 3, agg_layers: int = 2, n_heads: int = 4,
-                decoder_hidden: int = 256, codebook_size: int = 128, n_quantizers: int = 2
+def build_model(
+    name: str,
+    n_outputs: int,
+    n_scale_bins: int,
+    dim: int = 64,
+    embed_layers: int = 3,
+    agg_layers: int = 2,
+    n_heads: int = 4,
+    decoder_hidden: int = 256,
+    codebook_size: int = 128,
+    n_quantizers: int = 2,
 ) -> MeshSimulator:
     """One of ``EMBEDDINGS`` with the shared aggregator and decoder. Every argument is a
     plain number, so the call's keyword arguments are the model's JSON config."""
     if name not in REGISTRY:
         raise ValueError(f"unknown model {name!r}; choose one of {', '.join(EMBEDDINGS)}")
-    embedding = REGISTRY[name].build(dim=dim, embed_layers=embed_layers,
-                                     codebook_size=codebook_size, n_quantizers=n_quantizers)
-    return MeshSimulator(embedding, Aggregator(dim, agg_layers, n_heads),
-                         Decoder(dim, n_outputs, n_scale_bins, hidden=decoder_hidden))
+    embedding = REGISTRY[name].build(
+        dim=dim, embed_layers=embed_layers, codebook_size=codebook_size, n_quantizers=n_quantizers
+    )
+    return MeshSimulator(
+        embedding,
+        Aggregator(dim, agg_layers, n_heads),
+        Decoder(dim, n_outputs, n_scale_bins, hidden=decoder_hidden),
+    )
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -19,8 +19,9 @@ class Aggregator(nn.Module):
     def __init__(self, dim: int, n_layers: int = 2, n_heads: int = 4, dropout: float = 0.0):
         super().__init__()
         self.cls = nn.Parameter(torch.randn(1, 1, dim) * 0.02)
-        layer = nn.TransformerEncoderLayer(dim, n_heads, 2 * dim, dropout, activation="gelu",
-                                           batch_first=True, norm_first=True)
+        layer = nn.TransformerEncoderLayer(
+            dim, n_heads, 2 * dim, dropout, activation="gelu", batch_first=True, norm_first=True
+        )
         self.encoder = nn.TransformerEncoder(layer, n_layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(dim)
 
@@ -34,8 +35,9 @@ class Aggregator(nn.Module):
         return self.norm(_cls_only(last, x, pad))
 
 
-def _cls_only(layer: nn.TransformerEncoderLayer, x: torch.Tensor,
-              pad: torch.Tensor) -> torch.Tensor:
+def _cls_only(
+    layer: nn.TransformerEncoderLayer, x: torch.Tensor, pad: torch.Tensor
+) -> torch.Tensor:
     """Row 0 of a pre-norm encoder layer's output, (B, dim): the CLS query attends over
     every token's keys and values; the other rows' attention and feed-forward are skipped.
     The attention is ``layer.self_attn``'s arithmetic written out for one query, without
@@ -47,7 +49,8 @@ def _cls_only(layer: nn.TransformerEncoderLayer, x: torch.Tensor,
     w, bias = attn.in_proj_weight, attn.in_proj_bias  # rows: query, key, value
     q = F.linear(h[:, 0], w[:d], bias[:d]).view(b, heads, 1, d // heads)
     k, v = F.linear(h, w[d:], bias[d:]).view(b, n, 2, heads, d // heads).permute(2, 0, 3, 1, 4)
-    o = F.scaled_dot_product_attention(q, k, v, attn_mask=~pad[:, None, None, :],
-                                       dropout_p=attn.dropout if layer.training else 0.0)
+    o = F.scaled_dot_product_attention(
+        q, k, v, attn_mask=~pad[:, None, None, :], dropout_p=attn.dropout if layer.training else 0.0
+    )
     x = x[:, 0] + layer.dropout1(attn.out_proj(o.reshape(b, d)))
     return x + layer._ff_block(layer.norm2(x))

@@ -43,8 +43,12 @@ def save_checkpoint(directory: str | os.PathLike, model: MeshSimulator, config: 
     missing = {"model", "target_shape", "scale_bins"} - set(config)
     if missing:
         raise ValueError(f"checkpoint config lacks {sorted(missing)}")
-    config = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
-              "params": count_parameters(model), **config}
+    config = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "params": count_parameters(model),
+        **config,
+    }
     state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
     with atomic_path(directory / WEIGHTS) as tmp:
         torch.save(state, tmp)
@@ -53,8 +57,9 @@ def save_checkpoint(directory: str | os.PathLike, model: MeshSimulator, config: 
     return directory
 
 
-def load_checkpoint(directory: str | os.PathLike,
-                    map_location: str | torch.device = "cpu") -> tuple[MeshSimulator, dict]:
+def load_checkpoint(
+    directory: str | os.PathLike, map_location: str | torch.device = "cpu"
+) -> tuple[MeshSimulator, dict]:
     """Rebuild the model of a checkpoint directory (eval mode) and return it with its config."""
     directory = Path(directory)
     config = load_json(directory / CONFIG, max_bytes=CONFIG_MAX_BYTES, error=CheckpointError)
@@ -66,8 +71,10 @@ def load_checkpoint(directory: str | os.PathLike,
         state = torch.load(directory / WEIGHTS, map_location=map_location, weights_only=True)
         model.load_state_dict(state)
     except Exception as exc:
-        raise CheckpointError(f"{directory / WEIGHTS}: cannot load weights "
-                              f"({exc.__class__.__name__}: {str(exc).splitlines()[0]})") from None
+        raise CheckpointError(
+            f"{directory / WEIGHTS}: cannot load weights "
+            f"({exc.__class__.__name__}: {str(exc).splitlines()[0]})"
+        ) from None
     return model.eval(), config
 
 
@@ -80,8 +87,13 @@ class CheckpointModel:
     discretization it was trained with.
     """
 
-    def __init__(self, checkpoint: str | os.PathLike, device: str = "cpu",
-                 batch_size: int | str = 16, max_tokens: int | str = 16384):
+    def __init__(
+        self,
+        checkpoint: str | os.PathLike,
+        device: str = "cpu",
+        batch_size: int | str = 16,
+        max_tokens: int | str = 16384,
+    ):
         """Arguments may be strings (``benchmark evaluate --model-arg KEY=VALUE``).
         Meshes are run in sub-batches of similar face count, at most ``batch_size`` meshes
         and ``max_tokens`` padded faces each (padding a 12-face cube to a 6000-face sphere
@@ -104,8 +116,11 @@ class CheckpointModel:
         order = sorted(range(len(n_faces)), key=lambda i: n_faces[i])
         chunks: list[list[int]] = []
         for i in order:
-            if chunks and len(chunks[-1]) < self.batch_size \
-                    and (len(chunks[-1]) + 1) * n_faces[i] <= self.max_tokens:
+            if (
+                chunks
+                and len(chunks[-1]) < self.batch_size
+                and (len(chunks[-1]) + 1) * n_faces[i] <= self.max_tokens
+            ):
                 chunks[-1].append(i)
             else:
                 chunks.append([i])

@@ -17,14 +17,19 @@ class Decoder(nn.Module):
     this, most of a short CPU run is spent learning the offset and the output gain.
     """
 
-    def __init__(self, dim: int, n_outputs: int, n_scale_bins: int, scale_dim: int = 16,
-                 hidden: int = 256):
+    def __init__(
+        self, dim: int, n_outputs: int, n_scale_bins: int, scale_dim: int = 16, hidden: int = 256
+    ):
         super().__init__()
         self.n_scale_bins = n_scale_bins
         self.scale = nn.Embedding(3 * n_scale_bins, scale_dim)
-        self.mlp = nn.Sequential(nn.Linear(dim + 3 * scale_dim, hidden), nn.GELU(),
-                                 nn.Linear(hidden, hidden), nn.GELU(),
-                                 nn.Linear(hidden, n_outputs))
+        self.mlp = nn.Sequential(
+            nn.Linear(dim + 3 * scale_dim, hidden),
+            nn.GELU(),
+            nn.Linear(hidden, hidden),
+            nn.GELU(),
+            nn.Linear(hidden, n_outputs),
+        )
         self.register_buffer("offset", torch.zeros(n_outputs))
         self.register_buffer("spread", torch.ones(()))
 

@@ -42,7 +42,7 @@ def face_adjacency(faces: np.ndarray) -> np.ndarray:
     lengths = np.diff(np.r_[starts, len(keys)])
     pairs = [np.stack([owner[starts[lengths == 2]], owner[starts[lengths == 2] + 1]], 1)]
     for s, n in zip(starts[lengths > 2], lengths[lengths > 2]):
-        group = owner[s:s + n]
+        group = owner[s : s + n]
         i, j = np.triu_indices(n, 1)
         pairs.append(np.stack([group[i], group[j]], 1))
     pairs = np.concatenate(pairs)
@@ -70,8 +70,13 @@ def face_geometry(vertices: np.ndarray, faces: np.ndarray) -> dict[str, np.ndarr
         na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
         cos = np.einsum("ij,ij->i", a, b) / np.maximum(na * nb, 1e-30)
         angles[:, k] = np.arccos(np.clip(cos, -1.0, 1.0))
-    return {"triangles": tri, "centre": tri.mean(1), "area": 0.5 * norm, "normal": normal,
-            "angles": angles}
+    return {
+        "triangles": tri,
+        "centre": tri.mean(1),
+        "area": 0.5 * norm,
+        "normal": normal,
+        "angles": angles,
+    }
 
 
 @dataclass
@@ -101,15 +106,22 @@ def featurize(vertices: np.ndarray, faces: np.ndarray, probes: bool = False) -> 
     corners = canon - g["centre"][:, None]
     direct = np.concatenate([g["centre"], corners.reshape(-1, 9), g["normal"]], 1)
     log_area = np.log(np.maximum(g["area"], np.exp(MIN_LOG_AREA)))
-    tokens = np.concatenate([
-        _discretize(canon.reshape(-1, 9), -COORD_RANGE, COORD_RANGE),
-        _discretize(np.take_along_axis(g["angles"], order, 1), 0.0, np.pi),
-        _discretize(log_area[:, None], MIN_LOG_AREA, MAX_LOG_AREA),
-        _discretize(g["normal"], -1.0, 1.0),
-    ], 1)
-    return MeshFeatures(direct=direct.astype(np.float32), tokens=tokens,
-                        area=g["area"].astype(np.float32), edge_index=face_adjacency(faces),
-                        probes=ray_probes(vertices, faces) if probes else None)
+    tokens = np.concatenate(
+        [
+            _discretize(canon.reshape(-1, 9), -COORD_RANGE, COORD_RANGE),
+            _discretize(np.take_along_axis(g["angles"], order, 1), 0.0, np.pi),
+            _discretize(log_area[:, None], MIN_LOG_AREA, MAX_LOG_AREA),
+            _discretize(g["normal"], -1.0, 1.0),
+        ],
+        1,
+    )
+    return MeshFeatures(
+        direct=direct.astype(np.float32),
+        tokens=tokens,
+        area=g["area"].astype(np.float32),
+        edge_index=face_adjacency(faces),
+        probes=ray_probes(vertices, faces) if probes else None,
+    )
 
 
 @dataclass
@@ -131,8 +143,12 @@ class MeshBatch:
     probes: torch.Tensor | None = None  # (B, N_RAYS, PROBE_DIM) float, invariant model
 
     def to(self, device) -> MeshBatch:
-        return MeshBatch(**{f.name: None if getattr(self, f.name) is None
-                            else getattr(self, f.name).to(device) for f in fields(self)})
+        return MeshBatch(
+            **{
+                f.name: None if getattr(self, f.name) is None else getattr(self, f.name).to(device)
+                for f in fields(self)
+            }
+        )
 
     @property
     def size(self) -> int:
@@ -151,19 +167,26 @@ def collate(items: list[MeshFeatures], scale_bin=None, target=None, label=None) 
     mask = np.zeros((b, length), bool)
     offsets = np.concatenate([[0], np.cumsum(n)])
     for i, it in enumerate(items):
-        direct[i, :n[i]] = it.direct
-        tokens[i, :n[i]] = it.tokens
-        area[i, :n[i]] = it.area
-        mask[i, :n[i]] = True
+        direct[i, : n[i]] = it.direct
+        tokens[i, : n[i]] = it.tokens
+        area[i, : n[i]] = it.area
+        mask[i, : n[i]] = True
     edges = np.concatenate([it.edge_index + offsets[i] for i, it in enumerate(items)], 1)
-    scale_bin = np.zeros((b, 3), np.int64) if scale_bin is None \
+    scale_bin = (
+        np.zeros((b, 3), np.int64)
+        if scale_bin is None
         else np.asarray(scale_bin, np.int64).reshape(b, 3)
+    )
     return MeshBatch(
-        direct=torch.from_numpy(direct), tokens=torch.from_numpy(tokens),
-        area=torch.from_numpy(area), mask=torch.from_numpy(mask),
+        direct=torch.from_numpy(direct),
+        tokens=torch.from_numpy(tokens),
+        area=torch.from_numpy(area),
+        mask=torch.from_numpy(mask),
         edge_index=torch.from_numpy(np.ascontiguousarray(edges, np.int64)),
         scale_bin=torch.from_numpy(scale_bin),
         target=None if target is None else torch.as_tensor(np.asarray(target, np.float32)),
         label=None if label is None else torch.as_tensor(np.asarray(label, np.int64)),
-        probes=None if any(it.probes is None for it in items)
-        else torch.from_numpy(np.stack([it.probes for it in items])))
+        probes=None
+        if any(it.probes is None for it in items)
+        else torch.from_numpy(np.stack([it.probes for it in items])),
+    )

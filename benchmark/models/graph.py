@@ -39,8 +39,13 @@ class GraphEmbedding(nn.Module):
         device = tokens.device
         cols = (tokens + N_BINS * torch.arange(k, device=device)).flatten()  # sorted per row
         rows = torch.arange(n, device=device).repeat_interleave(k)
-        onehot = torch.sparse_coo_tensor(torch.stack([rows, cols]), folded.new_ones(n * k),
-                                         (n, k * N_BINS), is_coalesced=True, check_invariants=True)
+        onehot = torch.sparse_coo_tensor(
+            torch.stack([rows, cols]),
+            folded.new_ones(n * k),
+            (n, k * N_BINS),
+            is_coalesced=True,
+            check_invariants=True,
+        )
         return torch.sparse.mm(onehot, folded) + self.proj.bias
 
     def packed(self, batch: MeshBatch) -> torch.Tensor:

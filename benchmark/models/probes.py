@@ -15,8 +15,9 @@ N_RAYS = 256
 PROBE_DIM = 12  # direction (3), hit flag, near distance + normal (4), far distance + normal (4)
 
 
-def ray_probes(vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS,
-               chunk: int = 4096) -> np.ndarray:
+def ray_probes(
+    vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS, chunk: int = 4096
+) -> np.ndarray:
     """(n_rays, PROBE_DIM) float32 probe features of one mesh (float64 Moller-Trumbore).
 
     Hits exactly on a shared edge count for both faces (a small barycentric tolerance), which
@@ -34,7 +35,7 @@ def ray_probes(vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS,
     far_n = np.zeros((n_rays, 3))
     eps = 1e-9
     for s in range(0, len(tri), chunk):
-        t3 = tri[s:s + chunk]
+        t3 = tri[s : s + chunk]
         e1, e2 = t3[:, 1] - t3[:, 0], t3[:, 2] - t3[:, 0]
         normal = np.cross(e1, e2)
         length = np.linalg.norm(normal, axis=1, keepdims=True)
@@ -61,6 +62,15 @@ def ray_probes(vertices: np.ndarray, faces: np.ndarray, n_rays: int = N_RAYS,
         far_n[better] = normal[i_far[better]]
     hit = np.isfinite(near)
     flip = lambda n: n * np.where(np.einsum("rk,rk->r", n, d) < 0, -1.0, 1.0)[:, None]  # noqa: E731
-    out = np.concatenate([d, hit[:, None], np.where(hit, near, 0)[:, None], flip(near_n),
-                          np.where(hit, far, 0)[:, None], flip(far_n)], 1)
+    out = np.concatenate(
+        [
+            d,
+            hit[:, None],
+            np.where(hit, near, 0)[:, None],
+            flip(near_n),
+            np.where(hit, far, 0)[:, None],
+            flip(far_n),
+        ],
+        1,
+    )
     return out.astype(np.float32)
