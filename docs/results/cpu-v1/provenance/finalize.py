@@ -45,8 +45,9 @@ def main() -> None:
     for name in names:
         record = {"results": load_results(row_files(FINAL, name, 0)[0])}
         # every first seed is re-timed here, alone: some were timed while the re-scoring ran
-        record["results"]["speed"]["hardware"] = \
-            record["results"]["speed"]["hardware"].replace(TIMED_ALONE, "timed under load")
+        record["results"]["speed"]["hardware"] = record["results"]["speed"]["hardware"].replace(
+            TIMED_ALONE, "timed under load"
+        )
         jobs.append((SimpleNamespace(name=name, seed=0), record))
     time_alone(FINAL, HERE / "data-rebuilt", jobs, threads=1)
     for name in names:
@@ -74,11 +75,21 @@ def check_sample(name: str) -> None:
         model.predict(b)
     full = 1000.0 * (time.perf_counter() - t0) / len(rows)
     sampled = load_results(row_files(FINAL, name, 0)[0])["speed"]["ms_per_mesh"]
-    (HERE / "timing-check.json").write_text(json.dumps(
-        {"row": name, "full_ms_per_mesh": full, "n_full": len(rows),
-         "sampled_ms_per_mesh": sampled, "ratio": sampled / full}, indent=1))
-    print(f"{name}: sampled {sampled:.1f} ms/mesh, full split {full:.1f} (ratio "
-          f"{sampled / full:.3f})")
+    (HERE / "timing-check.json").write_text(
+        json.dumps(
+            {
+                "row": name,
+                "full_ms_per_mesh": full,
+                "n_full": len(rows),
+                "sampled_ms_per_mesh": sampled,
+                "ratio": sampled / full,
+            },
+            indent=1,
+        )
+    )
+    print(
+        f"{name}: sampled {sampled:.1f} ms/mesh, full split {full:.1f} (ratio {sampled / full:.3f})"
+    )
 
 
 if __name__ == "__main__":
