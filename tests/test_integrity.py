@@ -19,6 +19,24 @@ from benchmark_fixture import make_dataset
 from test_hostile import cli
 
 
+def refused_by_parser(tool: str, args, phrase: str, capsys, watch=()) -> None:
+    """A CLI run in this process (flag refusals need no subprocess): exit 2, one stderr line
+    naming ``phrase``, no traceback, nothing written under ``watch``."""
+    import importlib
+
+    from test_hostile import snapshot
+
+    before = snapshot(*watch)
+    main = importlib.import_module(f"{tool}.cli").main
+    with pytest.raises(SystemExit) as exc:
+        main([str(a) for a in args])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert exc.value.code == 2, err
+    assert len(lines) == 1 and "Traceback" not in err and phrase in lines[0], err
+    assert snapshot(*watch) == before, "something was written"
+
+
 @pytest.fixture
 def data(tmp_path):
     return make_dataset(tmp_path / "data", objects_per_class=2, n_test_per_class=1)
@@ -173,7 +191,7 @@ def test_readers_refuse_a_flipped_vertex(data, tmp_path, tool, args):
         ),
     ],
 )
-def test_outputs_never_overwrite_inputs(data, tmp_path, tool, args, phrase):
+def test_outputs_never_overwrite_inputs(data, tmp_path, tool, args, phrase, capsys):
     names = {
         "data": data,
         "p": tmp_path / "p.h5",
@@ -182,11 +200,11 @@ def test_outputs_never_overwrite_inputs(data, tmp_path, tool, args, phrase):
     }
     (tmp_path / "p.h5").write_bytes(b"predictions")
     (tmp_path / "entries" / "sub").mkdir(parents=True)
-    cli(
+    refused_by_parser(
         tool,
-        *(a.format(**names) for a in args),
-        rc=2,
-        phrase=phrase.format(**names),
+        [a.format(**names) for a in args],
+        phrase.format(**names),
+        capsys,
         watch=[data, tmp_path],
     )
 
@@ -202,18 +220,12 @@ def test_outputs_never_overwrite_inputs(data, tmp_path, tool, args, phrase):
         ("--weight-decay", "-1", "must be >= 0"),
     ],
 )
-def test_training_flags_are_refused_by_the_parser(data, tmp_path, flag, value, phrase):
-    cli(
+def test_training_flags_are_refused_by_the_parser(data, tmp_path, flag, value, phrase, capsys):
+    refused_by_parser(
         "benchmark",
-        "train",
-        "--data",
-        data,
-        "--out",
-        tmp_path / "ck",
-        flag,
-        value,
-        rc=2,
-        phrase=phrase,
+        ["train", "--data", data, "--out", tmp_path / "ck", flag, value],
+        phrase,
+        capsys,
         watch=[data, tmp_path],
     )
 
