@@ -16,7 +16,6 @@ build, and a second build on another machine must then match it.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
 import time
@@ -75,13 +74,7 @@ class DatasetVersion:
         """The version's RadarConfig: ``xband-v1``, renamed when a grid axis is coarsened."""
         from radar_sim import RadarConfig
 
-        config = RadarConfig.named("xband-v1")
-        if not self.radar:
-            return config
-        grid = "x".join(
-            str(self.radar.get(k, getattr(config, k))) for k in ("n_aspect", "n_roll", "n_range")
-        )
-        return dataclasses.replace(config, name=f"xband-v1-{grid}", **self.radar)
+        return RadarConfig.named("xband-v1").with_grid(**self.radar)
 
     def grid(self) -> str:
         c = self.radar_config()

@@ -23,7 +23,6 @@ Writes perf/results/physics_budget.json and prints a table.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -91,12 +90,7 @@ def main() -> None:
     p.add_argument("--grid", default="31x7", help="aspects x rolls (default 31x7, cpu-v1's)")
     args = p.parse_args()
     n_aspect, n_roll = (int(x) for x in args.grid.split("x"))
-    config = dataclasses.replace(
-        radar_sim.RadarConfig.named("xband-v1"),
-        name=f"xband-v1-{args.grid}",
-        n_aspect=n_aspect,
-        n_roll=n_roll,
-    )
+    config = radar_sim.RadarConfig.named("xband-v1").with_grid(n_aspect=n_aspect, n_roll=n_roll)
     convention = pick_convention()
     rows = []
     for a in args.radii:

@@ -20,7 +20,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402 - thread limits are set before numpy loads
-import dataclasses  # noqa: E402
 import json  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -58,12 +57,7 @@ def main() -> None:
     p.add_argument("--scale", type=float, default=1.0, help="object extent in metres")
     args = p.parse_args()
     n_aspect, n_roll = (int(x) for x in args.grid.split("x"))
-    config = dataclasses.replace(
-        radar_sim.RadarConfig.named("xband-v1"),
-        name=f"xband-v1-{args.grid}",
-        n_aspect=n_aspect,
-        n_roll=n_roll,
-    )
+    config = radar_sim.RadarConfig.named("xband-v1").with_grid(n_aspect=n_aspect, n_roll=n_roll)
     rows = []
     for name in CLASSES:
         scale = (args.scale, 0.8 * args.scale, 0.6 * args.scale)

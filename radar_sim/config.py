@@ -10,7 +10,7 @@ and positive range points away from the radar (down-range): a scatterer at p app
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +72,16 @@ class RadarConfig:
         if name not in NAMED:
             raise ValueError(f"unknown radar config {name!r}; known: {sorted(NAMED)}")
         return NAMED[name]
+
+    def with_grid(self, **axes: int) -> RadarConfig:
+        """This config with grid axes changed (``n_aspect``, ``n_roll``, ``n_range``), named
+        ``<name>-<aspects>x<rolls>x<range bins>`` (a dataset version's radar config)."""
+        if not axes:
+            return self
+        grid = "x".join(
+            str(axes.get(k, getattr(self, k))) for k in ("n_aspect", "n_roll", "n_range")
+        )
+        return replace(self, name=f"{self.name}-{grid}", **axes)
 
     @classmethod
     def from_file(cls, path) -> RadarConfig:
