@@ -78,11 +78,19 @@ def fmt_ms(x: float | None) -> str:
     return "—" if x is None else f"{x:.3g}"
 
 
-def fmt_ci(block: dict, key: str) -> str:
-    """A metric with its 95% interval when the entry has one: ``74.75 [70.10, 79.51]``."""
+def interval(block: dict, key: str) -> str:
+    """``[70.10, 79.51]``, the metric's 95% interval, or "" where it has no width (one test
+    object in a class) or no value."""
     ci = block.get(key + "_ci")
-    text = fmt_mse(block.get(key))
-    return text + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci and block.get(key) is not None else "")
+    return (
+        f"[{ci[0]:.2f}, {ci[1]:.2f}]" if ci and block.get(key) is not None and ci[1] > ci[0] else ""
+    )
+
+
+def fmt_ci(block: dict, key: str) -> str:
+    """A metric with its 95% interval when it has one: ``74.75 [70.10, 79.51]``."""
+    ci = interval(block, key)
+    return fmt_mse(block.get(key)) + (f" {ci}" if ci else "")
 
 
 def no_skill(m: dict) -> bool:
@@ -236,6 +244,22 @@ def _num(value, text: str) -> str:
     return f'<td class="num" data-value="{v}">{_e(text)}</td>'
 
 
+def _metric(block: dict, key: str) -> str:
+    """A metric cell: the value, and its 95% interval below it, small, where the interval has
+    a width (one test object in a class gives none worth showing)."""
+    value, ci = block.get(key), interval(block, key)
+    v = "" if value is None else repr(value)
+    below = f'<br><small class="ci">{ci}</small>' if ci else ""
+    return f'<td class="num" data-value="{v}">{_e(fmt_mse(value))}{below}</td>'
+
+
+def _speed(e: dict) -> str:
+    """ms per mesh, with the hardware it was measured on as the cell's tooltip."""
+    ms, hardware = e["speed"]["ms_per_mesh"], e["speed"].get("hardware") or "hardware not given"
+    v = "" if ms is None else repr(ms)
+    return f'<td class="num" data-value="{v}" title="{_e(hardware)}">{_e(fmt_speed(e))}</td>'
+
+
 def _link(e: dict) -> str:
     if not e.get("link"):
         return '<td data-value="">—</td>'
@@ -246,10 +270,14 @@ def _link(e: dict) -> str:
 
 
 def html_table(g: dict) -> str:
+    """The board: metrics with their 95% intervals below them, the hardware as the speed's
+    tooltip and a link column only where some entry has a link, so it fits 1,400 px; a
+    scroll box keeps a phone's page from scrolling sideways (tests/test_site_browser.py)."""
+    links = any(e.get("link") for e in g["models"])
     head = (
         [_th("#", "num"), _th("Model", "text")]
         + [
-            _th(METRIC_TITLES[k] + " [95%]", "num", "ascending" if k == "complex_mse" else None)
+            _th(METRIC_TITLES[k], "num", "ascending" if k == "complex_mse" else None)
             for k in COLUMNS
         ]
         + [
@@ -257,10 +285,9 @@ def html_table(g: dict) -> str:
             _th("No skill", "text"),
             _th("Params", "num"),
             _th("ms / mesh", "num"),
-            _th("Hardware", "text"),
             _th("Date", "text"),
-            _th("Link", "text"),
         ]
+        + ([_th("Link", "text")] if links else [])
     )
     rows = []
     for rank, e in enumerate(g["models"], 1):
@@ -276,16 +303,15 @@ def html_table(g: dict) -> str:
                 + (f'<br><small class="note">{_e(detail)}</small>' if detail else "")
                 + "</td>",
             ]
-            + [_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS]
+            + [_metric(m, k) for k in COLUMNS]
             + [
                 _num(skill, skill_text),
                 '<td class="flag">yes</td>' if flagged else "<td>no</td>",
                 _num(e.get("params"), fmt_entry_params(e)),
-                _num(e["speed"]["ms_per_mesh"], fmt_speed(e)),
-                f"<td>{_e(e['speed']['hardware'] or '—')}</td>",
+                _speed(e),
                 f'<td class="date">{_e(e["submitted"][:10])}</td>',
-                _link(e),
             ]
+            + ([_link(e)] if links else [])
         )
         cls = ' class="collapsed"' if flagged else ""
         rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
@@ -293,22 +319,23 @@ def html_table(g: dict) -> str:
         cells = (
             [
                 _num(None, "ref"),
-                f'<td data-value="{_e(name)}">reference: {_e(name)}'
-                f'<br><small class="note">{_e(REFERENCE_NOTES.get(name, ""))}</small></td>',
+                f'<td data-value="{_e(name)}" title="{_e(REFERENCE_NOTES.get(name, ""))}">'
+                f"reference: {_e(name)}</td>",
             ]
-            + [_num(r.get(k), fmt_ci(r, k)) for k in COLUMNS]
+            + [_metric(r, k) for k in COLUMNS]
             + [
                 _num(None, "—"),
                 '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
                 _num(0, "0"),
                 _num(None, "—"),
             ]
-            + ["<td>—</td>"] * 3
+            + ["<td>—</td>"] * (2 if links else 1)
         )
         rows.append('<tr class="reference">' + "".join(cells) + "</tr>")
     return (
-        f'<table class="board sortable" id="board-{g["short"]}">\n<thead><tr>{"".join(head)}'
-        f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>"
+        f'<div class="scroll"><table class="board sortable" id="board-{g["short"]}">\n'
+        f"<thead><tr>{''.join(head)}"
+        f"</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table></div>"
     )
 
 
@@ -330,7 +357,9 @@ def skill_note(g: dict) -> str:
         f"({', '.join(sorted(names))}), and whether the model is better, worse or not "
         f"distinguishable from it by the paired 95% interval of the difference. No skill: "
         f"not better than the training-set mean by a paired 95% interval. Reference rows "
-        f"cost nothing to run and are not ranked."
+        f"cost nothing to run and are not ranked: "
+        + "; ".join(f"{k}, {v}" for k, v in REFERENCE_NOTES.items())
+        + "."
     )
 
 
@@ -344,12 +373,14 @@ def html_per_class(g: dict) -> str:
             rows.append(
                 "<tr>"
                 + f"<td>{_e(e['name'])}</td><td>{_e(cls)}</td>"
-                + "".join(_num(m.get(k), fmt_ci(m, k)) for k in COLUMNS)
+                + "".join(_metric(m, k) for k in COLUMNS)
                 + "</tr>"
             )
     return (
-        f'<table class="per-class sortable" id="per-class-{g["short"]}">\n<thead><tr>'
-        f"{''.join(head)}</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody>\n</table>"
+        f'<div class="scroll"><table class="per-class sortable" id="per-class-{g["short"]}">\n'
+        f"<thead><tr>{''.join(head)}</tr></thead>\n<tbody>\n"
+        + "\n".join(rows)
+        + "\n</tbody>\n</table></div>"
     )
 
 

@@ -500,7 +500,10 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     assert "0.1 (self-reported)" in rows[1] and "1.25 (self-reported)" in rows[0]
     assert "1.23 M (self-reported)" in rows[0]
     ci = json.loads(next(entries.glob("graph-ae*.json")).read_text())["metrics"]["complex_mse_ci"]
-    assert f"{exp['complex_mse']:.2f} [{ci[0]:.2f}, {ci[1]:.2f}]" in rows[0]
+    assert (
+        f'{exp["complex_mse"]:.2f}<br><small class="ci">[{ci[0]:.2f}, {ci[1]:.2f}]</small>'
+        in rows[0]
+    )
     assert f"{exp['complex_mse']:.2f}" in rows[0] and f"{worse_exp['complex_mse']:.2f}" in rows[1]
     for img in re.findall(r'<img src="([^"]+)"', html):
         assert png_size(site / img)[0] > 100

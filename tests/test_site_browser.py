@@ -144,3 +144,28 @@ def test_page_sorts_renders_images_and_stays_local(site):
             browser.close()
     assert errors == []
     assert requests and all(u.startswith(site) or u.startswith("data:") for u in requests), requests
+
+
+@pytest.mark.parametrize("width, height", [(1400, 900), (390, 844)])
+def test_board_fits_a_desktop_and_a_phone(site, width, height):
+    """At 1,400 px the whole board fits without sideways scrolling; at 390 px (a phone) the
+    page itself never scrolls sideways: the table scrolls inside its own box."""
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": width, "height": height})
+            page.goto(site, wait_until="load")
+            page_width = page.evaluate("document.documentElement.scrollWidth")
+            assert page_width <= width, page_width
+            box = page.eval_on_selector(
+                "div.scroll", "b => [b.scrollWidth, b.clientWidth, getComputedStyle(b).overflowX]"
+            )
+            assert box[2] == "auto"
+            if width >= 1400:
+                assert box[0] <= box[1], box  # nothing hidden to scroll to
+            rows = page.eval_on_selector_all(
+                "table.board tbody tr", "rows => rows.map(r => r.getBoundingClientRect().height)"
+            )
+            assert max(rows) <= 90, rows  # compact rows (they were 160-203 px)
+        finally:
+            browser.close()
