@@ -361,7 +361,9 @@ class Shard:
         return vertices, faces
 
     def mesh_params(self, i: int) -> dict:
-        return json.loads(self.file["meshes/params"][i])
+        return load_json(
+            self.file["meshes/params"][i], error=ShardError, what=f"{self.path}: mesh {i} params"
+        )
 
     def iter_meshes(self) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
         """Yield (object_index, variant, vertices, faces) for every mesh, in order."""
@@ -584,12 +586,10 @@ class RadarGroup:
 
     # attributes -----------------------------------------------------------------------------
     def _json(self, name: str) -> dict:
-        try:
-            return json.loads(self.group.attrs[name])
-        except (KeyError, TypeError, ValueError):
-            raise ShardError(
-                f"{self.path}: /radar attribute {name!r} missing or not JSON"
-            ) from None
+        value = _text_attr(self.group, name)
+        if value is None:
+            raise ShardError(f"{self.path}: /radar attribute {name!r} missing")
+        return load_json(value, error=ShardError, what=f"{self.path}: /radar attribute {name!r}")
 
     @property
     def config(self) -> dict:
