@@ -238,6 +238,8 @@ def table_rows(
                 else v.tolist()
                 for k, v in po.items()
             },
+            # each seed's per-object errors: the findings' intervals count seed variance
+            "per_seed_object": {m: [r["per_object"][m] for r in res] for m in METRICS},
         }
         row["no_skill"] = row["no_skill_seeds"] * 2 > len(seeds)
         names = res[0]["metrics"]["per_class"]
@@ -263,26 +265,31 @@ def _mean(values: list) -> float | None:
     return float(np.mean(v)) if v else None
 
 
-def _per_object(row: dict) -> dict:
-    po = row["per_object"]
+def _per_seed(row: dict) -> dict:
+    """(seeds, objects) errors per metric; rows made before per-seed errors were kept give
+    their seed-averaged errors as one pseudo-seed."""
+    per_seed = row.get("per_seed_object") or {m: [row["per_object"][m]] for m in METRICS}
     return {
-        "class_index": np.array(po["class_index"]),
-        **{m: np.array([np.nan if x is None else x for x in po[m]], np.float64) for m in METRICS},
+        "class_index": np.array(row["per_object"]["class_index"]),
+        **{
+            m: np.array([[np.nan if x is None else x for x in s] for s in per_seed[m]], np.float64)
+            for m in METRICS
+        },
     }
 
 
 def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
     """Paired comparisons "a has lower error than b" on each metric, and the claim's verdict:
     holds when every comparison holds, reversed when any is reversed, else inconclusive."""
-    from benchmark.uncertainty import paired, verdict
+    from benchmark.uncertainty import paired_seeds, verdict
 
     comps = []
     for a, b in pairs:
         if a not in by or b not in by:
             continue
-        pa, pb = _per_object(by[a]), _per_object(by[b])
+        pa, pb = _per_seed(by[a]), _per_seed(by[b])
         for m in metrics:
-            p = paired(pa[m], pb[m], pa["class_index"])
+            p = paired_seeds(pa[m], pb[m], pa["class_index"])
             if p is None:
                 continue
             comps.append(
@@ -318,7 +325,8 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
 
 def findings(rows: list[dict]) -> list[dict]:
     """The paper's claims, each decided by paired 95% intervals over the same test objects
-    (of per-object errors averaged over seeds); ``verdict`` None when rows are missing."""
+    that count training-seed variance (``uncertainty.paired_seeds``); ``verdict`` None when
+    rows are missing."""
     by = {(r["embedding"], r["regime"]): r for r in rows}
     pre = ("basic", "classification", "autoencoder")
     out = [
