@@ -1139,12 +1139,33 @@ def _as_plain_user():
                 raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP)")
 
 
-def test_11_label_refuses_a_read_only_dataset_before_any_work(ws):
+def test_11_label_refuses_a_read_only_dataset_before_any_work(ws, monkeypatch):
+    d = shard_copy(ws, "read-only")
     try:
         subprocess.run(["true"], preexec_fn=_as_plain_user, check=True)
     except (OSError, subprocess.SubprocessError):
-        pytest.skip("cannot drop root's file-mode override here")
-    d = shard_copy(ws, "read-only")
+        # root's file-mode override cannot be dropped here: the same refusal in this process,
+        # with the permission check answering as it would for a plain user
+        from radar_sim.config import RadarConfig
+        from radar_sim.label import LabelError, LabelRequest, label_directory
+
+        real_access = os.access
+        monkeypatch.setattr(
+            os,
+            "access",
+            lambda p, mode: False if Path(p) == d and mode == os.W_OK else real_access(p, mode),
+        )
+        before = snapshot(d)
+        with pytest.raises(LabelError, match=f"{d}: not writable"):
+            label_directory(
+                d,
+                LabelRequest(RadarConfig.named("xband-v1")),
+                workers=0,
+                overwrite=True,
+                progress=False,
+            )
+        assert snapshot(d) == before
+        return
     for path in [*d.glob("*.h5"), d]:
         path.chmod(0o555 if path.is_dir() else 0o444)
     try:  # refused before planning or simulating, not when the first label is written
