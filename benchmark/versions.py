@@ -252,13 +252,6 @@ def stack() -> dict:
     return out
 
 
-def fingerprints(directory: str | Path) -> dict:
-    """{"mesh": ..., "label": ...} of a dataset directory."""
-    from basic_shapes.shards import dataset_fingerprint, label_fingerprint
-
-    return {"mesh": dataset_fingerprint(directory), "label": label_fingerprint(directory)}
-
-
 def _generator_config(version: DatasetVersion) -> dict:
     """The generator config ``build`` asks for (toolkit version aside)."""
     from basic_shapes.generate import GenerateConfig
