@@ -34,7 +34,7 @@ from basic_shapes.shards import (
 
 CONFIG_FILE = "dataset.json"
 TEST_FRACTION = 0.1
-VAL_FRACTION = 0.1  # model selection only (benchmark.train); never scored
+VAL_FRACTION = 0.1  # model selection only (benchmark.training.train); never scored
 # Rejection sampling of dissimilar scales jams near 36% of ``scales.capacity`` (measured: 6203
 # of 17361 at the default range and distance); beyond this fraction refuse at once instead of
 # spinning for minutes.

@@ -10,11 +10,11 @@ __version__ = "0.1.0"
 def __getattr__(name: str):
     """``benchmark.BasicShapes`` and ``benchmark.Evaluator``, imported on first use."""
     if name == "BasicShapes":
-        from benchmark.data import BasicShapes
+        from benchmark.scoring.data import BasicShapes
 
         return BasicShapes
     if name == "Evaluator":
-        from benchmark.evaluate import Evaluator
+        from benchmark.scoring.evaluate import Evaluator
 
         return Evaluator
     raise AttributeError(f"module 'benchmark' has no attribute {name!r}")

@@ -15,7 +15,7 @@ from basic_shapes.infra import ArgumentParser, add_debug_flag, add_quiet_flag, c
 
 EPILOG = """examples:
   benchmark evaluate --data data/bs --predictions preds.h5 --out results.json
-  benchmark evaluate --data data/bs --model benchmark.protocol:MeanResponseModel \\
+  benchmark evaluate --data data/bs --model benchmark.scoring.protocol:MeanResponseModel \\
       --model-arg data_dir=data/bs --out results.json --write-predictions preds.h5
   benchmark evaluate --data data/bs --model my_model.py:MyModel --out results.json
   benchmark train --help
@@ -25,17 +25,20 @@ EPILOG = """examples:
   benchmark dataset cpu-v1 --data data/cpu-v1"""
 
 DELEGATED = {
-    "train": ("benchmark.train_cli", "train a baseline (Basic, Ideal, pretrain + fine-tune)"),
+    "train": (
+        "benchmark.training.train_cli",
+        "train a baseline (Basic, Ideal, pretrain + fine-tune)",
+    ),
     "reproduce": (
-        "benchmark.reproduce",
+        "benchmark.reproduction.reproduce",
         "run a preset (tiny|small|cpu|paper) and write the paper's table",
     ),
     "report": (
-        "benchmark.report_cli",
+        "benchmark.reproduction.report_cli",
         "rebuild a reproduce folder's table from its per-seed results and the dataset",
     ),
     "dataset": (
-        "benchmark.versions",
+        "benchmark.scoring.versions",
         "build a named dataset version (generate + label) and check its fingerprints",
     ),
 }
@@ -137,8 +140,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def evaluate_command(args: argparse.Namespace) -> int:
     from basic_shapes.infra import one_line, separate_outputs
     from basic_shapes.shards import ShardError
-    from benchmark.evaluate import evaluate, format_metrics
-    from benchmark.protocol import (
+    from benchmark.scoring.evaluate import evaluate, format_metrics
+    from benchmark.scoring.protocol import (
         ModelError,
         PredictionsError,
         ResultsError,

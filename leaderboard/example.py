@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.data import BenchmarkData
-from benchmark.protocol import Predictions
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.protocol import Predictions
 
 MAX_SIDE = 32
 

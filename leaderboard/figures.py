@@ -14,8 +14,8 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from benchmark import plotting
-from benchmark.plotting import Point, literal
+from benchmark.scoring import plotting
+from benchmark.scoring.plotting import Point, literal
 from leaderboard.store import speed_self_reported
 
 EXAMPLE_ROWS = 4
@@ -33,7 +33,7 @@ def speed_vs_error(
     models: list[dict], simulator: dict | None, references: dict | None = None
 ) -> bytes:
     """Every plottable model at (ms per mesh, Complex MSE); models without skill hollow,
-    self-reported speeds as diamonds (``benchmark.plotting`` draws it, as for the table)."""
+    self-reported speeds as diamonds (``benchmark.scoring.plotting`` draws it, as for the table)."""
     points = []
     for e in plottable(models):
         m, own = e["metrics"], speed_self_reported(e)

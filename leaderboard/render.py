@@ -29,7 +29,7 @@ from pathlib import Path
 from string import Template
 
 from basic_shapes.infra import fsync_dir
-from benchmark.schema import OOD_METRIC_NAMES
+from benchmark.scoring.schema import OOD_METRIC_NAMES
 from leaderboard import figures
 from leaderboard.store import (
     DEFAULT_ENTRIES,
@@ -179,7 +179,7 @@ def datasets(entries: list[dict]) -> list[dict]:
 def describe(dataset: dict) -> str:
     """The dataset's line: its registered version (grid, radar config, the command that builds
     it) or that it is none, then classes and test split."""
-    from benchmark.versions import VERSIONS
+    from benchmark.scoring.versions import VERSIONS
 
     v = VERSIONS.get(dataset.get("version") or "")
     head = (

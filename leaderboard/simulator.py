@@ -21,9 +21,9 @@ import numpy as np
 
 from basic_shapes.infra import utc_timestamp
 from basic_shapes.shards import Shard, is_ood_variant
-from benchmark.data import BenchmarkData, db_target
-from benchmark.evaluate import speed_block
-from benchmark.metrics import Scorer
+from benchmark.scoring.data import BenchmarkData, db_target
+from benchmark.scoring.evaluate import speed_block
+from benchmark.scoring.metrics import Scorer
 from leaderboard.store import (
     DEFAULT_ENTRIES,
     ENTRY_VERSION,
@@ -102,7 +102,7 @@ def measure_ms_per_mesh(data: BenchmarkData, n: int = TIMING_MESHES) -> float:
     the test split too, while one object's meshes time one size (a cube's 4 ms for a dataset
     of spheres). Uses the dataset's own radar config and physics mode; a warm-up call
     (imports, Embree scene set-up) is not counted."""
-    from benchmark.protocol import scored_mesh_rows
+    from benchmark.scoring.protocol import scored_mesh_rows
     from radar_sim import RadarConfig, simulate
 
     config = RadarConfig(**radar_config(data))

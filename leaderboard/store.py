@@ -18,7 +18,7 @@ import unicodedata
 from pathlib import Path
 
 from basic_shapes.infra import atomic_path, load_json
-from benchmark import schema
+from benchmark.scoring import schema
 
 ENTRY_VERSION = 1
 DEFAULT_ENTRIES = Path(__file__).resolve().parent / "entries"
@@ -27,7 +27,7 @@ METRIC_NAMES = schema.METRIC_NAMES
 MAX_NAME = schema.MAX_NAME
 MAX_TEXT = schema.MAX_TEXT
 ENTRY_MAX_BYTES = 4 << 20
-# predictions_content_sha256 covers the data scored (``benchmark.protocol.content_sha256``);
+# predictions_content_sha256 covers the data scored (``benchmark.scoring.protocol.content_sha256``);
 # predictions_sha256 is the container's, kept for entries made before it existed
 FILE_HASHES = ("results_sha256", "predictions_sha256", "predictions_content_sha256")
 ENTRY_FIELDS = (
@@ -136,7 +136,7 @@ def check_number(value, what: str, minimum: float = 0.0, optional: bool = False)
 
 
 def check_metrics(m, what: str = "metrics") -> dict:
-    """The ``metrics`` structure of the results JSON (``benchmark.schema``)."""
+    """The ``metrics`` structure of the results JSON (``benchmark.scoring.schema``)."""
     try:
         return schema.check_metrics(m, what)
     except schema.SchemaError as exc:

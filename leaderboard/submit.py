@@ -2,9 +2,9 @@
 
 A submission is untrusted data: a results JSON and a predictions HDF5 file. Nothing in them is
 executed (no pickle, no code, no model): the benchmark reads them with json and h5py and
-validates them (``benchmark.protocol.load_results``, ``Predictions``: layout, dataset
+validates them (``benchmark.scoring.protocol.load_results``, ``Predictions``: layout, dataset
 fingerprint, every test mesh present, finite values), the predictions are scored again by
-``benchmark.protocol.score_predictions``, and every claimed number must agree with the re-score
+``scoring.protocol.score_predictions``, and every claimed number must agree with the re-score
 within ``REL_TOL`` / ``ABS_TOL``. All checks run before anything is written, and the entry is
 written atomically, so a refused submission leaves the entries folder untouched. The duplicate
 check and the write hold a lock on the entries folder, so two concurrent submissions of the
@@ -25,8 +25,8 @@ from tqdm import tqdm
 
 from basic_shapes.infra import utc_timestamp
 from basic_shapes.manifest import file_sha256
-from benchmark.data import BenchmarkData
-from benchmark.protocol import Predictions, load_results, score_predictions
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.protocol import Predictions, load_results, score_predictions
 from leaderboard import example
 from leaderboard.store import (
     DEFAULT_ENTRIES,
@@ -98,10 +98,10 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
 
 
 def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
-    """The registered version (``benchmark.versions``) the dataset is, by its generator and
+    """The registered version (``benchmark.scoring.versions``) the dataset is, by its generator and
     radar configs; a dataset that is none is refused unless ``unregistered`` (a private board:
     its entries say so and the site lists them apart)."""
-    from benchmark.versions import VersionError, identify
+    from benchmark.scoring.versions import VersionError, identify
 
     try:
         return identify(data_dir).name

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import hardware
-from benchmark import corpus
+from benchmark.training import corpus
 
 GOAL_SECONDS = 90.0
 

@@ -3,8 +3,8 @@
     python perf/hidden_references.py DATA_DIR [--out perf/results/hidden_references.json]
 
 DATA_DIR is a labelled dataset (for example ``benchmark dataset hidden-cpu-v1``). Prints the
-four reference rows of benchmark.references (what ``benchmark evaluate`` shows) and the
-``oracle`` (benchmark.references.oracle_row, also in ``benchmark report``'s table: nearest
+four reference rows of benchmark.scoring.references (what ``benchmark evaluate`` shows) and the
+``oracle`` (benchmark.scoring.references.oracle_row, also in ``benchmark report``'s table: nearest
 training objects in log scale and the hidden shape parameters), each with Simple / Complex
 MSE and 95% intervals over the test objects, and the paired oracle - class-scale-nn
 difference. ``--floor N`` (frustum datasets)
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import atomic_path
-from benchmark.data import BenchmarkData, db_target
-from benchmark.references import REFERENCES, References, oracle_row, summary
+from benchmark.scoring.data import BenchmarkData, db_target
+from benchmark.scoring.references import REFERENCES, References, oracle_row, summary
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -85,7 +85,7 @@ def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
     """Mean over test objects of MSE(mean target over n ratios at its scale, its target)."""
     import radar_sim
     from basic_shapes.analytic import simulation_mesh, solid_for
-    from benchmark.versions import get
+    from benchmark.scoring.versions import get
 
     config = get("hidden-cpu-v1").radar_config()
     ratios = (np.arange(n) + 0.5) / n * 0.9

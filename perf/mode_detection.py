@@ -22,7 +22,7 @@ import numpy as np
 
 from basic_shapes.generate import GenerateConfig, generate
 from basic_shapes.shards import Shard, list_shards
-from benchmark.data import db_target
+from benchmark.scoring.data import db_target
 from radar_sim import RadarConfig, geometry, simulate
 
 FORMER = {"CONVEX_TOL": 1e-6, "SEE_DISTANCE": 0.0}

@@ -4,8 +4,8 @@
 
 On the tests' analytic fixture dataset (tests/benchmark_fixture.py: 3 meshes per object,
 the full xband-v1 grid by default), side by side:
-  score     benchmark.protocol.score_predictions (validate + stream the file, object by object)
-  evaluate  benchmark.evaluate.evaluate with NearestScaleModel: read meshes, predict, write the
+  score     scoring.protocol.score_predictions (validate + stream the file, object by object)
+  evaluate  scoring.evaluate.evaluate with NearestScaleModel: read meshes, predict, write the
             predictions file, score it
 and the time these would take on the paper's test split (300 objects x 100 meshes).
 Writes perf/results/scoring_speed.json and prints a table.
@@ -24,8 +24,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from basic_shapes.infra import hardware
-from benchmark.evaluate import evaluate
-from benchmark.protocol import load_model, score_predictions
+from benchmark.scoring.evaluate import evaluate
+from benchmark.scoring.protocol import load_model, score_predictions
 from benchmark_fixture import make_dataset
 
 PAPER_TEST_MESHES = 300 * 100
@@ -49,7 +49,7 @@ def main() -> None:
             grid=tuple(args.grid),
         )
         preds = Path(tmp) / "preds.h5"
-        model = load_model("benchmark.protocol:NearestScaleModel", {"data_dir": str(data)})
+        model = load_model("benchmark.scoring.protocol:NearestScaleModel", {"data_dir": str(data)})
         t0 = time.perf_counter()
         results = evaluate(data, model=model, write_predictions=preds, progress=False)
         t_eval = time.perf_counter() - t0

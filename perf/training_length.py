@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import atomic_path
-from benchmark.data import BenchmarkData
-from benchmark.metrics import metric_block
-from benchmark.presets import PRESETS
-from benchmark.references import reference_scores, summary
-from benchmark.runner import _train_flags, row_config
-from benchmark.uncertainty import paired, verdict
+from benchmark.reproduction.presets import PRESETS
+from benchmark.reproduction.runner import _train_flags, row_config
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.metrics import metric_block
+from benchmark.scoring.references import reference_scores, summary
+from benchmark.scoring.uncertainty import paired, verdict
 
 RESULTS = Path(__file__).parent / "results"
 

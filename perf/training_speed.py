@@ -16,7 +16,7 @@ reproduce`` runs each job), all in this process:
   aggregator, the decoder with the loss, each forward + backward; gradient clipping; the
   optimizer step), for the old step and the new one, with the padding (padded tokens per
   real face) and featurization (once per mesh and run: ``FeatureCache``);
-* epochs: one seed trained ``--epochs`` epochs by the old loop and by ``benchmark.train.fit``
+* epochs: one seed trained ``--epochs`` epochs by the old loop and by ``training.train.fit``
   from the same initial weights, on the same batches in the same order: seconds per epoch
   (training + validation; the median over epochs 2.., so one-time costs are left out) and
   the val MSE of every epoch. Further seeds of the new path give
@@ -26,7 +26,7 @@ The old path is the training step before this change (commit aacb7fe): every lay
 aggregator over every token (``full_attention``), the graph embedding's projection of the
 concatenated token embeddings (``concatenated_tokens``), the token embedding's VQ over the
 padded batch (``padded_vq``), the per-tensor AdamW, validation batches in stored order. Both are
-driven by the same learning-rate schedule (``benchmark.train.lr_factor``: warm-up, then
+driven by the same learning-rate schedule (``benchmark.training.train.lr_factor``: warm-up, then
 constant; no plateau is reached in a few epochs), so only the implementation differs.
 Writes perf/results/training_speed.json (``--out``) and prints a table.
 """
@@ -48,14 +48,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-import benchmark.train as train_module
+import benchmark.training.train as train_module
 from basic_shapes.infra import atomic_path, hardware
-from benchmark.data import FLOOR_DB, BenchmarkData
-from benchmark.models import REGISTRY, build_model, count_parameters, featurize
-from benchmark.models.features import TOKEN_GROUPS
-from benchmark.presets import PRESETS
-from benchmark.runner import row_config
-from benchmark.train import (
+from benchmark.reproduction.presets import PRESETS
+from benchmark.reproduction.runner import row_config
+from benchmark.scoring.data import FLOOR_DB, BenchmarkData
+from benchmark.training.models import REGISTRY, build_model, count_parameters, featurize
+from benchmark.training.models.features import TOKEN_GROUPS
+from benchmark.training.train import (
     FeatureCache,
     RegressionTask,
     benchmark_examples,
@@ -161,7 +161,7 @@ def old_fit(task, examples, groups, val, *, epochs, batch_size, lr, weight_decay
 
 @contextlib.contextmanager
 def epoch_clock(stamps: list[float]):
-    """Record the time at the end of every epoch of ``benchmark.train.fit`` (after each call
+    """Record the time at the end of every epoch of ``training.train.fit`` (after each call
     of its ``validation_mse``)."""
     validate = train_module.validation_mse
 

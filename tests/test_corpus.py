@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmark import corpus as C
+from benchmark.training import corpus as C
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -116,7 +116,7 @@ def test_a_corpus_is_a_prefix_of_a_larger_one():
 def test_same_bytes_in_a_fresh_process():
     code = (
         "import sys; sys.path.insert(0, 'tests'); from test_corpus import digest\n"
-        "from benchmark.corpus import procedural_corpus\n"
+        "from benchmark.training.corpus import procedural_corpus\n"
         "print(digest(procedural_corpus(12, 9, 200)))"
     )
     out = subprocess.run(

@@ -10,7 +10,13 @@ import pytest
 import torch
 
 from basic_shapes.shards import ShardError, iter_objects, rewrite_atomically, shard_name
-from benchmark.data import BasicShapes, BenchmarkData, ScaleBins, collate_meshes, normalize_mesh
+from benchmark.scoring.data import (
+    BasicShapes,
+    BenchmarkData,
+    ScaleBins,
+    collate_meshes,
+    normalize_mesh,
+)
 from benchmark_fixture import CLASSES, make_dataset
 
 
@@ -216,7 +222,7 @@ def test_broken_mesh_is_named(tmp_path):
 
 def test_evaluator_scores_arrays_through_the_harness_path(data, data_dir, tmp_path):
     from benchmark import Evaluator
-    from benchmark.protocol import PredictionsError, score_predictions, write_predictions
+    from benchmark.scoring.protocol import PredictionsError, score_predictions, write_predictions
 
     test = BasicShapes(data, split="test", variants="all")
     items = [test[i] for i in range(len(test))]

@@ -92,7 +92,7 @@ def test_every_doc_has_its_examples_collected():
 
 @pytest.mark.parametrize("code", examples())
 def test_example_runs_as_written(code, scratch, monkeypatch):
-    from benchmark.data import BenchmarkData
+    from benchmark.scoring.data import BenchmarkData
 
     monkeypatch.chdir(scratch)
     first = code.splitlines()[0].strip()

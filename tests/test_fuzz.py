@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 from basic_shapes.shards import Shard, ShardError, list_shards
-from benchmark.data import BenchmarkData
-from benchmark.protocol import (
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.protocol import (
     PredictionsError,
     ResultsError,
     load_results,
@@ -112,8 +112,8 @@ def clean(tmp_path_factory):
             targets,
             label_fingerprint=d.label_fingerprint,
         )
-    from benchmark.evaluate import evaluate
-    from benchmark.protocol import write_results
+    from benchmark.scoring.evaluate import evaluate
+    from benchmark.scoring.protocol import write_results
 
     write_results(
         root / "results.json", evaluate(data, predictions=root / "pred.h5", progress=False)

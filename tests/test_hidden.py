@@ -18,7 +18,7 @@ from basic_shapes import analytic
 from basic_shapes.analytic import hidden_params
 from basic_shapes.generate import GenerateConfig, generate, plan_objects
 from basic_shapes.shards import Shard, content_fingerprint, list_shards
-from benchmark.data import db_target
+from benchmark.scoring.data import db_target
 
 
 def frustum(scale, ratio):
@@ -222,8 +222,8 @@ def test_oracle_picks_neighbours_by_scale_and_hidden_parameter(tmp_path):
     feature divided by its spread over the training objects."""
     import h5py
 
-    from benchmark.data import BenchmarkData
-    from benchmark.references import OracleReference, References
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.references import OracleReference, References
     from benchmark_fixture import make_dataset
 
     directory = make_dataset(tmp_path / "d", objects_per_class=6)
@@ -265,9 +265,9 @@ def test_report_table_shows_the_oracle_only_with_hidden_parameters(tmp_path):
     that skill is measured against."""
     import h5py
 
-    from benchmark import report
-    from benchmark.data import BenchmarkData
-    from benchmark.references import OracleReference, References
+    from benchmark.reproduction import report
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.references import OracleReference, References
     from benchmark_fixture import make_dataset
 
     directory = make_dataset(tmp_path / "d", objects_per_class=6)

@@ -41,8 +41,8 @@ from basic_shapes.shards import (
     shard_name,
     write_shard,
 )
-from benchmark.data import BenchmarkData
-from benchmark.protocol import write_predictions, write_results
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.protocol import write_predictions, write_results
 from benchmark_fixture import make_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -140,7 +140,7 @@ def ws(tmp_path_factory) -> dict:
         targets = np.stack([d.target(int(d.meshes["object"][r])) for r in rows]) + 1.0
     pred = root / "pred.h5"
     write_predictions(pred, fp, uids, targets, label_fingerprint=labels)
-    from benchmark.evaluate import evaluate
+    from benchmark.scoring.evaluate import evaluate
 
     results = root / "results.json"
     write_results(results, evaluate(data, predictions=pred, progress=False))
@@ -1121,7 +1121,11 @@ def test_11_deeply_nested_shard_params_are_refused(ws):
 
 
 def test_11_checkpoint_config_is_read_with_a_bound(tmp_path):
-    from benchmark.models.checkpoint import CONFIG_MAX_BYTES, CheckpointError, load_checkpoint
+    from benchmark.training.models.checkpoint import (
+        CONFIG_MAX_BYTES,
+        CheckpointError,
+        load_checkpoint,
+    )
 
     with open(tmp_path / "config.json", "wb") as fh:
         fh.truncate(4 * CONFIG_MAX_BYTES)  # sparse: costs no disk, and no memory to refuse

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, label_fingerprint
-from benchmark.protocol import MeanResponseModel
+from benchmark.scoring.protocol import MeanResponseModel
 from benchmark_fixture import make_dataset
 from test_hostile import cli
 
@@ -90,7 +90,7 @@ def test_scoring_refuses_tampered_labels(data, tmp_path):
         "--data",
         data,
         "--model",
-        f"benchmark.protocol:{MeanResponseModel.__name__}",
+        f"benchmark.scoring.protocol:{MeanResponseModel.__name__}",
         "--model-arg",
         f"data_dir={data}",
         "--out",
@@ -262,8 +262,8 @@ def test_training_flags_that_contradict_each_other(data, tmp_path):
 
 def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
     """|A| stored where 20 log10 |A| is expected: refused with the conversion, exit 1."""
-    from benchmark.data import BenchmarkData
-    from benchmark.protocol import write_predictions
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.protocol import write_predictions
 
     with BenchmarkData(data) as d:
         rows = d.mesh_rows("test")  # the fixture has no OOD meshes
@@ -310,8 +310,8 @@ def test_scoring_and_submitting_need_only_the_light_core(data, tmp_path):
     import subprocess
     import sys
 
-    from benchmark.data import BenchmarkData
-    from benchmark.protocol import write_predictions
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.protocol import write_predictions
 
     with BenchmarkData(data) as d:
         rows = d.mesh_rows("test")
@@ -362,7 +362,7 @@ def test_scoring_and_submitting_need_only_the_light_core(data, tmp_path):
 
 
 def test_one_owner_for_metric_names():
-    from benchmark import metrics, schema
+    from benchmark.scoring import metrics, schema
     from leaderboard import render, store
 
     assert metrics.METRIC_NAMES is schema.METRIC_NAMES is store.METRIC_NAMES

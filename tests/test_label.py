@@ -172,7 +172,7 @@ def test_sphere_label_matches_an_independent_fine_mesh(tmp_path):
     metric) of the smooth ellipsoid simulated on a 260,096-face trimesh UV sphere, a mesh built
     independently of the simulation-mesh rule: measured 0.41 dB², where the physics of the
     object's 1,280-face icosphere (the label before labels were the primitive's) is 39 dB² away."""
-    from benchmark.data import db_target
+    from benchmark.scoring.data import db_target
 
     xband = {"name": "test-xband-coarse", "n_aspect": 7, "n_roll": 3}
     (tmp_path / "x.json").write_text(json.dumps(xband))
@@ -320,8 +320,8 @@ def test_killed_run_resumes_per_object_to_identical_bytes(lband, tmp_path):
 def test_relabelling_with_another_band_changes_the_label_fingerprint(labelled, lband, tmp_path):
     """Same meshes, other band: the mesh fingerprint stays, the label fingerprint changes, and
     predictions bound to the old labels are refused by the scorer."""
-    from benchmark.data import BenchmarkData
-    from benchmark.protocol import Predictions, PredictionsError, write_predictions
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.protocol import Predictions, PredictionsError, write_predictions
 
     work = tmp_path / "data"
     shutil.copytree(labelled, work)

@@ -34,7 +34,7 @@ from basic_shapes.shards import (
     write_radar,
     write_shard,
 )
-from benchmark import versions
+from benchmark.scoring import versions
 from leaderboard import cli, store
 from leaderboard.submit import REL_TOL
 
@@ -178,7 +178,7 @@ def write_results(
     ms_per_mesh: float = 1.25,
 ) -> Path:
     """A results JSON as `benchmark evaluate` writes it, metrics from the real scorer."""
-    from benchmark.protocol import score_predictions
+    from benchmark.scoring.protocol import score_predictions
 
     results = {
         "benchmark_version": "0.1.0",
@@ -653,7 +653,7 @@ def test_what_benchmark_evaluate_writes_is_accepted(data, tmp_path):
             "--data",
             str(data),
             "--model",
-            "benchmark.protocol:NearestScaleModel",
+            "benchmark.scoring.protocol:NearestScaleModel",
             "--model-arg",
             f"data_dir={data}",
             "--out",
@@ -720,7 +720,7 @@ def test_board_names_the_dataset_version_with_its_grid_and_config():
 def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path):
     """Objects whose simple mesh's physics was not stored (``--mesh-labels sample:K``) get it
     simulated by the board's physics point: the same numbers ``radar-sim label`` stores."""
-    from benchmark.data import BenchmarkData
+    from benchmark.scoring.data import BenchmarkData
     from leaderboard.simulator import _simple_physics
     from radar_sim.cli import main as radar_sim_main
 

@@ -119,7 +119,7 @@ def test_drop_unreferenced_renumbers_in_vertex_order():
 
 
 def test_as_arrays_returns_float64_and_int64_and_one_error_type():
-    from benchmark.corpus import SimplifyError
+    from benchmark.training.corpus import SimplifyError
     from radar_sim import MeshError
 
     v, f = meshcheck.as_arrays(np.eye(3, dtype=np.float32), np.array([[0, 1, 2]], np.int32))

@@ -7,9 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.data import FLOOR_DB, db_target
-from benchmark.metrics import Scorer, intensity_weighted_mse, mse, object_errors, score_arrays
-from benchmark.uncertainty import interval, paired, resamples, verdict
+from benchmark.scoring.data import FLOOR_DB, db_target
+from benchmark.scoring.metrics import (
+    Scorer,
+    intensity_weighted_mse,
+    mse,
+    object_errors,
+    score_arrays,
+)
+from benchmark.scoring.uncertainty import interval, paired, resamples, verdict
 
 
 def test_db_target_hand_values():
@@ -233,8 +239,8 @@ def test_intensity_weighted_mse_against_numpy_and_has_gradients():
 def test_reproduce_rows_average_ood_errors_per_remesher_and_render_them():
     """table_rows averages the OOD per-object errors over seeds (overall and per remesher,
     intervals of the seed-mean) and render_markdown shows the columns and the sub-table."""
-    from benchmark.metrics import ood_keys
-    from benchmark.report import remesher_table, render_markdown, table_rows
+    from benchmark.reproduction.report import remesher_table, render_markdown, table_rows
+    from benchmark.scoring.metrics import ood_keys
 
     rng = np.random.default_rng(5)
     n, cls = 12, np.arange(12) % 3

@@ -9,9 +9,9 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.models import EMBEDDINGS, FACE_EMBEDDINGS, build_model, collate, featurize
-from benchmark.models.features import N_BINS, face_adjacency, face_geometry
-from benchmark.models.probes import N_RAYS, ray_probes
+from benchmark.training.models import EMBEDDINGS, FACE_EMBEDDINGS, build_model, collate, featurize
+from benchmark.training.models.features import N_BINS, face_adjacency, face_geometry
+from benchmark.training.models.probes import N_RAYS, ray_probes
 from radar_sim.geometry import fibonacci_directions
 
 N_OUT = 2 * 3 * 4
@@ -150,7 +150,7 @@ def test_face_order_does_not_matter(name):
 def test_aggregator_reads_the_full_encoders_cls_row(n_layers):
     """The last layer computed for the CLS token alone is the full encoder's row 0, with
     padding, in training and in eval mode (where torch takes its fused inference path)."""
-    from benchmark.models.aggregator import Aggregator
+    from benchmark.training.models.aggregator import Aggregator
 
     torch.manual_seed(0)
     agg = Aggregator(32, n_layers, n_heads=2)
@@ -166,7 +166,7 @@ def test_aggregator_reads_the_full_encoders_cls_row(n_layers):
 
 def test_graph_node_features_are_the_projected_concatenation():
     """The folded one-hot sum is the projection of the concatenated token embeddings."""
-    from benchmark.models.features import TOKEN_GROUPS
+    from benchmark.training.models.features import TOKEN_GROUPS
 
     g = model("graph").embedding
     batch = collate([featurize(v, f) for v, f in ragged_meshes()])

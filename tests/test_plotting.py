@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from matplotlib.text import Text
 
-from benchmark import plotting
-from benchmark.plotting import Point
+from benchmark.scoring import plotting
+from benchmark.scoring.plotting import Point
 
 
 @pytest.mark.parametrize("n", [1, 5, 40])

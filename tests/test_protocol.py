@@ -11,9 +11,9 @@ import pytest
 
 from basic_shapes.shards import dataset_fingerprint, label_fingerprint
 from benchmark.cli import main
-from benchmark.data import BenchmarkData
-from benchmark.evaluate import evaluate
-from benchmark.protocol import (
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.evaluate import evaluate
+from benchmark.scoring.protocol import (
     ModelError,
     NearestScaleModel,
     PredictionsError,
@@ -132,16 +132,18 @@ def test_third_party_file_in_any_row_order_scores_the_same(data_dir, model_run, 
 
 
 def test_models_load_from_module_and_file(data_dir, model_file):
-    m = load_model("benchmark.protocol:NearestScaleModel", {"data_dir": str(data_dir), "k": "2"})
+    m = load_model(
+        "benchmark.scoring.protocol:NearestScaleModel", {"data_dir": str(data_dir), "k": "2"}
+    )
     assert isinstance(m, NearestScaleModel) and m.k == 2
     assert load_model(f"{model_file}:GeometryModel").name == "geometry"
     for spec, problem in [
         ("nocolon", "module:Class"),
-        ("benchmark.protocol:Nope", "has no Nope"),
+        ("benchmark.scoring.protocol:Nope", "has no Nope"),
         ("no_such_module_xyz:Model", "cannot import"),
         ("/no/file.py:Model", "no such file"),
-        ("benchmark.protocol:MeanResponseModel", "constructing MeanResponseModel failed"),
-        ("benchmark.protocol:PredictionsError", "has no predict"),
+        ("benchmark.scoring.protocol:MeanResponseModel", "constructing MeanResponseModel failed"),
+        ("benchmark.scoring.protocol:PredictionsError", "has no predict"),
     ]:
         with pytest.raises(ModelError, match=problem):
             load_model(spec)
@@ -150,10 +152,14 @@ def test_models_load_from_module_and_file(data_dir, model_file):
 def test_reference_rows_match_the_reference_models_and_the_mean_has_no_skill(data_dir):
     kw = {"data_dir": str(data_dir)}
     mean = evaluate(
-        data_dir, model=load_model("benchmark.protocol:MeanResponseModel", kw), progress=False
+        data_dir,
+        model=load_model("benchmark.scoring.protocol:MeanResponseModel", kw),
+        progress=False,
     )
     near = evaluate(
-        data_dir, model=load_model("benchmark.protocol:NearestScaleModel", kw), progress=False
+        data_dir,
+        model=load_model("benchmark.scoring.protocol:NearestScaleModel", kw),
+        progress=False,
     )  # k = 3, as the reference
     refs = mean["metrics"]["references"]
     assert set(refs) == {"train-mean", "class-mean", "nearest-scale", "class-scale-nn"}
@@ -443,7 +449,7 @@ def test_dataset_without_test_split_is_refused(tmp_path):
                 "--data",
                 str(d),
                 "--model",
-                "benchmark.protocol:MeanResponseModel",
+                "benchmark.scoring.protocol:MeanResponseModel",
                 "--model-arg",
                 f"data_dir={d}",
                 "--out",

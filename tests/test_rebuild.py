@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 from basic_shapes import manifest as mf
-from benchmark import versions
+from benchmark.scoring import versions
 
 FOREIGN_CPU = {
     "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "

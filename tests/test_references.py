@@ -6,8 +6,8 @@ import trimesh
 
 from basic_shapes.generate import GenerateConfig, generate
 from basic_shapes.shards import is_ood_variant, iter_objects
-from benchmark.data import BenchmarkData
-from benchmark.references import MeshClassifier, References, normal_descriptor, strongest
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.references import MeshClassifier, References, normal_descriptor, strongest
 from benchmark_fixture import make_dataset
 
 CLASSES = ("cube", "cylinder", "sphere", "cone", "torus")

@@ -20,7 +20,7 @@ from basic_shapes.shards import (
     ood_remesher,
     ood_variant,
 )
-from benchmark.data import BasicShapes, BenchmarkData
+from benchmark.scoring.data import BasicShapes, BenchmarkData
 from benchmark_fixture import make_dataset
 
 SCALES = [np.array([0.6, 1.3, 0.9]), np.array([2.0, 0.2, 0.35])]  # the second: aspect 10

@@ -10,20 +10,20 @@ import pytest
 import torch
 import trimesh
 
-from benchmark import corpus
 from benchmark.cli import main as benchmark_main
-from benchmark.data import BenchmarkData, ScaleBins
-from benchmark.models import ReconstructionHead, build_model
-from benchmark.models.checkpoint import (
+from benchmark.reproduction.presets import ROWS
+from benchmark.reproduction.report import findings
+from benchmark.scoring.data import BenchmarkData, ScaleBins
+from benchmark.scoring.protocol import load_results, score_predictions
+from benchmark.training import corpus
+from benchmark.training.models import ReconstructionHead, build_model
+from benchmark.training.models.checkpoint import (
     CheckpointError,
     CheckpointModel,
     load_checkpoint,
     save_checkpoint,
 )
-from benchmark.presets import ROWS
-from benchmark.protocol import load_results, score_predictions
-from benchmark.report import findings
-from benchmark.train import (
+from benchmark.training.train import (
     PretrainTask,
     TrainConfig,
     benchmark_examples,
@@ -133,7 +133,7 @@ def test_checkpoint_round_trip_with_weights_only(data_dir, tmp_path):
         batch = data.batch(rows)
         adapter = CheckpointModel(tmp_path / "ck", batch_size="2")  # CLI model args are strings
         pred = adapter.predict(batch)
-        from benchmark.models import collate, featurize
+        from benchmark.training.models import collate, featurize
 
         direct = model(
             collate(
@@ -435,8 +435,8 @@ def test_findings_are_decided_by_paired_intervals():
 
 
 def test_rows_average_seeds_per_object_with_std_and_interval():
-    from benchmark.report import table_rows
-    from benchmark.uncertainty import interval
+    from benchmark.reproduction.report import table_rows
+    from benchmark.scoring.uncertainty import interval
 
     rng = np.random.default_rng(3)
     n, cls = 30, np.arange(30) % 3
@@ -479,7 +479,7 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     sel = config["selection"]
     assert sel["on"] == "val" and len(val) == 3
     assert sel["val_mse"] == min(h["val_mse"] for h in hist) == hist[sel["epoch"]]["val_mse"]
-    from benchmark.train import validation_mse
+    from benchmark.training.train import validation_mse
 
     # the returned weights are the selected epoch's: their val MSE is the recorded one
     again = validation_mse(model, val, 4, torch.device("cpu"))
@@ -509,7 +509,7 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     ],
 )
 def test_plateau_stops_at_the_right_epoch(curve, patience, stop_after, best, halvings):
-    from benchmark.train import plateau
+    from benchmark.training.train import plateau
 
     stops = [n for n in range(1, len(curve) + 1) if plateau(curve[:n], patience)["stop"]]
     assert (stops[0] if stops else None) == stop_after
@@ -532,7 +532,7 @@ def test_early_stopping_restores_the_best_epoch_and_flags_the_cap(
     """On a scripted validation curve (patience 2): training stops at the plateau, the model
     returned holds the weights of the best epoch, and ``capped`` says whether the cap ended
     a run that was still improving."""
-    import benchmark.train as train_module
+    import benchmark.training.train as train_module
 
     snapshots = []
 
@@ -559,7 +559,7 @@ def test_early_stopping_restores_the_best_epoch_and_flags_the_cap(
 
 
 def test_learning_rate_is_halved_at_half_the_patience(tmp_path, monkeypatch):
-    import benchmark.train as train_module
+    import benchmark.training.train as train_module
 
     curve = iter([5.0, 3.0, 4.0, 4.5, 4.2, 4.1, 4.0])
     monkeypatch.setattr(train_module, "validation_mse", lambda *a: next(curve))

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.uncertainty import paired, paired_seeds, t975
+from benchmark.scoring.uncertainty import paired, paired_seeds, t975
 
 DELTA = 1.0
 STRATA = np.repeat([0, 1, 2], 50)

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-
 from benchmark.data import BenchmarkData
 from benchmark.evaluate import evaluate, face_count_batches
 from benchmark.models.checkpoint import CheckpointModel

@@ -17,9 +17,9 @@ import numpy as np
 from tqdm import tqdm
 
 from basic_shapes.infra import hardware
-from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, OOD_METRIC_NAMES
-from benchmark.protocol import (
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.metrics import METRIC_NAMES, OOD_METRIC_NAMES
+from benchmark.scoring.protocol import (
     Model,
     ModelError,
     Predictions,
@@ -282,7 +282,7 @@ class Evaluator:
         )
 
     def eval(self, input_dict: dict) -> dict:
-        from benchmark.protocol import PredictionsError, write_predictions
+        from benchmark.scoring.protocol import PredictionsError, write_predictions
 
         missing = {"mesh_uid", "target_db"} - set(input_dict)
         if missing:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from basic_shapes.infra import atomic_path
 
-MANIFESTS = Path(__file__).with_name("manifests")
+MANIFESTS = Path(__file__).parents[1] / "manifests"
 # the packages whose code computes stored bytes (pinned in constraints.txt)
 BYTE_PACKAGES = (
     "numpy",

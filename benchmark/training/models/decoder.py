@@ -9,7 +9,7 @@ from torch import nn
 
 class Decoder(nn.Module):
     """Meshes are scale-normalized, so the object's size enters only here: each axis's scale
-    bin (``benchmark.data.ScaleBins``) has its own learned embedding, concatenated.
+    bin (``benchmark.scoring.data.ScaleBins``) has its own learned embedding, concatenated.
 
     The MLP works in standardized units: the output is ``offset + spread * mlp(...)``, with
     the training set's mean response and overall standard deviation (buffers, saved with

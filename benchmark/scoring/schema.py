@@ -1,4 +1,4 @@
-"""The results and metrics schema: one table of fields, used by ``benchmark.protocol`` (results
+"""The results and metrics schema: one table of fields, used by ``scoring.protocol`` (results
 JSON) and ``leaderboard.store`` (entries), so that what `evaluate` writes and what `submit` and
 `render` accept cannot drift apart.
 
@@ -116,7 +116,7 @@ METRICS = {  # overall only, besides METRIC_BLOCK, per_class, no_skill_test, ref
     "spread_ratio": Field("number", 0, MAX_MSE, null=True, required=False),
     "n_meshes": Field("int", 1, MAX_COUNT, required=False),
 }
-NO_SKILL_TEST = {  # benchmark.metrics.skill_test
+NO_SKILL_TEST = {  # benchmark.scoring.metrics.skill_test
     "gain_vs_train_mean": Field("number", -MAX_MSE, MAX_MSE),
     "gain_vs_train_mean_ci": interval(-MAX_MSE, MAX_MSE),
     "truth_spread": Field("number", 0, MAX_MSE),
@@ -125,8 +125,8 @@ NO_SKILL_TEST = {  # benchmark.metrics.skill_test
     "correlation": Field("number", -1 - 1e-9, 1 + 1e-9),
 }
 REFERENCE_NAMES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
-REFERENCE = {**METRIC_BLOCK, "no_skill": Field("bool", null=True)}  # benchmark.references
-COMPARISON = {  # benchmark.references.compare, one metric
+REFERENCE = {**METRIC_BLOCK, "no_skill": Field("bool", null=True)}  # benchmark.scoring.references
+COMPARISON = {  # benchmark.scoring.references.compare, one metric
     "diff": Field("number", -MAX_MSE, MAX_MSE),
     "ci": interval(-MAX_MSE, MAX_MSE),
     "half_width": Field("number", 0, MAX_MSE, null=True),
@@ -144,7 +144,7 @@ MODEL = {
     "embedding": Field("text", hi=MAX_NAME, null=True, required=False),
     "regime": Field("text", hi=MAX_NAME, null=True, required=False),
 }
-SPEED = {  # benchmark.evaluate.speed_block; the machine fields are absent when self-reported
+SPEED = {  # scoring.evaluate.speed_block; the machine fields are absent when self-reported
     "ms_per_mesh": Field("number", 0, MAX_MS, null=True),
     "hardware": Field("text", hi=MAX_TEXT, null=True),
     "cpu": Field("text", hi=MAX_TEXT, null=True, required=False),
@@ -177,7 +177,7 @@ def check_fields(record, table: dict[str, Field], where: str, extra: tuple[str, 
 
 
 def check_metrics(m, where: str = "metrics") -> dict:
-    """The metrics block of a results record or an entry (``benchmark.protocol.score``)."""
+    """The metrics block of a results record or an entry (``benchmark.scoring.protocol.score``)."""
     check_fields(
         m,
         {**METRIC_BLOCK, **METRICS},
@@ -210,7 +210,7 @@ def check_metrics(m, where: str = "metrics") -> dict:
 
 
 def check_per_remesher(pr, where: str = "per_remesher") -> dict:
-    """OOD metrics per remesher (``benchmark.metrics.per_remesher``)."""
+    """OOD metrics per remesher (``benchmark.scoring.metrics.per_remesher``)."""
     if not isinstance(pr, dict) or set(pr) - set(OOD_REMESHERS):
         raise SchemaError(f"{where} must map some of {', '.join(OOD_REMESHERS)} to rows")
     for name, block in pr.items():
@@ -219,7 +219,7 @@ def check_per_remesher(pr, where: str = "per_remesher") -> dict:
 
 
 def check_skill(sk, where: str = "skill") -> dict:
-    """``benchmark.references.skill``: paired comparisons with the strongest reference and with
+    """``scoring.references.skill``: paired comparisons with the strongest reference and with
     the class mean, per metric."""
     check_fields(sk, SKILL, where, extra=("vs_reference", "vs_class_mean"))
     if sk["reference"] not in REFERENCE_NAMES:

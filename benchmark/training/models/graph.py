@@ -7,7 +7,7 @@ import torch
 from torch import nn
 from torch_geometric.nn import SAGEConv
 
-from benchmark.models.features import N_BINS, TOKEN_GROUPS, MeshBatch
+from benchmark.training.models.features import N_BINS, TOKEN_GROUPS, MeshBatch
 
 
 class GraphEmbedding(nn.Module):

@@ -35,9 +35,9 @@ from basic_shapes.infra import (
 )
 from basic_shapes.shards import ood_remesher
 from benchmark import __version__
-from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, Scorer, ood_keys
-from benchmark.schema import SchemaError, check_results
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.metrics import METRIC_NAMES, Scorer, ood_keys
+from benchmark.scoring.schema import SchemaError, check_results
 
 RESULTS_MAX_BYTES = 1 << 20
 
@@ -385,9 +385,9 @@ def _attr(f: h5py.File, name: str) -> str | None:
 
 def score(data: BenchmarkData, predictions: Predictions, per_object: bool = False) -> dict:
     """Metrics of a validated predictions file, streamed object by object, with the
-    dataset's reference rows and the model's skill against them (``benchmark.references``);
+    dataset's reference rows and the model's skill against them (``benchmark.scoring.references``);
     ``per_object`` adds the per-object errors (what paired comparisons resample)."""
-    from benchmark import references
+    from benchmark.scoring import references
 
     train_mean, ref_scorers = references.reference_scores(data)
     scorer = Scorer(data.class_names, train_mean)
@@ -470,7 +470,7 @@ def load_results(path: str | os.PathLike) -> dict:
 
 
 def validate_results(r, source: str) -> None:
-    """Check a results record against ``benchmark.schema``; ``ResultsError`` naming ``source``."""
+    """Check a results record against ``scoring.schema``; ``ResultsError`` naming ``source``."""
     try:
         check_results(r, source)
     except SchemaError as exc:

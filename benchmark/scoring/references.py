@@ -28,9 +28,9 @@ import numpy as np
 
 from basic_shapes.infra import load_json
 from basic_shapes.shards import ShardError, ood_remesher
-from benchmark.data import BenchmarkData
-from benchmark.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
-from benchmark.uncertainty import paired, verdict
+from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
+from benchmark.scoring.uncertainty import paired, verdict
 
 REFERENCES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
 K_NEAREST = 3

@@ -2,7 +2,7 @@
 
 Features are computed once per mesh in numpy (``featurize``) and cached by the caller, so
 training epochs only pad and stack (``collate``). Meshes arrive scale-normalized
-(``benchmark.data.normalize_mesh``: the longest axis spans [-0.5, 0.5]); discretization
+(``benchmark.scoring.data.normalize_mesh``: the longest axis spans [-0.5, 0.5]); discretization
 covers ``[-COORD_RANGE, COORD_RANGE]`` and clips anything outside.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from basic_shapes.meshcheck import directed_edges
-from benchmark.models.probes import ray_probes
+from benchmark.training.models.probes import ray_probes
 
 N_BINS = 128  # discretization levels per quantity, as in MeshGPT
 COORD_RANGE = 0.5

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from basic_shapes.infra import atomic_path, load_json
-from benchmark.models import (
+from benchmark.training.models import (
     REGISTRY,
     MeshSimulator,
     build_model,
@@ -81,7 +81,7 @@ def load_checkpoint(
 class CheckpointModel:
     """A trained checkpoint behind the benchmark's model protocol (``predict(batch)``).
 
-    ``batch`` is the protocol batch (``benchmark.data.BenchmarkData.batch``): lists of
+    ``batch`` is the protocol batch (``benchmark.scoring.data.BenchmarkData.batch``): lists of
     normalized ``vertices`` and ``faces`` plus ``scale_m``. The scale bins are recomputed
     from ``scale_m`` with the bins stored in the checkpoint, so the model is always fed the
     discretization it was trained with.
@@ -98,7 +98,7 @@ class CheckpointModel:
         Meshes are run in sub-batches of similar face count, at most ``batch_size`` meshes
         and ``max_tokens`` padded faces each (padding a 12-face cube to a 6000-face sphere
         costs as much as the sphere)."""
-        from benchmark.data import ScaleBins
+        from benchmark.scoring.data import ScaleBins
 
         self.model, self.config = load_checkpoint(checkpoint, device)
         self.device, self.batch_size = torch.device(device), int(batch_size)

@@ -1,6 +1,6 @@
 """``benchmark train``: its options (one per ``TrainConfig`` field), the torchrun process
 group, and the run (train, save the checkpoint, optionally evaluate); the training itself is
-``benchmark.train``, which ``benchmark reproduce`` calls in-process.
+``benchmark.training.train``, which ``benchmark reproduce`` calls in-process.
 """
 
 from __future__ import annotations
@@ -12,9 +12,16 @@ from dataclasses import fields
 import torch
 
 from basic_shapes.infra import FlagError, add_quiet_flag, number, separate_outputs
-from benchmark.data import BenchmarkData
-from benchmark.models import EMBEDDINGS
-from benchmark.train import BOUNDS, LOSSES, REGIMES, TrainConfig, evaluate_checkpoint, train
+from benchmark.scoring.data import BenchmarkData
+from benchmark.training.models import EMBEDDINGS
+from benchmark.training.train import (
+    BOUNDS,
+    LOSSES,
+    REGIMES,
+    TrainConfig,
+    evaluate_checkpoint,
+    train,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -100,7 +107,7 @@ def init_distributed() -> tuple[torch.device, int]:
 def run(args: argparse.Namespace) -> None:
     """``benchmark train``: train, save the checkpoint, optionally evaluate."""
     from basic_shapes.shards import ShardError
-    from benchmark.models.checkpoint import save_checkpoint
+    from benchmark.training.models.checkpoint import save_checkpoint
 
     separate_outputs({"--out": args.out, "--results": args.results}, {"--data": args.data})
     cfg = config_from_args(args)
@@ -120,7 +127,7 @@ def run(args: argparse.Namespace) -> None:
             f"{config['history']['train'][-1]['loss']:.3f})"
         )
         if args.results:
-            from benchmark.evaluate import format_metrics
+            from benchmark.scoring.evaluate import format_metrics
 
             record = evaluate_checkpoint(args.out, args.data, args.results, not args.quiet, device)
             print(format_metrics(record))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from benchmark.models.features import DIRECT_DIM, MeshBatch
+from benchmark.training.models.features import DIRECT_DIM, MeshBatch
 
 
 class DirectEmbedding(nn.Module):

@@ -2,7 +2,7 @@
 
 A model built on it sees only what the decoder is given, the object's scale, and is trained
 by the same recipe as every row: the learned scale reference. The reference rows
-(``benchmark.references``) are nearest neighbours; this is what a neural simulator of the same
+(``scoring.references``) are nearest neighbours; this is what a neural simulator of the same
 size reaches without reading the mesh, so a row's gap to it is what reading the mesh wins
 (on the hidden-parameter track, where the mesh alone shows the shape's other parameters).
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from benchmark.models.features import MeshBatch
+from benchmark.training.models.features import MeshBatch
 
 
 class BlindEmbedding(nn.Module):

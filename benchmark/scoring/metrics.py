@@ -1,7 +1,7 @@
 """The paper's topology-sensitivity metrics, the floor, a no-skill rule, and the training loss.
 
 All errors are MSE over the whole response (every aspect, roll and range bin) in dB², on the
-target T of ``benchmark.data.db_target``. For one test object with label R, prediction R̂_s
+target T of ``benchmark.scoring.data.db_target``. For one test object with label R, prediction R̂_s
 on its simple mesh and R̂_c on its complex meshes c = 1..C:
 
     simple    = MSE(R, R̂_s)
@@ -9,7 +9,7 @@ on its simple mesh and R̂_c on its complex meshes c = 1..C:
     variation = mean_c MSE(R̂_s, R̂_c)
 
 and the reported numbers are the means over test objects (per class: over that class's
-objects), each with a 95% interval (``benchmark.uncertainty``: bootstrap over test objects,
+objects), each with a 95% interval (``benchmark.scoring.uncertainty``: bootstrap over test objects,
 stratified by class). Objects without complex meshes count only towards Simple MSE.
 
 **Out-of-distribution meshes.** Test objects also carry meshes o = 1..K made by remeshers that
@@ -56,9 +56,12 @@ from __future__ import annotations
 import numpy as np
 
 from basic_shapes.shards import OOD_REMESHERS
-from benchmark.data import FLOOR_DB
-from benchmark.schema import METRIC_NAMES, OOD_METRIC_NAMES  # the records' owner declares them
-from benchmark.uncertainty import interval
+from benchmark.scoring.data import FLOOR_DB
+from benchmark.scoring.schema import (  # the records' owner declares them
+    METRIC_NAMES,
+    OOD_METRIC_NAMES,
+)
+from benchmark.scoring.uncertainty import interval
 
 INTENSITY_TAU_DB = 10.0
 

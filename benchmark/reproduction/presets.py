@@ -1,7 +1,7 @@
 """The presets of ``benchmark reproduce`` and the rows of the paper's table.
 
 A preset names a dataset version and a model/training size that fit a time budget; the rows
-derive from the embedding registry (``benchmark.models.REGISTRY``), so adding an embedding adds
+derive from the embedding registry (``training.models.REGISTRY``), so adding an embedding adds
 its rows. Why the presets are sized as they are: ``PRESETS`` and docs/RESULTS.md.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from benchmark.models import FACE_EMBEDDINGS, REGISTRY
+from benchmark.training.models import FACE_EMBEDDINGS, REGISTRY
 
 EMBEDDINGS = FACE_EMBEDDINGS  # the paper's encoders: pretrained, with an Ideal row
 ROWS: tuple[tuple[str, str], ...] = (
@@ -29,7 +29,7 @@ PRETRAINING = {
 class Preset:
     """A dataset version and a model/training size that fit a time budget."""
 
-    dataset: str  # a registered version (benchmark.versions), built unless --data is given
+    dataset: str  # a registered version (benchmark.scoring.versions), built unless --data is given
     train: dict  # TrainConfig fields
     workers: int | None  # Dask workers for generate/label (0: in-process, None: per core)
     jobs: int = 1  # rows trained at once, in separate single-threaded processes (CPU)
@@ -54,7 +54,7 @@ SMALL_MODEL = dict(
 CLS token alone, so linear in the faces), two heads, one thread per job with two jobs at once
 (two threads per job ran 10-50x slower per step whenever other work shared the 2 cores)."""
 PLATEAU = dict(epochs=150, patience=10)
-"""Train to the validation plateau (``benchmark.train.plateau``), capped at 150 epochs. On
+"""Train to the validation plateau (``benchmark.training.train.plateau``), capped at 150 epochs. On
 cpu-v1 an epoch of all 14 rows x 3 seeds costs ~150 s of one core (perf/training_speed.py,
 scaled from 240 to 1,200 training objects); with pretraining (~9 min), evaluation (~20-50 s
 per run) and twice that for two jobs contending, the table takes at most ~7 hours on 2

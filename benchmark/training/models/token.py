@@ -6,8 +6,8 @@ import torch
 from torch import nn
 from vector_quantize_pytorch import ResidualVQ
 
-from benchmark.models.features import MeshBatch
-from benchmark.models.graph import GraphEmbedding, padded
+from benchmark.training.models.features import MeshBatch
+from benchmark.training.models.graph import GraphEmbedding, padded
 
 
 class TokenEmbedding(nn.Module):

@@ -1,6 +1,6 @@
 """A topology-invariant embedding: the surface seen along fixed rays, not the faces.
 
-Its input is the ray probes of ``benchmark.models.probes`` (nearest and farthest hit along
+Its input is the ray probes of ``benchmark.training.models.probes`` (nearest and farthest hit along
 ``N_RAYS`` fixed rays): properties of the surface alone, so the model is invariant by
 construction, with no sampling noise. Every star-shaped surface (all
 Basic Shapes primitives) is seen completely; for others the probes see the innermost and
@@ -13,8 +13,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from benchmark.models.features import MeshBatch
-from benchmark.models.probes import PROBE_DIM
+from benchmark.training.models.features import MeshBatch
+from benchmark.training.models.probes import PROBE_DIM
 
 
 class ProbeEmbedding(nn.Module):

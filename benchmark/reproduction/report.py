@@ -3,7 +3,7 @@
 One way to build a table, used by ``benchmark reproduce`` (from the runs it just finished or
 reused) and by ``benchmark report`` (from the per-seed results JSONs alone, so results
 committed without checkpoints or predictions still rebuild their table). The table carries
-the reference rows (``benchmark.references``, recomputed from the dataset), each row's
+the reference rows (``benchmark.scoring.references``, recomputed from the dataset), each row's
 mean ± std across seeds with the 95% interval of the seed-mean (bootstrap over test objects
 of the per-object errors averaged over seeds), its skill against the strongest reference,
 and the paper's findings decided by paired intervals (``findings``).
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json
-from benchmark.models import REGISTRY
-from benchmark.models.checkpoint import CONFIG_MAX_BYTES
-from benchmark.presets import EMBEDDINGS, PRESETS, PRETRAINING, ROWS
-from benchmark.runner import checkpoint_dir, row_files
+from benchmark.reproduction.presets import EMBEDDINGS, PRESETS, PRETRAINING, ROWS
+from benchmark.reproduction.runner import checkpoint_dir, row_files
+from benchmark.training.models import REGISTRY
+from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
 
 
 class ReportError(ValueError):
@@ -33,7 +33,7 @@ def reference_rows(data) -> tuple[dict, dict, dict | None]:
     """(scorers, summary rows, oracle block or None) of the reference models on ``data``:
     recomputed from the dataset, never stored with the results. The oracle
     (``references.oracle_row``) exists on datasets with hidden shape parameters only."""
-    from benchmark import references
+    from benchmark.scoring import references
 
     _, scorers = references.reference_scores(data)
     return (
@@ -47,7 +47,7 @@ def dataset_info(data, directory) -> dict:
     """What a table says of its dataset: fingerprint, description and the registered version
     it was built as (by content, ``versions.identify``; None if it is none), not the preset's
     default version: ``--data`` may name another (the hidden track runs the cpu preset)."""
-    from benchmark import versions
+    from benchmark.scoring import versions
 
     try:
         version = versions.identify(directory).name
@@ -62,7 +62,7 @@ def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
     to be that row's and seed's, scored on ``data`` (its meshes and labels), with per-object
     errors; ``train_seconds`` from the checkpoint's config.json where it was kept (checked to
     be of the preset), else None."""
-    from benchmark.protocol import load_results
+    from benchmark.scoring.protocol import load_results
 
     results_dir = out / "results"
     if not results_dir.is_dir():
@@ -139,7 +139,7 @@ def build_table(
     findings. ``dataset``: fingerprint and description; ``provenance``: command, hardware,
     python and timing of the invocation that trained the rows (hardware and timing None in a
     table rebuilt by ``benchmark report``)."""
-    from benchmark import references
+    from benchmark.scoring import references
 
     preset = PRESETS[preset_name]
     rows = table_rows(records, ref_scorers, ref_rows)
@@ -169,7 +169,7 @@ OOD_METRICS = ("ood_complex_mse", "ood_variation_mse")
 def _mean_per_object(seed_results: list[dict]) -> dict:
     """Per-object errors averaged over seeds (NaN where an object lacks a metric); the OOD
     errors when every seed has them (results made before OOD scoring lack them)."""
-    from benchmark.metrics import ood_keys
+    from benchmark.scoring.metrics import ood_keys
 
     first = seed_results[0]["per_object"]
     for r in seed_results[1:]:
@@ -194,8 +194,8 @@ def table_rows(
     """One row per (embedding, regime) with every finished seed: mean ± std across seeds,
     the interval of the seed-mean, per class and (OOD metrics) per remesher, no-skill votes
     and skill vs the references."""
-    from benchmark import references
-    from benchmark.metrics import metric_block, per_remesher
+    from benchmark.scoring import references
+    from benchmark.scoring.metrics import metric_block, per_remesher
 
     rows = []
     for embedding, regime in ROWS:
@@ -281,7 +281,7 @@ def _per_seed(row: dict) -> dict:
 def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
     """Paired comparisons "a has lower error than b" on each metric, and the claim's verdict:
     holds when every comparison holds, reversed when any is reversed, else inconclusive."""
-    from benchmark.uncertainty import paired_seeds, verdict
+    from benchmark.scoring.uncertainty import paired_seeds, verdict
 
     comps = []
     for a, b in pairs:
@@ -449,7 +449,7 @@ def oracle_lines(oracle: dict | None) -> list[str]:
     paired difference to ``class-scale-nn`` (none on Basic Shapes)."""
     if oracle is None:
         return []
-    from benchmark.references import K_NEAREST
+    from benchmark.scoring.references import K_NEAREST
 
     known = ", ".join(f"`{k}`" for k in oracle["hidden"])
     lines = [
@@ -570,9 +570,9 @@ def render_markdown(table: dict) -> str:
 
 
 def plot(rows: list[dict], path: Path, title: str, references: dict | None = None) -> None:
-    """Speed against error (``benchmark.plotting``): one point per row, coloured by embedding,
+    """Speed against error (``scoring.plotting``): one point per row, coloured by embedding,
     shaped by regime, with its interval; the references as dashed lines."""
-    from benchmark import plotting
+    from benchmark.scoring import plotting
 
     markers = {"basic": "o", "classification": "s", "autoencoder": "^", "ideal": "*"}
     points = [

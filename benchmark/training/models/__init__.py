@@ -14,14 +14,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from benchmark.models.aggregator import Aggregator
-from benchmark.models.blind import BlindEmbedding
-from benchmark.models.decoder import Decoder
-from benchmark.models.direct import DirectEmbedding
-from benchmark.models.features import N_BINS, MeshBatch, collate, featurize
-from benchmark.models.graph import GraphEmbedding
-from benchmark.models.invariant import ProbeEmbedding
-from benchmark.models.token import TokenEmbedding
+from benchmark.training.models.aggregator import Aggregator
+from benchmark.training.models.blind import BlindEmbedding
+from benchmark.training.models.decoder import Decoder
+from benchmark.training.models.direct import DirectEmbedding
+from benchmark.training.models.features import N_BINS, MeshBatch, collate, featurize
+from benchmark.training.models.graph import GraphEmbedding
+from benchmark.training.models.invariant import ProbeEmbedding
+from benchmark.training.models.token import TokenEmbedding
 
 
 @dataclass(frozen=True)

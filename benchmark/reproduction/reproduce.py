@@ -4,9 +4,9 @@ harness.
 ``benchmark reproduce --preset tiny|small|cpu|paper --out DIR`` builds the preset's labelled
 dataset version (or reuses ``--data``), the pretraining corpus, trains and evaluates every row
 once per training seed of the preset, and writes ``DIR/table.md``, ``DIR/table.json`` and
-``DIR/speed_vs_error.png``. This module is the command's wiring: the presets are
-``benchmark.presets``, the runs (resume, the process pool, timing) ``benchmark.runner``, and the
-table ``benchmark.report``, which ``benchmark report`` rebuilds from the results alone.
+``DIR/speed_vs_error.png``. This module is the command's wiring: the presets are ``presets``,
+the runs (resume, the process pool, timing) ``runner``, and the table ``report``, which
+``benchmark report`` rebuilds from the results alone.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 from basic_shapes.infra import add_quiet_flag, hardware, load_json, number
-from benchmark import report, runner
-from benchmark.presets import PRESETS, ROWS, Preset, rows_of, seeds_of
+from benchmark.reproduction import report, runner
+from benchmark.reproduction.presets import PRESETS, ROWS, Preset, rows_of, seeds_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def make_dataset(preset: Preset, directory: Path, quiet: bool) -> dict:
     """Build the preset's dataset version (generate + label; both resume)."""
-    from benchmark import versions
+    from benchmark.scoring import versions
 
     try:
         return versions.build(
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> None:
     """``benchmark reproduce``: dataset -> corpus -> every (row, seed) -> table, JSON, plot."""
     import torch
 
-    from benchmark.data import BenchmarkData
+    from benchmark.scoring.data import BenchmarkData
 
     t_start = time.perf_counter()
     preset = PRESETS[args.preset]

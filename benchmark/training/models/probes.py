@@ -4,7 +4,7 @@
 mesh; each ray reports its nearest and farthest hit (distance and the surface normal there,
 oriented along the ray). These are properties of the surface alone, so any two meshings of
 one surface give the same probes up to round-off. The features of the invariant model
-(``benchmark.models.invariant``); kept apart so that ``features`` needs no model code.
+(``benchmark.training.models.invariant``); kept apart so that ``features`` needs no model code.
 """
 
 from __future__ import annotations

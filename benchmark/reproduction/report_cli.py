@@ -14,8 +14,8 @@ import platform
 from pathlib import Path
 
 from basic_shapes.infra import add_quiet_flag
-from benchmark import report
-from benchmark.presets import PRESETS, seeds_of
+from benchmark.reproduction import report
+from benchmark.reproduction.presets import PRESETS, seeds_of
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Read and check every result, then write the table; nothing is written on an error."""
-    from benchmark.data import BenchmarkData
+    from benchmark.scoring.data import BenchmarkData
 
     seeds = seeds_of(args.seeds, PRESETS[args.preset])
     out = Path(args.out)

@@ -16,9 +16,9 @@ from dataclasses import asdict, fields
 from pathlib import Path
 
 from basic_shapes.infra import load_json
-from benchmark.models import REGISTRY
-from benchmark.models.checkpoint import CONFIG_MAX_BYTES
-from benchmark.presets import Preset
+from benchmark.reproduction.presets import Preset
+from benchmark.training.models import REGISTRY
+from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
 
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
 """Relative training time per regime (times the embedding's ``cost``): costly runs go first."""
@@ -30,7 +30,7 @@ _WORKER: dict = {}
 
 # --- configs and layout -----------------------------------------------------------------------
 def row_config(preset: Preset, embedding: str, regime: str, seed: int, shapenet: str | None):
-    from benchmark.train import TrainConfig
+    from benchmark.training.train import TrainConfig
 
     return TrainConfig(
         embedding=embedding, regime=regime, seed=seed, shapenet=shapenet, **preset.train
@@ -74,7 +74,7 @@ def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
 
 def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
     """The results of a (row, seed) finished earlier with this exact config on this dataset."""
-    from benchmark.protocol import ResultsError, load_results
+    from benchmark.scoring.protocol import ResultsError, load_results
 
     ck = _trained(out, cfg, fingerprint)
     results_path, predictions_path = row_files(out, cfg.name, cfg.seed)
@@ -112,7 +112,7 @@ def pretraining_corpus(
 ) -> tuple[str | None, object]:
     """What the pretrained rows pretrain on, built once for all of them: (the procedural
     corpus file written in ``out``, None), or (None, the config that names ShapeNet)."""
-    from benchmark import corpus as corpus_mod
+    from benchmark.training import corpus as corpus_mod
 
     pretrained = [c for c in cfgs if c.regime in ("classification", "autoencoder")]
     if not pretrained:
@@ -159,8 +159,8 @@ def run_row(
     log=None,
 ) -> dict:
     """Train (in-process or under torchrun) and evaluate one (row, seed); return its record."""
-    from benchmark.models.checkpoint import save_checkpoint
-    from benchmark.train import evaluate_checkpoint, train
+    from benchmark.training.models.checkpoint import save_checkpoint
+    from benchmark.training.train import evaluate_checkpoint, train
 
     ckpt = checkpoint_dir(out, cfg.name, cfg.seed)
     t0 = time.perf_counter()
@@ -188,7 +188,7 @@ def run_row(
         )
         train_seconds = load_json(ckpt / "config.json", max_bytes=CONFIG_MAX_BYTES)["train_seconds"]
     else:
-        from benchmark.data import BenchmarkData
+        from benchmark.scoring.data import BenchmarkData
 
         with BenchmarkData(data_dir) as data:
             model, config = train(
@@ -226,8 +226,8 @@ def _start_worker(
     corpus (the procedural corpus file, or ShapeNet as ``pretrain_cfg`` says), once per worker."""
     import torch
 
-    from benchmark import corpus as corpus_mod
-    from benchmark.train import FeatureCache, corpus_meshes
+    from benchmark.training import corpus as corpus_mod
+    from benchmark.training.train import FeatureCache, corpus_meshes
 
     torch.set_num_threads(threads)
     _WORKER.update(cache=FeatureCache(), device=torch.device("cpu"), fingerprint=fingerprint)
@@ -323,8 +323,8 @@ def _mark_timed_alone(
 ) -> None:
     """Store a speed measured with no other job of this run on the CPU, and say so (and on
     how many meshes, where it was a sample)."""
-    from benchmark.evaluate import speed_block
-    from benchmark.protocol import write_results
+    from benchmark.scoring.evaluate import speed_block
+    from benchmark.scoring.protocol import write_results
 
     speed = speed_block(ms_per_mesh, threads)
     speed["hardware"] += f"; {TIMED_ALONE}" + (f" on {sample} test meshes" if sample else "")
@@ -345,10 +345,10 @@ def time_alone(
     import torch
     from tqdm import tqdm
 
-    from benchmark.data import BenchmarkData
-    from benchmark.evaluate import face_count_batches
-    from benchmark.models.checkpoint import CheckpointModel
-    from benchmark.protocol import scored_mesh_rows
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.evaluate import face_count_batches
+    from benchmark.scoring.protocol import scored_mesh_rows
+    from benchmark.training.models.checkpoint import CheckpointModel
 
     todo = [
         (cfg, r)
@@ -379,7 +379,7 @@ def publish_row(out: Path, name: str, seeds: list[int]) -> None:
     ``leaderboard seed``; hard-linked where the file system allows, else copied."""
     import shutil
 
-    from benchmark.protocol import load_results, write_results
+    from benchmark.scoring.protocol import load_results, write_results
 
     src_results, src_preds = row_files(out, name, seeds[0])
     dst_results, dst_preds = row_files(out, name)

@@ -6,11 +6,11 @@
   meshes, so Ideal gets the same number of steps and the same exposure to each object as
   Basic; only the meshings differ.
 * ``classification`` / ``autoencoder``: the face embedding (and, for classification, the
-  aggregator) is first pretrained on a mesh corpus (``benchmark.corpus``: procedural, or
+  aggregator) is first pretrained on a mesh corpus (``benchmark.training.corpus``: procedural, or
   ShapeNetCore v2), by shape classification or by MeshGPT-style reconstruction of the
   discretized face coordinates; then the whole model is fine-tuned as in ``basic``.
 
-The loss is MSE on the dB target (or the intensity-weighted MSE of ``benchmark.metrics``),
+The loss is MSE on the dB target (or the intensity-weighted MSE of ``benchmark.scoring.metrics``),
 plus the token embedding's commitment loss. The decoder predicts in units standardized by
 the training responses (``Decoder.set_output_statistics``). Training runs to a plateau of
 the Simple MSE on the validation split (``plateau``: the learning rate is halved when the
@@ -18,7 +18,7 @@ best epoch is ``patience // 2`` epochs old, training stops when it is ``patience
 old, ``epochs`` is the cap) and the checkpoint is the best epoch (``fit``; without val
 objects, all ``epochs`` with a cosine decay, and the last epoch); the test split is never
 looked at. Runs are deterministic for a seed and a thread count on one machine. Under
-``torchrun`` (``WORLD_SIZE`` > 1, joined by ``benchmark.train_cli``) the loss module is
+``torchrun`` (``WORLD_SIZE`` > 1, joined by ``benchmark.training.train_cli``) the loss module is
 wrapped in DistributedDataParallel and every epoch's objects are sharded with a
 DistributedSampler; rank 0's val MSE decides for all ranks; rank 0 writes the checkpoint.
 """
@@ -38,8 +38,8 @@ from torch import nn
 from torch.utils.data import DistributedSampler
 from tqdm import tqdm
 
-from benchmark.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
-from benchmark.models import (
+from benchmark.scoring.data import FLOOR_DB, BasicShapes, BenchmarkData, ScaleBins
+from benchmark.training.models import (
     EMBEDDINGS,
     FACE_EMBEDDINGS,
     REGISTRY,
@@ -50,7 +50,7 @@ from benchmark.models import (
     collate,
     featurize,
 )
-from benchmark.models.features import MeshFeatures
+from benchmark.training.models.features import MeshFeatures
 
 REGIMES = ("basic", "ideal", "classification", "autoencoder")
 PRETRAINED = ("classification", "autoencoder")
@@ -219,7 +219,7 @@ def benchmark_examples(
 
 def corpus_meshes(cfg: TrainConfig, progress: bool = False) -> tuple[list, list[str]]:
     """The pretraining corpus: ShapeNetCore v2 if configured, else the procedural one."""
-    from benchmark import corpus
+    from benchmark.training import corpus
 
     if cfg.shapenet:
         meshes = corpus.load_shapenet(
@@ -311,7 +311,7 @@ class RegressionTask(nn.Module):
     def forward(self, batch) -> tuple[torch.Tensor, dict]:
         pred, aux = self.model(batch)
         if self.loss_name == "intensity":
-            from benchmark.metrics import intensity_weighted_mse
+            from benchmark.scoring.metrics import intensity_weighted_mse
 
             shape = (len(pred), *self.target_shape)
             loss = intensity_weighted_mse(pred.view(shape), batch.target.view(shape))
@@ -627,9 +627,9 @@ def evaluate_checkpoint(
 ) -> dict:
     """Results record of a checkpoint on the test split (harness ``evaluate``); the
     predictions file is kept at ``predictions`` when given (a leaderboard submission)."""
-    from benchmark.evaluate import evaluate
-    from benchmark.models.checkpoint import CheckpointModel
-    from benchmark.protocol import write_results
+    from benchmark.scoring.evaluate import evaluate
+    from benchmark.scoring.protocol import write_results
+    from benchmark.training.models.checkpoint import CheckpointModel
 
     model = CheckpointModel(checkpoint, device=str(device))
     if predictions:

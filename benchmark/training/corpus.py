@@ -30,7 +30,7 @@ from basic_shapes.meshcheck import (
     repeated_vertex,
     weld,
 )
-from benchmark.data import normalize_mesh  # one normalization for corpus and benchmark
+from benchmark.scoring.data import normalize_mesh  # one normalization for corpus and benchmark
 
 Mesh = tuple[np.ndarray, np.ndarray, int]
 

@@ -1,0 +1,1 @@
+"""Training: the paper's models, the pre-training corpus and the training loop (torch)."""

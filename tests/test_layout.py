@@ -1,0 +1,109 @@
+"""The package layout of docs/ARCHITECTURE.md, enforced: who may import whom, and a torch-free
+scoring part (what the board and a submitter install)."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# package (or benchmark part) -> the first-party parts it may import
+ALLOWED = {
+    "basic_shapes": {"basic_shapes"},
+    "radar_sim": {"radar_sim", "basic_shapes"},
+    "benchmark.scoring": {"benchmark.scoring", "basic_shapes", "radar_sim"},
+    "benchmark.training": {"benchmark.training", "benchmark.scoring", "basic_shapes", "radar_sim"},
+    "benchmark.reproduction": {
+        "benchmark.reproduction",
+        "benchmark.training",
+        "benchmark.scoring",
+        "basic_shapes",
+    },
+    "leaderboard": {"leaderboard", "benchmark.scoring", "basic_shapes", "radar_sim"},
+}
+PARTS = ("benchmark.scoring", "benchmark.training", "benchmark.reproduction")
+
+
+def _part(module: str) -> str | None:
+    """The layer a dotted module name belongs to (``None``: third-party or the stdlib)."""
+    for part in PARTS:
+        if module == part or module.startswith(part + "."):
+            return part
+    top = module.split(".")[0]
+    if top in {"basic_shapes", "radar_sim", "leaderboard"}:
+        return top
+    if top == "benchmark":
+        return "benchmark"  # the package root: __version__ and the two lazy public names
+    return None
+
+
+def _imports(path: Path):
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            yield from (a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            yield node.module
+            yield from (f"{node.module}.{a.name}" for a in node.names)
+
+
+def _sources():
+    for part in ALLOWED:
+        folder = ROOT.joinpath(*part.split("."))
+        for path in sorted(folder.rglob("*.py")):
+            yield part, path
+
+
+@pytest.mark.parametrize("part", sorted(ALLOWED))
+def test_each_part_imports_only_the_parts_below_it(part):
+    bad = []
+    for owner, path in _sources():
+        if owner != part:
+            continue
+        for name in _imports(path):
+            target = _part(name)
+            if target is None or target == "benchmark" or target in ALLOWED[part]:
+                continue
+            # `from benchmark import scoring` names the part itself
+            if name.startswith("benchmark.") and _part(name) in ALLOWED[part]:
+                continue
+            bad.append(f"{path.relative_to(ROOT)} imports {name}")
+    assert not bad, "\n".join(bad)
+
+
+def test_every_source_file_belongs_to_a_part():
+    """A new folder under benchmark/ must be placed in a part (and so in the rule above)."""
+    for path in (ROOT / "benchmark").rglob("*.py"):
+        rel = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        assert _part(rel) in (*PARTS, "benchmark"), rel
+        if _part(rel) == "benchmark":
+            assert path.name in {"__init__.py", "cli.py"}, f"{rel}: place it in a part"
+
+
+TORCH_BLOCKER = """
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {"torch", "torch_geometric", "vector_quantize_pytorch", "bpy"}:
+            raise ImportError(name + " is blocked")
+sys.meta_path.insert(0, Block())
+"""
+
+
+def test_every_scoring_module_imports_with_torch_and_blender_blocked():
+    modules = sorted(
+        ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+        for p in (ROOT / "benchmark" / "scoring").rglob("*.py")
+    )
+    assert "benchmark.scoring.protocol" in modules
+    code = (
+        TORCH_BLOCKER
+        + "import importlib\n"
+        + "".join(f"importlib.import_module({m!r})\n" for m in modules)
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
