@@ -512,6 +512,7 @@ RADAR_DIMS = {
     "range": ("down-range distance", "m"),
     "frequency": ("frequency", "Hz"),
     "mesh": ("mesh row (/meshes)", None),
+    "polarization": ("polarization channel, transmit then receive (H = phi, V = theta)", None),
 }
 """Dimension scales of /radar: name -> (long_name, units). Coordinates of every label array."""
 RADAR_ARRAYS = {
@@ -520,15 +521,23 @@ RADAR_ARRAYS = {
     "mode": ("object",),
     "mesh_response": ("mesh", "aspect", "roll", "range"),
     "mesh_mode": ("mesh",),
+    "polarimetric": ("object", "polarization", "aspect", "roll", "range"),
 }
 
 
 def radar_fingerprint(
-    config_json: str, rule_json: str, responses, mesh_index=(), mesh_responses=()
+    config_json: str,
+    rule_json: str,
+    responses,
+    mesh_index=(),
+    mesh_responses=(),
+    channels=(),
+    channel_responses=(),
 ) -> str:
     """sha256 over the radar config, the simulation-mesh rule and the stored label bytes: the
     /radar/response rows in object order, then the per-mesh physics (its mesh rows and
-    /radar/mesh_response rows) where stored; complex64, C order. Rows are iterables, so a
+    /radar/mesh_response rows) where stored, then every polarization channel (their names
+    and /radar/polarimetric rows) where stored; complex64, C order. Rows are iterables, so a
     writer hashes while streaming and a reader recomputes it from the stored datasets."""
     h = hashlib.sha256()
     for part in (config_json, rule_json):
@@ -541,6 +550,10 @@ def radar_fingerprint(
         h.update(b"\0mesh\0" + mesh_index.tobytes())
         for row in mesh_responses:
             h.update(np.ascontiguousarray(row, np.complex64).tobytes())
+    if len(channels):
+        h.update(b"\0polarimetric\0" + ",".join(channels).encode())
+        for row in channel_responses:
+            h.update(np.ascontiguousarray(row, np.complex64).tobytes())
     return h.hexdigest()
 
 
@@ -548,8 +561,9 @@ class RadarGroup:
     """Read access to ``/radar``: coordinates, request attributes, labels read per object.
 
     ``response(k)`` is the object's label: the physics of its analytic primitive on the
-    simulation mesh. ``mesh_response(j)`` is the physics of one stored representation mesh
-    (row ``mesh_index[j]``), stored when labelling with ``--mesh-labels``.
+    simulation mesh (the VV channel). ``polarimetric(k)`` holds every channel of a
+    polarimetric config (``channels``). ``mesh_response(j)`` is the physics of one stored
+    representation mesh (row ``mesh_index[j]``), stored when labelling with ``--mesh-labels``.
     """
 
     def __init__(self, shard: Shard):
@@ -560,6 +574,8 @@ class RadarGroup:
         required = ["object", "aspect", "roll", "range", "frequency", "response", "mode"]
         if "mesh_response" in g or "mesh" in g:
             required += ["mesh", "mesh_response", "mesh_mode"]
+        if "polarimetric" in g or "polarization" in g:
+            required += ["polarization", "polarimetric"]
         missing = [n for n in required if n not in g]
         if missing:
             raise ShardError(f"{self.path}: truncated /radar group, missing {', '.join(missing)}")
@@ -568,6 +584,7 @@ class RadarGroup:
         self.aspect_deg, self.roll_deg = coords["aspect"], coords["roll"]
         self.range_m, self.frequency_hz = coords["range"], coords["frequency"]
         self.mesh_index = coords.get("mesh", np.zeros(0, np.int64))
+        self.channels = tuple(c.decode() for c in coords.get("polarization", [b"VV"]))
         if not np.array_equal(self.object_ids, f["objects/id"][()]):
             raise ShardError(f"{self.path}: /radar/object does not list the shard's objects")
         for name, dims in RADAR_ARRAYS.items():
@@ -616,12 +633,15 @@ class RadarGroup:
         """The fingerprint recomputed from the stored content (reads every label once)."""
         rows = (self.group["response"][k] for k in range(len(self.object_ids)))
         mesh_rows = (self.group["mesh_response"][j] for j in range(len(self.mesh_index)))
+        polarimetric = "polarimetric" in self.group
         return radar_fingerprint(
             _text_attr(self.group, "config") or "",
             _text_attr(self.group, "simulation_rule") or "",
             rows,
             self.mesh_index,
             mesh_rows,
+            self.channels if polarimetric else (),
+            (self.polarimetric(k) for k in range(len(self.object_ids))) if polarimetric else (),
         )
 
     # labels -----------------------------------------------------------------------------------
@@ -660,6 +680,14 @@ class RadarGroup:
         """Range profiles of the representation mesh in row ``mesh_index[j]`` of /meshes."""
         return self.group["mesh_response"][j]
 
+    def polarimetric(self, k: int) -> np.ndarray:
+        """(polarization, aspect, roll, range) complex64 of object ``k``, channels ``channels``."""
+        if "polarimetric" not in self.group:
+            raise ShardError(
+                f"{self.path}: labelled with the VV channel only (no /radar/polarimetric)"
+            )
+        return self.group["polarimetric"][k]
+
 
 def write_radar(
     f: h5py.File,
@@ -673,12 +701,15 @@ def write_radar(
     mesh_index=None,
     mesh_modes=None,
     mesh_responses=None,
+    channels=None,
+    channel_responses=None,
 ) -> str:
     """Write ``/radar`` into an open shard (replacing any); return its label fingerprint.
 
     ``attrs`` must hold ``config`` and ``simulation_rule`` (JSON); ``coordinates`` the keys
     of ``RadarGroup.coordinates``. The per-object and per-mesh label arguments are iterables
     consumed one row at a time, so a shard's labels never need to be in memory at once.
+    ``channels`` (names) and ``channel_responses`` store every polarization channel.
     Every array gets HDF5 dimension scales with units, which makes the group a NetCDF-4
     group: ``xarray.open_dataset(shard, engine="h5netcdf", group="radar")`` names its
     dimensions (object, aspect, roll, range, frequency, mesh).
@@ -697,16 +728,17 @@ def write_radar(
     }
     if mesh_index is not None:
         coords["mesh"] = np.asarray(mesh_index, np.int64)
+    if channels is not None:
+        coords["polarization"] = [c.encode() for c in channels]
+    strings = h5py.string_dtype()
     for name, data in coords.items():
-        d = _dataset(
-            g, name, np.asarray(data, np.int64 if name in ("object", "mesh") else np.float64)
-        )
+        dtype = {"object": np.int64, "mesh": np.int64, "polarization": strings}.get(name)
+        d = _dataset(g, name, np.asarray(data, dtype or np.float64), dtype=dtype or np.float64)
         d.make_scale(name)
         long_name, units = RADAR_DIMS[name]
         d.attrs["long_name"] = long_name
         if units:
             d.attrs["units"] = units
-    strings = h5py.string_dtype()
 
     def array(name: str, rows, dtype):
         dims = RADAR_ARRAYS[name]
@@ -729,13 +761,18 @@ def write_radar(
     if mesh_index is not None:
         array("mesh_response", mesh_responses, np.complex64)
         array("mesh_mode", [m.encode() for m in mesh_modes], strings)
+    if channels is not None:
+        array("polarimetric", channel_responses, np.complex64)
     mesh_rows = g["mesh_response"] if mesh_index is not None else ()
+    channel_rows = g["polarimetric"] if channels is not None else ()
     fingerprint = radar_fingerprint(
         attrs["config"],
         attrs["simulation_rule"],
         (response[k] for k in range(len(response))),
         coords.get("mesh", ()),
         (mesh_rows[j] for j in range(len(mesh_rows))),
+        channels or (),
+        (channel_rows[k] for k in range(len(channel_rows))),
     )
     g.attrs["label_fingerprint"] = fingerprint
     return fingerprint

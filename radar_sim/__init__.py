@@ -1,17 +1,19 @@
 """radar_sim: exact physical-optics monostatic radar simulator on triangle meshes (Embree).
 
-Public API (docs/RADAR.md): ``monostatic_field``, ``detect_mode``, ``RadarConfig``, ``simulate``,
-``RadarResult``, ``MeshError``. Never imports bpy or torch.
+Public API (docs/RADAR.md): ``monostatic_field``, ``polarimetric_field`` (channels
+``CHANNELS``), ``detect_mode``, ``RadarConfig``, ``simulate``, ``RadarResult``, ``MeshError``,
+``rcs``. Never imports bpy or torch.
 """
 
 __version__ = "0.1.0"
 
 from radar_sim.config import RadarConfig, RadarResult, simulate
-from radar_sim.field import monostatic_field
+from radar_sim.field import CHANNELS, monostatic_field, polarimetric_field
 from radar_sim.geometry import MeshError, UnitsWarning, detect_mode
 from radar_sim.rcs import rcs
 
 __all__ = [
+    "CHANNELS",
     "MeshError",
     "RadarConfig",
     "RadarResult",
@@ -19,6 +21,7 @@ __all__ = [
     "__version__",
     "detect_mode",
     "monostatic_field",
+    "polarimetric_field",
     "rcs",
     "simulate",
 ]

@@ -16,10 +16,20 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import load_json
-from radar_sim.field import C0, DEFAULT_TOL, mesh_field, resolve_mode, wavenumbers
+from radar_sim.field import (
+    C0,
+    CHANNELS,
+    DEFAULT_TOL,
+    EDGES,
+    channel_field,
+    resolve_mode,
+    wavenumbers,
+)
 from radar_sim.geometry import MILLIMETRE_RADIUS, MeshError, check_units, prepare
 
 WINDOWS = ("hann", "none")
+TEXT_FIELDS = ("name", "window", "channels", "edges")
+LATER_FIELDS = {"channels": "VV", "edges": "none"}  # absent from the JSON when at the default
 # Size bounds (docs/RADAR.md, "Config bounds"): simulate holds the frequency response and two
 # FFT temporaries, about 48 bytes per grid sample (complex128 x 3), so MAX_GRID_SAMPLES keeps a
 # worker under ~0.8 GB whatever the mesh; per-axis bounds keep each list sane on its own.
@@ -43,6 +53,8 @@ class RadarConfig:
     n_freq: int = 128
     window: str = "hann"  # symmetric Hann (numpy.hanning), or "none"
     n_range: int = 107  # range bins kept, centred on the origin
+    channels: str = "VV"  # polarization channels stored, from HH,VV,HV; VV is the task's target
+    edges: str = "none"  # edge diffraction: "none" (PO) or "mec" (equivalent edge currents)
 
     def __post_init__(self):
         problems = []
@@ -60,10 +72,14 @@ class RadarConfig:
             problems.append(f"window in {WINDOWS}")
         if not (1 <= self.n_range <= self.n_freq and self.n_range % 2 == 1):
             problems.append("n_range odd and between 1 and n_freq")
-        if self.name == "xband-v1" and any(
-            getattr(self, f.name) != f.default for f in fields(self)
-        ):
-            problems.append("a name other than 'xband-v1' (reserved for the default grid)")
+        listed = self.channels.split(",")
+        if "VV" not in listed or len(set(listed)) != len(listed) or set(listed) - set(CHANNELS):
+            problems.append(f"channels a comma list from {','.join(CHANNELS)} including VV")
+        if self.edges not in EDGES:
+            problems.append(f"edges in {EDGES}")
+        reserved = globals().get("NAMED", {}).get(self.name)
+        if reserved is not None and self != reserved:
+            problems.append(f"a name other than {self.name!r} (reserved for a named config)")
         if problems:
             raise ValueError(f"invalid radar config {self.name!r}: need " + "; ".join(problems))
 
@@ -102,13 +118,7 @@ class RadarConfig:
             if any(isinstance(v, (bool, list, dict)) or v is None for v in data.values()):
                 raise ValueError("fields must be numbers or strings")
             kwargs = {
-                k: (
-                    str(v)
-                    if k in ("name", "window")
-                    else int(v)
-                    if k.startswith("n_")
-                    else float(v)
-                )
+                k: (str(v) if k in TEXT_FIELDS else int(v) if k.startswith("n_") else float(v))
                 for k, v in data.items()
             }
             if any(k.startswith("n_") and v != data[k] for k, v in kwargs.items()):
@@ -118,7 +128,18 @@ class RadarConfig:
             raise ValueError(f"{path}: {exc}") from None
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), sort_keys=True)
+        """Fields added after xband-v1 appear only where set, so older versions keep their
+        config text (and with it their label fingerprints)."""
+        data = asdict(self)
+        for name, default in LATER_FIELDS.items():
+            if data[name] == default:
+                del data[name]
+        return json.dumps(data, sort_keys=True)
+
+    @property
+    def channel_list(self) -> tuple[str, ...]:
+        """The stored channels in ``CHANNELS`` order."""
+        return tuple(c for c in CHANNELS if c in self.channels.split(","))
 
     # coordinates ------------------------------------------------------------------------
     @property
@@ -189,7 +210,11 @@ def _cosd(deg):
     return np.where(quarter, np.round(r), r)
 
 
-NAMED = {"xband-v1": RadarConfig()}
+NAMED = {
+    "xband-v1": RadarConfig(),
+    # xband-v1's grid with all three channels and edge diffraction (docs/RADAR.md)
+    "xband-v2": RadarConfig(name="xband-v2", channels="HH,VV,HV", edges="mec"),
+}
 
 
 @dataclass
@@ -204,6 +229,10 @@ class RadarResult:
     range_m: np.ndarray
     mode: str  # the physics used: "convex", "shadowed" or "bounce2"
     config: RadarConfig
+    # every channel of config.channel_list, (n_channel, n_aspect, n_roll, n_freq | n_range);
+    # frequency_response and range_profiles above are its VV channel
+    channel_response: np.ndarray | None = None
+    channel_profiles: np.ndarray | None = None
 
 
 def simulate(
@@ -236,15 +265,22 @@ def simulate(
         )
     check_units(mesh)
     used = resolve_mode(mode, mesh)
-    response = mesh_field(mesh, wavenumbers(config.frequency_hz), config.directions(), used, tol)
-    response = response.reshape(config.n_aspect, config.n_roll, config.n_freq)
+    channels = config.channel_list
+    k = wavenumbers(config.frequency_hz)
+    field = channel_field(mesh, k, config.directions(), used, tol, channels, config.edges)
+    field = np.moveaxis(field.reshape(config.n_aspect, config.n_roll, len(channels), -1), 2, 0)
+    profiles = config.range_profiles(field)
+    vv = channels.index("VV")
+    several = len(channels) > 1
     return RadarResult(
-        response,
-        config.range_profiles(response),
+        field[vv],
+        profiles[vv],
         config.aspect_deg,
         config.roll_deg,
         config.frequency_hz,
         config.range_m,
         used,
         config,
+        field if several else None,
+        profiles if several else None,
     )

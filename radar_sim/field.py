@@ -11,6 +11,10 @@ with one direction-independent matrix for all directions at once (``_Moments``).
 Shadowing (mode "shadowed") casts one Embree ray per lit facet from its centroid towards the
 radar; "bounce2" adds the second and third bounces by shooting and bouncing rays
 (``sbr_field``).
+
+Channels (docs/RADAR.md "Polarization"): V = θ̂ and H = φ̂ = r̂ × θ̂ of the line of sight.
+Single-bounce PO backscatter is the same for HH and VV and has no HV; the bounces of "bounce2"
+and edge diffraction (``radar_sim.edges``) tell the channels apart.
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ from radar_sim.geometry import Mesh, RayCaster, UnitsWarning, check_units, mode_
 
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")
+CHANNELS = ("HH", "VV", "HV")  # transmit-receive; VH = HV by reciprocity
+EDGES = ("none", "mec")  # edge diffraction: none, or Michaeli's equivalent edge currents
 DEFAULT_TOL = 1e-10  # bound on each facet's error relative to its specular magnitude P k/√π
 GROUP = 64  # directions per kernel call (same in every mode: same bytes)
 VERTEX_TERM_COST = 8.0  # one moment update per vertex / one multiply-add of the contraction
@@ -96,6 +102,33 @@ def monostatic_field(
     )
 
 
+def polarimetric_field(
+    vertices,
+    faces,
+    frequencies_hz,
+    directions,
+    mode: str = "auto",
+    *,
+    edges: str = "none",
+    tol: float = DEFAULT_TOL,
+) -> np.ndarray:
+    """Complex field amplitude per channel, shape (n_directions, 3, n_frequencies), channels
+    ``CHANNELS`` = HH, VV, HV (V = θ̂, H = φ̂ of the line of sight); ``edges="mec"`` adds edge
+    diffraction. Arguments as ``monostatic_field``, whose result is the VV channel here with
+    ``edges="none"``."""
+    mesh = prepare(vertices, faces)
+    check_units(mesh)
+    return channel_field(
+        mesh,
+        wavenumbers(frequencies_hz),
+        unit_directions(directions),
+        resolve_mode(mode, mesh),
+        tol,
+        CHANNELS,
+        edges,
+    )
+
+
 @functools.cache
 def _keep_heap() -> None:
     """Ask glibc to keep 64 MiB at the top of the heap instead of returning it to the OS on
@@ -110,14 +143,44 @@ def _keep_heap() -> None:
 def mesh_field(
     mesh: Mesh, k: np.ndarray, directions: np.ndarray, mode: str, tol: float = DEFAULT_TOL
 ) -> np.ndarray:
-    """``monostatic_field`` on a prepared mesh, wavenumbers and unit directions."""
+    """``monostatic_field`` on a prepared mesh, wavenumbers and unit directions: the VV
+    channel of ``channel_field`` without edge diffraction."""
+    return channel_field(mesh, k, directions, mode, tol, ("VV",))[:, 0]
+
+
+def channel_field(
+    mesh: Mesh,
+    k: np.ndarray,
+    directions: np.ndarray,
+    mode: str,
+    tol: float = DEFAULT_TOL,
+    channels: tuple[str, ...] = CHANNELS,
+    edges: str = "none",
+) -> np.ndarray:
+    """(n_directions, len(channels), n_frequencies) complex: the field per polarization
+    channel (``CHANNELS``), with edge diffraction where ``edges`` is "mec"."""
+    bad = [c for c in channels if c not in CHANNELS]
+    if bad or not channels or edges not in EDGES:
+        raise ValueError(f"channels must come from {CHANNELS} and edges from {EDGES}")
     _keep_heap()
     unique, inverse = np.unique(directions, axis=0, return_inverse=True)
     caster = RayCaster(mesh) if mode in ("shadowed", "bounce2") else None
-    field = _po_field(mesh, k, unique, caster, tol)
+    po = _po_field(mesh, k, unique, caster, tol)
+    co = np.array([c != "HV" for c in channels])
+    field = po[:, None, :] * co[None, :, None]  # exactly 0 in HV
     if mode == "bounce2":
-        field += sbr_field(mesh, k, unique, caster)
+        field += sbr_field(mesh, k, unique, caster, channels=channels)
+    if edges == "mec":
+        from radar_sim import edges as edge_diffraction
+
+        wedges = edge_diffraction.sharp_edges(mesh)
+        if wedges.count:
+            field += edge_diffraction.edge_field(wedges, k, unique)[:, _indices(channels)]
     return field[inverse.reshape(-1)]
+
+
+def _indices(channels: tuple[str, ...]) -> list[int]:
+    return [CHANNELS.index(c) for c in channels]
 
 
 class _Geometry:
@@ -369,14 +432,18 @@ def sbr_field(
     caster: RayCaster,
     spacing: float | None = None,
     max_bounces: int = MAX_BOUNCES,
+    channels: tuple[str, ...] = ("VV",),
 ) -> np.ndarray:
-    """Field of bounces 2..max_bounces (the first bounce is the exact PO of ``_po_field``).
+    """(n_dirs, len(channels), n_freq): bounces 2..max_bounces (the first bounce is the exact
+    PO of ``_po_field``), per polarization channel.
 
     Parallel ray tubes of side ``spacing`` (default λ_min/8) are shot along −r̂ over the
     bounding sphere, traced by Embree with PEC reflection of the polarization
     (E' = −E + 2(n·E)n), and from the second hit on, each tube's footprint radiates back by
     physical optics: (k/√π)·ê·(n × (d × E))·Δ²/|d·n|·sinc(kα)sinc(kβ)·e^{jkΦ}, where α, β
-    are the footprint's phase slopes and Φ the path phase (docs/RADAR.md, "Bounces").
+    are the footprint's phase slopes and Φ the path phase (docs/RADAR.md, "Bounces"). The
+    geometry is traced once; the field E is carried for a V and an H transmission, and ê is
+    the receive polarization of each channel.
     A tube whose radiation towards the radar is blocked contributes nothing.
     """
     spacing = spacing or (2.0 * np.pi / float(k.max())) / RAYS_PER_WAVELENGTH
@@ -390,15 +457,18 @@ def sbr_field(
     gu, gv = gu[inside], gv[inside]
     area = mesh.area_vectors
     normals = area / np.linalg.norm(area, axis=1, keepdims=True)
-    out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
+    out = np.zeros((len(dirs), len(channels), len(k)), dtype=np.complex128)
     pol = polarization(dirs)
+    # (transmit, receive) per channel, 0 = V and 1 = H; only the transmissions needed are traced
+    pairs = [{"VV": (0, 0), "HH": (1, 1), "HV": (0, 1)}[c] for c in channels]
+    sent = sorted({t for t, _ in pairs})
     for i, r in enumerate(dirs):
         e1 = pol[i]
         e2 = np.cross(r, e1)
         origins = centre + (radius + 2 * spacing) * r + gu[:, None] * e1 + gv[:, None] * e2
         n_rays = len(origins)
         d = np.broadcast_to(-r, (n_rays, 3)).copy()
-        field = np.broadcast_to(e1, (n_rays, 3)).copy()
+        fields = {t: np.broadcast_to((e1, e2)[t], (n_rays, 3)).copy() for t in sent}
         tube_a = np.broadcast_to(e1, (n_rays, 3)).copy()
         tube_b = np.broadcast_to(e2, (n_rays, 3)).copy()
         phase = np.zeros(n_rays)  # Φ so far: r̂·p1 − Σ segment lengths
@@ -410,13 +480,8 @@ def sbr_field(
             if not hit.any():
                 break
             face, dist = face[hit], dist[hit]
-            d, field, tube_a, tube_b, phase = (
-                d[hit],
-                field[hit],
-                tube_a[hit],
-                tube_b[hit],
-                phase[hit],
-            )
+            d, tube_a, tube_b, phase = d[hit], tube_a[hit], tube_b[hit], phase[hit]
+            fields = {t: e[hit] for t, e in fields.items()}
             previous = point[hit]
             point = previous + lift[hit] * caster.offset + dist[:, None] * d
             n = normals[face]
@@ -427,42 +492,47 @@ def sbr_field(
                 phase = matmul(point, r)
             else:
                 phase = phase - np.einsum("ij,ij->i", point - previous, d)  # path along d
-                _radiate(
-                    out[i],
-                    k,
-                    r,
-                    point,
-                    n,
-                    d,
-                    field,
-                    tube_a,
-                    tube_b,
-                    cos_in,
-                    phase + matmul(point, r),
-                    spacing,
-                    caster,
-                )
+                for c, (t, rx) in enumerate(pairs):
+                    _radiate(
+                        out[i, c],
+                        k,
+                        r,
+                        (e1, e2)[rx],
+                        point,
+                        n,
+                        d,
+                        fields[t],
+                        tube_a,
+                        tube_b,
+                        cos_in,
+                        phase + matmul(point, r),
+                        spacing,
+                        caster,
+                    )
             d = d + 2.0 * cos_in[:, None] * n
-            field = -field + 2.0 * np.einsum("ij,ij->i", n, field)[:, None] * n
+            fields = {
+                t: -e + 2.0 * np.einsum("ij,ij->i", n, e)[:, None] * n for t, e in fields.items()
+            }
             tube_a = tube_a - 2.0 * np.einsum("ij,ij->i", tube_a, n)[:, None] * n
             tube_b = tube_b - 2.0 * np.einsum("ij,ij->i", tube_b, n)[:, None] * n
             lift = n
             keep = cos_in > 0
-            point, d, field, tube_a, tube_b, phase, lift = (
-                x[keep] for x in (point, d, field, tube_a, tube_b, phase, lift)
+            point, d, tube_a, tube_b, phase, lift = (
+                x[keep] for x in (point, d, tube_a, tube_b, phase, lift)
             )
+            fields = {t: e[keep] for t, e in fields.items()}
     return out
 
 
-def _radiate(out, k, r, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing, caster):
-    """Add the PO radiation of tube footprints at ``point`` (lit side normal ``n``)."""
+def _radiate(out, k, r, e, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing, caster):
+    """Add the PO radiation of tube footprints at ``point`` (lit side normal ``n``), received
+    in polarization ``e``."""
     seen = ~caster.occluded(point, np.broadcast_to(r, point.shape), n)
     if not seen.any():
         return
     point, n, d, field, tube_a, tube_b, cos_in, phi = (
         x[seen] for x in (point, n, d, field, tube_a, tube_b, cos_in, phi)
     )
-    e = polarization(r[None, :])[0]
     current = np.cross(n, np.cross(d, field))
     amp = matmul(current, e) * spacing**2 / cos_in
     q = r - d  # phase slope per unit k
@@ -495,4 +565,4 @@ def _radiate(out, k, r, point, n, d, field, tube_a, tube_b, cos_in, phi, spacing
             * np.sinc(kk * beta[sl, None] / np.pi)
             * facet.cis(kk * phi[sl, None])
         )
-        out += (k / facet.SQRT_PI) * matmul(amp[sl], term)
+        out += (k / facet.SQRT_PI) * matmul(amp[sl][None, :], term)[0]

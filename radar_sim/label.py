@@ -291,6 +291,9 @@ def label_object(
         "frequency_response": (
             r.frequency_response.astype(np.complex64) if frequency_response else None
         ),
+        "polarimetric": (
+            None if r.channel_profiles is None else r.channel_profiles.astype(np.complex64)
+        ),
         "mesh_rows": [],
         "mesh_responses": [],
         "mesh_modes": [],
@@ -317,10 +320,9 @@ def write_object(plan: ShardPlan, k: int, result: dict, stamp: str) -> None:
             f.attrs["request"] = stamp
             f.attrs["mode"] = result["mode"]
             f.create_dataset("response", data=result["response"], track_times=False)
-            if result["frequency_response"] is not None:
-                f.create_dataset(
-                    "frequency_response", data=result["frequency_response"], track_times=False
-                )
+            for name in ("frequency_response", "polarimetric"):
+                if result[name] is not None:
+                    f.create_dataset(name, data=result[name], track_times=False)
             f.create_dataset(
                 "mesh_rows", data=np.asarray(result["mesh_rows"], np.int64), track_times=False
             )
@@ -361,6 +363,7 @@ def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
             with h5py.File(p, "r") as o:
                 modes.append(str(o.attrs["mode"]))
         with_meshes = request.mesh_labels != "none"
+        polarimetric = len(config.channel_list) > 1
         write_radar(
             f,
             attrs={**request.attrs(), "radar_sim_version": __version__},
@@ -374,6 +377,8 @@ def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
             mesh_index=np.fromiter(mesh_rows("mesh_rows"), np.int64) if with_meshes else None,
             mesh_modes=[m.decode() for m in mesh_rows("mesh_mode")] if with_meshes else None,
             mesh_responses=mesh_rows("mesh_response") if with_meshes else None,
+            channels=config.channel_list if polarimetric else None,
+            channel_responses=rows("polarimetric") if polarimetric else None,
         )
 
     rewrite_atomically(plan.path, edit)

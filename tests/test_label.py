@@ -25,6 +25,7 @@ from basic_shapes.shards import (
     MeshRecord,
     ObjectRecord,
     Shard,
+    ShardError,
     dataset_fingerprint,
     label_fingerprint,
     shard_name,
@@ -495,3 +496,37 @@ def test_objects_are_computed_largest_first(dataset):
     assert len(order) == 6 and len(set(works)) > 1
     assert works == sorted(works, reverse=True)
     assert order[0][0] != 0  # object 0 is a cube, the least work
+
+
+def test_polarimetric_labels_are_stored_as_a_named_dimension(dataset, tmp_path):
+    """A config with channels HH,VV,HV stores /radar/polarimetric over a named polarization
+    dimension: VV is /radar/response bit for bit, single-bounce PO without edges gives HH = VV
+    and HV = 0 on these convex objects, and the label fingerprint covers every channel."""
+    import xarray as xr
+
+    config = tmp_path / "pol.json"
+    config.write_text(json.dumps({**LBAND, "name": "lband-pol", "channels": "HH,VV,HV"}))
+    data = tmp_path / "data"
+    shutil.copytree(dataset, data)
+    for p in sorted(data.glob("shard-*"))[1:]:
+        p.unlink()
+    main(["label", "--data", str(data), "--workers", "1", "--config", str(config)])
+    path = data / shard_name(0)
+    with Shard(path) as s:
+        assert s.radar.channels == ("HH", "VV", "HV")
+        hh, vv, hv = s.radar.polarimetric(0)
+        np.testing.assert_array_equal(vv, s.radar.response(0))
+        np.testing.assert_array_equal(hh, vv)
+        assert not np.any(hv)
+        s.verify_labels()
+    with xr.open_dataset(path, engine="h5netcdf", group="radar") as ds:
+        assert ds["polarimetric"].dims == ("object", "polarization", "aspect", "roll", "range")
+        assert [c.decode() if isinstance(c, bytes) else c for c in ds["polarization"].values] == [
+            "HH",
+            "VV",
+            "HV",
+        ]
+    with h5py.File(path, "r+") as f:
+        f["radar/polarimetric"][0, 2, 0, 0, 0] = 1.0  # a cross-polar echo that was never there
+    with Shard(path) as s, pytest.raises(ShardError, match="do not match their stored fingerprint"):
+        s.verify_labels()

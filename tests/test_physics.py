@@ -7,8 +7,16 @@ import trimesh
 from scipy import integrate, special
 from scipy.spatial import Delaunay
 
-from radar_sim import RadarConfig, detect_mode, monostatic_field, simulate
+from radar_sim import (
+    CHANNELS,
+    RadarConfig,
+    detect_mode,
+    monostatic_field,
+    polarimetric_field,
+    simulate,
+)
 from radar_sim.field import C0
+from radar_sim.geometry import fibonacci_directions
 
 
 def db(x):
@@ -172,6 +180,57 @@ def test_dihedral_peak_with_second_bounce():
     assert abs(db(got / exact)) <= 0.2
     single = abs(monostatic_field(v, f, [freq], los, mode="shadowed")[0, 0]) ** 2
     assert db(exact / single) > 30  # the peak is the double bounce
+
+
+def _dihedral(a: float, b: float):
+    """Two a x b plates meeting at 90° along the z axis (the fold), open towards x = y > 0."""
+    v = np.array(
+        [
+            [0, 0, -b / 2],
+            [0, 0, b / 2],
+            [0, a, b / 2],
+            [0, a, -b / 2],
+            [a, 0, b / 2],
+            [a, 0, -b / 2],
+        ]
+    )
+    return v, np.array([[0, 1, 2], [0, 2, 3], [0, 4, 1], [0, 5, 4]])
+
+
+def test_dihedral_channels_follow_the_fold():
+    """Double bounce: E along the fold comes back as sent, E across it reversed, so VV = -HH
+    and HV = 0 with the fold vertical; turned 45° about the line of sight the dihedral
+    twists the polarization: HV takes the whole peak 8πa²b²/λ² and HH, VV vanish."""
+    a, b, freq = 0.3, 0.4, 10e9
+    v, f = _dihedral(a, b)
+    los = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)  # aspect 90°, roll 45°: V = θ̂ = -z
+    exact = 8 * np.pi * a**2 * b**2 / (C0 / freq) ** 2
+    hh, vv, hv = polarimetric_field(v, f, [freq], los, mode="bounce2")[0, :, 0]
+    assert CHANNELS == ("HH", "VV", "HV")
+    assert abs(db(abs(vv) ** 2 / exact)) <= 0.2 and abs(db(abs(hh) ** 2 / exact)) <= 0.2
+    assert abs(vv + hh) <= 0.05 * abs(vv)  # opposite phase
+    assert abs(hv) ** 2 <= 1e-3 * exact
+    assert vv == monostatic_field(v, f, [freq], los, mode="bounce2")[0, 0]  # same numbers
+    turn = np.radians(45.0)
+    k_ = los  # Rodrigues rotation about the line of sight
+    rot = (
+        np.cos(turn) * np.eye(3)
+        + np.sin(turn) * np.array([[0, -k_[2], k_[1]], [k_[2], 0, -k_[0]], [-k_[1], k_[0], 0]])
+        + (1 - np.cos(turn)) * np.outer(k_, k_)
+    )
+    hh, vv, hv = polarimetric_field(v @ rot.T, f, [freq], los, mode="bounce2")[0, :, 0]
+    assert abs(db(abs(hv) ** 2 / exact)) <= 0.2
+    assert abs(hh) ** 2 <= 1e-2 * exact and abs(vv) ** 2 <= 1e-2 * exact
+
+
+def test_single_bounce_is_blind_to_polarization():
+    """Monostatic single-bounce PO: HH = VV exactly and HV = 0 (the PO current projects
+    onto the receive polarization as -(n·k̂) whatever the polarization)."""
+    mesh = trimesh.creation.box(extents=(0.3, 0.2, 0.1))
+    dirs = fibonacci_directions(40)
+    hh, vv, hv = np.moveaxis(polarimetric_field(mesh.vertices, mesh.faces, [9e9, 11e9], dirs), 1, 0)
+    assert np.array_equal(hh, vv) and not np.any(hv)
+    assert np.array_equal(vv, monostatic_field(mesh.vertices, mesh.faces, [9e9, 11e9], dirs))
 
 
 def test_triangular_trihedral_peak():

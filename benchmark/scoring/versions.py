@@ -19,7 +19,7 @@ from __future__ import annotations
 import functools
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from basic_shapes.infra import atomic_path
@@ -53,8 +53,9 @@ class DatasetVersion:
     variants: int
     classes: tuple[str, ...] = ("cube", "cylinder", "sphere")
     seed: int = 0
-    radar: dict = field(default_factory=dict)  # changes to the "xband-v1" RadarConfig
+    radar: dict = field(default_factory=dict)  # grid changes to the named RadarConfig
     mesh_labels: str = "none"  # radar-sim label --mesh-labels
+    physics: str = "xband-v1"  # the named RadarConfig: "xband-v2" adds channels and edges
 
     @property
     def manifest_path(self) -> Path:
@@ -71,10 +72,10 @@ class DatasetVersion:
         return dict(self.manifest["fingerprints"]) if self.manifest else {}
 
     def radar_config(self):
-        """The version's RadarConfig: ``xband-v1``, renamed when a grid axis is coarsened."""
+        """The version's RadarConfig (``physics``), renamed when a grid axis is coarsened."""
         from radar_sim import RadarConfig
 
-        return RadarConfig.named("xband-v1").with_grid(**self.radar)
+        return RadarConfig.named(self.physics).with_grid(**self.radar)
 
     def grid(self) -> str:
         c = self.radar_config()
@@ -91,6 +92,7 @@ class DatasetVersion:
             "seed": self.seed,
             "grid": self.grid(),
             "radar_config": self.radar_config().name,
+            "physics": self.physics,
         }
 
 
@@ -147,6 +149,19 @@ VERSIONS: dict[str, DatasetVersion] = {
         ),
     )
 }
+# The v2 labels (docs/RADAR.md "Polarization", "Edge diffraction"): each v1 recipe with the
+# xband-v2 physics, PO plus edge diffraction in HH, VV and HV; VV stays the task's target.
+VERSIONS.update(
+    {
+        v.name.replace("-v1", "-v2"): replace(
+            v,
+            name=v.name.replace("-v1", "-v2"),
+            summary=v.summary + "; polarimetric labels with edge diffraction (xband-v2)",
+            physics="xband-v2",
+        )
+        for v in list(VERSIONS.values())
+    }
+)
 
 
 def get(name: str) -> DatasetVersion:
