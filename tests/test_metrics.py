@@ -51,12 +51,31 @@ def test_two_objects_by_hand():
         **dict.fromkeys(
             ("ood_complex_mse", "ood_complex_mse_ci", "ood_variation_mse", "ood_variation_mse_ci")
         ),
+        # every bin is within 40 dB of the peak here: the peak-relative metric is the same
+        "peak_simple_mse": 1.0,
+        "peak_complex_mse": 2.0,
+        "peak_simple_mse_ci": [1.0, 1.0],
+        "peak_complex_mse_ci": [2.0, 2.0],
     }
     assert r["ood_complex_mse"] is None and r["per_remesher"] == {}  # no OOD meshes
     assert r["per_class"]["cylinder"]["complex_mse"] == 0.0
     assert r["per_class"]["cube"]["simple_mse_ci"] == [1.0, 1.0]  # one object: nothing to draw
     assert (r["n_objects"], r["n_meshes"]) == (2, 5)
     assert r["no_skill"] is None  # no training mean given: the rule cannot be applied
+
+
+def test_peak_relative_metric_keeps_bins_within_40_db_of_each_profile_peak():
+    """Two profiles of three bins: (0, -30, -50) keeps bins 0 and 1; (-80, -10, -45) keeps
+    bins 1 and 2 (peak -10, window down to -50). Errors on the dropped bins must not count."""
+    target = np.array([[0.0, -30.0, -50.0], [-80.0, -10.0, -45.0]])
+    simple = target + np.array([[1.0, 3.0, 100.0], [100.0, 2.0, 4.0]])
+    complex_ = np.stack([target + 2.0, target])
+    s = Scorer(["cube"])
+    s.add(0, target, simple, complex_)
+    r = s.result()
+    assert r["peak_simple_mse"] == pytest.approx((1 + 9 + 4 + 16) / 4, abs=1e-12)
+    assert r["peak_complex_mse"] == pytest.approx((4 + 0) / 2, abs=1e-12)
+    assert r["simple_mse"] > 1000  # the paper's metric counts the dropped bins
 
 
 def test_random_arrays_against_vectorized_formulae():

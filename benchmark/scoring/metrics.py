@@ -24,6 +24,16 @@ that remesher's meshes, over the objects that have some), with the same interval
 whether a model that is invariant on Blender's meshes stays invariant on meshes made another
 way. Objects without OOD meshes do not count towards them (None when no object has any).
 
+**Peak-relative (secondary).** The paper's metric weighs every bin alike, and most bins of a
+range profile lie far below its peak, where physical optics itself is least right (docs/
+RESULTS.md, "Physics error budget"). Beside it, over the bins within PEAK_WINDOW_DB (40 dB)
+of each target profile's own peak (per aspect and roll):
+
+    peak_simple  = MSE over those bins of (R, R̂_s)
+    peak_complex = mean_c MSE over those bins of (R, R̂_c)
+
+The paper's metric stays the ranked one.
+
 **One floor.** Targets are floored at FLOOR_DB (-80 dB); predictions are clipped at the same
 floor before scoring. A value below the floor is never closer to a target than the floor
 itself (every target is >= the floor), so unclipped predictions were penalized for nothing
@@ -60,10 +70,12 @@ from benchmark.scoring.data import FLOOR_DB
 from benchmark.scoring.schema import (  # the records' owner declares them
     METRIC_NAMES,
     OOD_METRIC_NAMES,
+    PEAK_METRIC_NAMES,
 )
 from benchmark.scoring.uncertainty import interval
 
 INTENSITY_TAU_DB = 10.0
+PEAK_WINDOW_DB = 40.0
 
 
 def remesher_key(metric: str, remesher: str) -> str:
@@ -110,6 +122,21 @@ def object_errors(
     )
 
 
+def peak_errors(target: np.ndarray, simple: np.ndarray, complex_: np.ndarray) -> dict:
+    """Peak-relative Simple and Complex MSE of one object (module docstring): over the bins
+    within PEAK_WINDOW_DB of the peak of each target range profile (last axis)."""
+    target = np.asarray(target, np.float64)
+    near = target >= target.max(axis=-1, keepdims=True) - PEAK_WINDOW_DB
+
+    def err(pred):
+        return float(np.mean((target[near] - clip_prediction(pred)[near]) ** 2))
+
+    return {
+        "peak_simple_mse": err(simple),
+        "peak_complex_mse": float(np.mean([err(c) for c in complex_])) if len(complex_) else np.nan,
+    }
+
+
 def ood_errors(
     target: np.ndarray, simple: np.ndarray, ood: np.ndarray, remeshers: list[str]
 ) -> dict[str, float]:
@@ -141,7 +168,7 @@ class Scorer:
         self.class_names = list(class_names)
         self.train_mean = None if train_mean is None else np.asarray(train_mean, np.float64)
         self.rows: list[tuple] = []  # (class, simple, complex, variation, A, B, C) per object
-        self.ood: list[dict] = []  # ``ood_errors`` per object
+        self.ood: list[dict] = []  # ``ood_errors`` and ``peak_errors`` per object
         self.ids: list[int] = []
         self.n_meshes = 0
 
@@ -158,7 +185,12 @@ class Scorer:
         """One test object: its label, the predictions on its simple mesh, its complex meshes
         (C, ...) and its OOD meshes (K, ...), with the remesher of each OOD mesh."""
         errors = object_errors(target, simple, complex_)
-        self.ood.append(ood_errors(target, simple, ood, list(ood_remeshers)))
+        self.ood.append(
+            {
+                **ood_errors(target, simple, ood, list(ood_remeshers)),
+                **peak_errors(target, simple, complex_),
+            }
+        )
         abc = (np.nan,) * 3
         if self.train_mean is not None:
             d = np.asarray(target, np.float64) - self.train_mean
@@ -178,7 +210,10 @@ class Scorer:
             "truth_spread": r[:, 4],
             "prediction_spread": r[:, 5],
             "co_spread": r[:, 6],
-            **{k: np.array([o[k] for o in self.ood], np.float64) for k in ood_keys()},
+            **{
+                k: np.array([o[k] for o in self.ood], np.float64)
+                for k in ood_keys() + PEAK_METRIC_NAMES
+            },
         }
 
     def result(self) -> dict:
@@ -213,7 +248,7 @@ def _means(po: dict, strata: np.ndarray, names: dict[str, str]) -> dict:
 def metric_block(po: dict, strata: np.ndarray) -> dict:
     """Mean of each metric over the objects that have it (None if none has), with intervals;
     the OOD metrics when ``po`` has them."""
-    names = [n for n in METRIC_NAMES + OOD_METRIC_NAMES if n in po]
+    names = [n for n in METRIC_NAMES + OOD_METRIC_NAMES + PEAK_METRIC_NAMES if n in po]
     return {**_means(po, strata, {n: n for n in names}), "n_objects": int(len(strata))}
 
 

@@ -37,7 +37,7 @@ from basic_shapes.shards import ood_remesher
 from benchmark import __version__
 from benchmark.scoring.data import BenchmarkData
 from benchmark.scoring.metrics import METRIC_NAMES, Scorer, ood_keys
-from benchmark.scoring.schema import SchemaError, check_results
+from benchmark.scoring.schema import PEAK_METRIC_NAMES, SchemaError, check_results
 
 RESULTS_MAX_BYTES = 1 << 20
 
@@ -414,9 +414,9 @@ def score(data: BenchmarkData, predictions: Predictions, per_object: bool = Fals
 
 def per_object_json(po: dict) -> dict:
     """Per-object arrays as JSON lists (null where an object lacks a metric), the OOD ones
-    included (``metric:remesher`` per remesher)."""
+    included (``metric:remesher`` per remesher), and the peak-relative ones."""
     out = {"object_id": po["object_id"].tolist(), "class_index": po["class_index"].tolist()}
-    for name in METRIC_NAMES + ood_keys():
+    for name in METRIC_NAMES + ood_keys() + PEAK_METRIC_NAMES:
         out[name] = [None if np.isnan(x) else float(x) for x in po[name]]
     return out
 

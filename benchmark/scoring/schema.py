@@ -97,9 +97,14 @@ def interval(lo: float = 0, hi: float = MAX_MSE) -> Field:
 # --- the tables ----------------------------------------------------------------------------
 METRIC_NAMES = ("simple_mse", "complex_mse", "variation_mse")
 OOD_METRIC_NAMES = ("ood_complex_mse", "ood_variation_mse")  # absent in older records
+# secondary, peak-relative: bins within PEAK_WINDOW_DB of each target profile's peak
+PEAK_METRIC_NAMES = ("peak_simple_mse", "peak_complex_mse")  # absent in older records
 OOD_FIELDS = {
-    **{name: Field("number", 0, MAX_MSE, null=True, required=False) for name in OOD_METRIC_NAMES},
-    **{name + "_ci": interval() for name in OOD_METRIC_NAMES},
+    **{
+        name: Field("number", 0, MAX_MSE, null=True, required=False)
+        for name in OOD_METRIC_NAMES + PEAK_METRIC_NAMES
+    },
+    **{name + "_ci": interval() for name in OOD_METRIC_NAMES + PEAK_METRIC_NAMES},
 }
 METRIC_BLOCK = {  # overall, per class and per reference row; intervals absent in old entries
     "simple_mse": mse(null=False),
@@ -261,11 +266,12 @@ PER_OBJECT_OOD = OOD_METRIC_NAMES + tuple(
 def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:
     """Per-object errors (what paired comparisons resample): equal-length lists, one entry per
     scored test object; errors may be null where an object has no complex (OOD) meshes. The
-    OOD lists (overall and ``metric:remesher``) come all together or not at all (older
-    records)."""
+    OOD lists (overall and ``metric:remesher``) and the peak-relative lists each come all
+    together or not at all (older records)."""
     keys = ("object_id", "class_index", *METRIC_NAMES)
-    if isinstance(po, dict) and set(PER_OBJECT_OOD) & set(po):
-        keys += PER_OBJECT_OOD
+    for group in (PER_OBJECT_OOD, PEAK_METRIC_NAMES):
+        if isinstance(po, dict) and set(group) & set(po):
+            keys += group
     if not isinstance(po, dict) or set(po) != set(keys):
         raise SchemaError(f"{where} must hold exactly {', '.join(keys)}")
     for k in keys:
