@@ -57,8 +57,8 @@ def read_labels(shard: Shard) -> RadarLabels:
 
 def _mesh_counts(shard: Shard) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per mesh: (variant, vertex count, face count), without reading geometry."""
-    g = shard.file["meshes"]
-    return g["variant"][()], np.diff(g["vertex_offset"][()]), np.diff(g["face_offset"][()])
+    table = shard.mesh_table()
+    return table["variant"], table["n_vertices"], table["n_faces"]
 
 
 def padded_sizes(paths: list[Path]) -> tuple[int, int, int]:

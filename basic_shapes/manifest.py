@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import load_json
-from basic_shapes.shards import Shard, ShardError, content_fingerprint, list_shards
+from basic_shapes.shards import Shard, ShardError, list_shards
 
 FORMAT = 1
 SHORT = 16  # hex digits of the per-object and per-mesh hashes: enough to tell which differs
@@ -49,9 +49,7 @@ def _shard_entry(path: Path) -> dict:
         objs, table = s.objects(), s.mesh_table()
         labels = s.radar if s.has_labels else None
         physics = {} if labels is None else {int(r): j for j, r in enumerate(labels.mesh_index)}
-        params = s.file["objects/params"][()] if "objects/params" in s.file else None
-        g = s.file["meshes"]
-        measured = [g[n][()] for n in ("hausdorff", "primitive_distance", "params") if n in g]
+        params, measured = s.object_params_text(), s.mesh_measures()
         objects = []
         for k in range(s.n_objects):
             record = [
@@ -84,7 +82,7 @@ def _shard_entry(path: Path) -> dict:
         entry = {
             "name": path.name,
             "sha256": file_sha256(path),
-            "fingerprint": content_fingerprint(s.file),
+            "fingerprint": s.computed_fingerprint(),
             "label_fingerprint": labels.computed_fingerprint() if labels else None,
             "objects": objects,
         }

@@ -293,7 +293,7 @@ class Shard:
             if bad.any():
                 row = start + int(np.flatnonzero(bad)[0])
                 self._fail(f"face row {row} indexes a vertex outside its mesh")
-        if content_fingerprint(self.file) != self.fingerprint:
+        if self.computed_fingerprint() != self.fingerprint:
             self._fail("content does not match its stored fingerprint (edited or corrupted)")
 
     @_readable
@@ -343,10 +343,41 @@ class Shard:
         return out
 
     @_readable
+    def object_params(self) -> list[dict]:
+        """Hidden shape parameters per object (``/objects/params``; {} where the shard has none)."""
+        raw = self.object_params_text()
+        if raw is None:
+            return [{} for _ in range(self.n_objects)]
+        return [
+            load_json(p, what=f"{self.path}: /objects/params[{k}]", error=ShardError)
+            for k, p in enumerate(raw)
+        ]
+
+    @_readable
+    def object_params_text(self) -> np.ndarray | None:
+        """``/objects/params`` as stored (JSON bytes per object), None where absent."""
+        return self.file["objects/params"][()] if "objects/params" in self.file else None
+
+    @_readable
     def mesh_table(self) -> dict[str, np.ndarray]:
-        """Per-mesh metadata (no geometry): object_index, variant, n_faces, hausdorff."""
+        """Per-mesh metadata (no geometry): object_index, variant, n_vertices, n_faces,
+        hausdorff."""
         g = self.file["meshes"]
-        return {k: g[k][()] for k in ("object_index", "variant", "n_faces", "hausdorff")}
+        out = {k: g[k][()] for k in ("object_index", "variant", "n_faces", "hausdorff")}
+        out["n_vertices"] = np.diff(g["vertex_offset"][()])
+        return out
+
+    @_readable
+    def mesh_measures(self) -> list[np.ndarray]:
+        """The generator's per-mesh records as stored: hausdorff, primitive_distance and
+        params (JSON bytes), those present, in that order (what a manifest hashes)."""
+        g = self.file["meshes"]
+        return [g[n][()] for n in ("hausdorff", "primitive_distance", "params") if n in g]
+
+    @_readable
+    def computed_fingerprint(self) -> str:
+        """``content_fingerprint`` recomputed from the stored content."""
+        return content_fingerprint(self.file)
 
     # --- geometry ---------------------------------------------------------------------
     @_readable

@@ -202,7 +202,7 @@ def dataset_signature(
     """
     from basic_shapes.analytic import simulation_mesh, solid_for
     from radar_sim import MeshError
-    from radar_sim.label import object_mode, object_params
+    from radar_sim.label import object_mode
 
     path, obj, meshes = find_object(directory, object_id)
     k = obj["shard_object_index"]
@@ -230,7 +230,7 @@ def dataset_signature(
                 radar.frequency_response(k),
                 f"{title}, stored label",
             )
-        params = object_params(s)[k]
+        params = s.object_params()[k]
     cfg = load_config(config)
     vertices, faces = simulation_mesh(solid_for(obj["class"], obj["scale"], params), cfg.f_stop_hz)
     return simulated_signature(

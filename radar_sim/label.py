@@ -30,10 +30,9 @@ import numpy as np
 
 from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
 from basic_shapes.cluster import dask_client, finished
-from basic_shapes.infra import load_json, warn
+from basic_shapes.infra import warn
 from basic_shapes.shards import (
     Shard,
-    ShardError,
     atomic_path,
     list_shards,
     rewrite_atomically,
@@ -99,8 +98,8 @@ def select_mesh_rows(shard: Shard, mesh_labels: str) -> list[np.ndarray]:
     so the choice is the same on every run and every machine.
     """
     kind, k = parse_mesh_labels(mesh_labels)
-    oi = shard.file["meshes/object_index"][()]
-    seeds = shard.file["objects/seed"][()]
+    oi = shard.mesh_table()["object_index"]
+    seeds = shard.objects()["seed"]
     rows = []
     for obj in range(shard.n_objects):
         mine = np.flatnonzero(oi == obj)
@@ -111,16 +110,6 @@ def select_mesh_rows(shard: Shard, mesh_labels: str) -> list[np.ndarray]:
             mine = np.sort(rng.choice(mine, k, replace=False))
         rows.append(mine.astype(np.int64))
     return rows
-
-
-def object_params(shard: Shard) -> list[dict]:
-    """Hidden shape parameters per object (``/objects/params``; {} where the shard has none)."""
-    if "objects/params" not in shard.file:
-        return [{} for _ in range(shard.n_objects)]
-    return [
-        load_json(p, what=f"{shard.path}: /objects/params[{k}]", error=ShardError)
-        for k, p in enumerate(shard.file["objects/params"][()])
-    ]
 
 
 @dataclass
@@ -222,8 +211,8 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
                     f"{' and '.join(differ)} (stored options: "
                     f"{json.dumps(stored['options'])}); pass --overwrite to relabel"
                 )
-        objs, names, n_faces = s.objects(), s.class_names, s.file["meshes/n_faces"][()]
-        params, rows = object_params(s), select_mesh_rows(s, request.mesh_labels)
+        objs, names, n_faces = s.objects(), s.class_names, s.mesh_table()["n_faces"]
+        params, rows = s.object_params(), select_mesh_rows(s, request.mesh_labels)
         plans = [
             _plan_object(
                 path,

@@ -107,3 +107,19 @@ def test_every_scoring_module_imports_with_torch_and_blender_blocked():
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_only_shards_py_reads_a_shards_hdf5_paths():
+    """The shard contract is closed: every read of /objects, /meshes and /radar goes through
+    ``Shard`` and ``RadarGroup`` accessors (basic_shapes/shards.py)."""
+    import re
+
+    leak = re.compile(r"""\.file\[["'](objects|meshes|radar)|\b(shard|s)\.file\b""")
+    bad = [
+        f"{path.relative_to(ROOT)}:{n}"
+        for _, path in _sources()
+        if path.name != "shards.py"
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if leak.search(line)
+    ]
+    assert not bad, "\n".join(bad)

@@ -255,6 +255,16 @@ class BenchmarkData:
         """Raw (vertices float32 metres, faces int32) of global mesh row ``row``."""
         return self._shard(int(self.meshes["shard"][row])).mesh(int(self.meshes["row"][row]))
 
+    def object_params(self) -> list[dict]:
+        """Hidden shape parameters of every object row ({} on Basic Shapes), shard by shard."""
+        per_shard = {}
+        out = []
+        for s, r in zip(self.objects["shard"], self.objects["row"]):
+            if int(s) not in per_shard:
+                per_shard[int(s)] = self._shard(int(s)).object_params()
+            out.append(per_shard[int(s)][int(r)])
+        return out
+
     def target(self, obj: int) -> np.ndarray:
         """dB target (n_aspect, n_roll, n_range) float32 of global object row ``obj``."""
         shard = self._shard(int(self.objects["shard"][obj]))

@@ -26,8 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from basic_shapes.infra import load_json
-from basic_shapes.shards import ShardError, ood_remesher
+from basic_shapes.shards import ood_remesher
 from benchmark.scoring.data import BenchmarkData
 from benchmark.scoring.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
 from benchmark.scoring.uncertainty import paired, verdict
@@ -256,13 +255,7 @@ def skill(model_po: dict, scorers: dict[str, Scorer], rows: dict[str, dict]) -> 
 def hidden_parameters(data: BenchmarkData) -> tuple[list[str], np.ndarray]:
     """(names, values (n_objects, n_names)) of the objects' hidden shape parameters, from each
     shard's ``/objects/params`` (0 where an object lacks one; no names on Basic Shapes)."""
-    params = []
-    for s, r in zip(data.objects["shard"], data.objects["row"]):
-        shard = data._shard(int(s))
-        raw = shard.file["objects/params"][int(r)] if "objects/params" in shard.file else b"{}"
-        params.append(
-            load_json(raw, what=f"{shard.path}: /objects/params[{int(r)}]", error=ShardError)
-        )
+    params = data.object_params()
     keys = sorted({k for p in params for k in p})
     values = np.array([[p.get(k, 0.0) for k in keys] for p in params], np.float64)
     return keys, values.reshape(len(params), len(keys))
