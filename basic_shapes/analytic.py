@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from basic_shapes import ellipsoid_closest, portable
+from basic_shapes.meshcheck import area_normals
 
 C0 = 299_792_458.0
 
@@ -417,8 +418,8 @@ def _cube_sphere(n):
 
 def _outward(v, tri):
     """Flip triangles whose normal points towards the origin (star-shaped surfaces only)."""
-    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
-    inward = (np.cross(b - a, c - a) * (a + b + c)).sum(axis=1) < 0
+    corners = v[tri]
+    inward = (area_normals(corners) * corners.sum(axis=1)).sum(axis=1) < 0
     tri = tri.copy()
     tri[inward] = tri[inward][:, [0, 2, 1]]
     return tri

@@ -82,6 +82,14 @@ def bbox_diagonal(vertices: np.ndarray) -> float:
     return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
 
 
+def area_normals(triangles: np.ndarray) -> np.ndarray:
+    """(F, 3) (b - a) x (c - a) of (F, 3, 3) triangles: the normal by the right-hand rule,
+    of length twice the area. The toolkit's one face-normal formula (generator, simulator
+    and benchmark features all orient and weigh faces by it)."""
+    t = np.asarray(triangles)
+    return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+
+
 def twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """|(b - a) x (c - a)|^2 per triangle, from corners a, b, c (F, 3) each: (F,).
 

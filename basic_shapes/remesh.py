@@ -419,7 +419,7 @@ def _delaunay(class_name, scale, _source, params, rng, _child):
         tris.append(idx[Delaunay(uv).simplices])
     f = np.concatenate(tris)
     p = metric[f]
-    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normal = meshcheck.area_normals(p)
     flip = np.einsum("ij,ij->i", normal, p.mean(axis=1)) < 0
     f[flip] = f[flip][:, ::-1]
     params["points"] = len(u)

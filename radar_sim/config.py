@@ -25,7 +25,7 @@ from radar_sim.field import (
     resolve_mode,
     wavenumbers,
 )
-from radar_sim.geometry import MILLIMETRE_RADIUS, MeshError, check_units, prepare
+from radar_sim.geometry import MILLIMETRE_RADIUS, MeshError, check_units, line_of_sight, prepare
 
 WINDOWS = ("hann", "none")
 TEXT_FIELDS = ("name", "window", "channels", "edges")
@@ -172,14 +172,8 @@ class RadarConfig:
 
     def directions(self) -> np.ndarray:
         """(n_aspect*n_roll, 3) unit lines of sight, aspect-major (roll varies fastest)."""
-        t = self.aspect_deg[:, None]
-        p = self.roll_deg[None, :]
-        st = np.broadcast_to(_sind(t), (self.n_aspect, self.n_roll))
-        los = np.stack(
-            [st * _cosd(p), st * _sind(p), np.broadcast_to(_cosd(t), (self.n_aspect, self.n_roll))],
-            axis=-1,
-        )
-        return los.reshape(-1, 3)
+        t, p = np.meshgrid(self.aspect_deg, self.roll_deg, indexing="ij")
+        return line_of_sight(t.reshape(-1), p.reshape(-1))
 
     def window_weights(self) -> np.ndarray:
         return np.hanning(self.n_freq) if self.window == "hann" else np.ones(self.n_freq)
@@ -193,21 +187,6 @@ class RadarConfig:
         bins = np.arange(-half, half + 1)
         carrier = np.exp(2j * wavenumbers(self.f_start_hz)[0] * self.range_m)
         return spectrum[..., bins % n] * carrier
-
-
-def _sind(deg):
-    """sin of degrees, exact at multiples of 90° (so axis-aligned views are exactly aligned)."""
-    deg = np.asarray(deg, dtype=np.float64)
-    r = np.sin(np.radians(deg))
-    quarter = np.mod(deg, 90.0) == 0
-    return np.where(quarter, np.round(r), r)
-
-
-def _cosd(deg):
-    deg = np.asarray(deg, dtype=np.float64)
-    r = np.cos(np.radians(deg))
-    quarter = np.mod(deg, 90.0) == 0
-    return np.where(quarter, np.round(r), r)
 
 
 NAMED = {

@@ -11,27 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from radar_sim.config import _cosd, _sind
 from radar_sim.field import DEFAULT_TOL, monostatic_field
-
-
-def line_of_sight(aspect_deg, roll_deg=0.0) -> np.ndarray:
-    """(n, 3) unit lines of sight for aspects θ (degrees) at roll φ (scalar or one per aspect)."""
-    theta = np.atleast_1d(np.asarray(aspect_deg, dtype=np.float64))
-    if theta.ndim != 1 or len(theta) == 0 or not np.isfinite(theta).all():
-        raise ValueError(
-            f"aspect_deg must be a non-empty 1-D array of finite degrees, "
-            f"got shape {np.shape(aspect_deg)}"
-        )
-    phi = np.asarray(roll_deg, dtype=np.float64)
-    if phi.ndim > 1 or phi.size not in (1, len(theta)) or not np.isfinite(phi).all():
-        raise ValueError(
-            f"roll_deg must be one finite angle or one per aspect, "
-            f"got shape {np.shape(roll_deg)} for {len(theta)} aspects"
-        )
-    phi = np.broadcast_to(phi.reshape(-1), theta.shape)
-    st = _sind(theta)
-    return np.stack([st * _cosd(phi), st * _sind(phi), _cosd(theta)], axis=-1)
+from radar_sim.geometry import line_of_sight
 
 
 def rcs(

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from basic_shapes.meshcheck import area_normals
 from basic_shapes.shards import ood_remesher
 from benchmark.scoring.data import BenchmarkData
 from benchmark.scoring.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
@@ -71,7 +72,7 @@ def normal_descriptor(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     v = np.asarray(vertices, np.float64)
     tri = v[np.asarray(faces, np.int64)]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = area_normals(tri)
     area = np.linalg.norm(n, axis=1)
     ok = area > 0
     if not ok.any():
