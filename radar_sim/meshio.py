@@ -1,7 +1,9 @@
 """Read one mesh file (OBJ, STL, PLY) for the command line, in metres.
 
 Mesh files carry no units, so the caller states them (``--units``) and we scale to metres,
-the simulator's unit. STL stores a triangle soup: coincident vertices are merged so that
+the simulator's unit. OBJ goes through the toolkit's own reader (``basic_shapes.objfile``:
+relative indices resolved where they appear), STL and PLY through trimesh. STL stores a
+triangle soup: coincident vertices are merged so that
 closure and convexity can be detected. Anything unreadable is a one-line ``MeshFileError``;
 implausible units are the simulator's warning (``radar_sim.UnitsWarning``).
 """
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.meshcheck import MeshError, check_coordinates
+from basic_shapes.objfile import read_obj
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 FORMATS = (".obj", ".stl", ".ply")
@@ -38,14 +41,18 @@ def load_mesh(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np
     if not path.is_file():
         raise MeshFileError(f"{path}: no such file")
     try:
-        mesh = trimesh.load(path, force="mesh", process=False)
+        if path.suffix.lower() == ".obj":
+            vertices, faces = read_obj(path)
+        else:
+            mesh = trimesh.load(path, force="mesh", process=False)
+            faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
+            vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), np.float64)
     except Exception as exc:  # trimesh raises many types for malformed files
+        detail = str(exc).splitlines()[0] if str(exc) else ""
         raise MeshFileError(
             f"{path}: not a readable {path.suffix[1:].upper()} mesh "
-            f"({exc.__class__.__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+            f"({exc.__class__.__name__}: {detail.removeprefix(f'{path}: ')})"
         ) from None
-    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
-    vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), np.float64)
     if len(faces) == 0:
         raise MeshFileError(
             f"{path}: holds no triangles (empty, or not a {path.suffix[1:].upper()} mesh)"
