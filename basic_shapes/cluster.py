@@ -1,4 +1,5 @@
-"""A Dask client for the toolkit's batch jobs: a local cluster by default, or an existing one."""
+"""The toolkit's one batch runner (``run_tasks``) and its Dask client: a local cluster by
+default, an existing one with ``--scheduler``, or one worker thread in this process."""
 
 from __future__ import annotations
 
@@ -218,6 +219,46 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
             release()  # a Ctrl-C of the start-up arrives here, and the cluster closes cleanly
             with Client(cluster) as client:
                 yield client
+
+
+class TaskError(Exception):
+    """A task failed: ``tag`` is what the caller submitted it with, ``error`` what it raised."""
+
+    def __init__(self, tag, error: BaseException):
+        super().__init__(str(error))
+        self.tag, self.error = tag, error
+
+
+def run_tasks(client, fn, tasks, window_per_thread: int = 4):
+    """Yield ``(tag, fn(*args))`` for each ``(tag, args)`` of the iterable ``tasks``, as they
+    finish. At most ``window_per_thread`` tasks per worker thread are submitted at a time, so
+    a lazy ``tasks`` (one that reads its meshes as it goes) never holds the whole job in
+    memory; ``finished`` watches for a cluster without workers and for Ctrl-C. A failed task
+    raises ``TaskError`` naming its tag. Generation and labelling both run through this."""
+    from distributed import as_completed
+
+    tasks = iter(tasks)
+    running, owner = as_completed(), {}
+
+    def submit_next() -> None:
+        item = next(tasks, None)
+        if item is not None:
+            tag, args = item
+            future = client.submit(fn, *args, pure=False)
+            owner[future.key] = tag
+            running.add(future)
+
+    for _ in range(window_per_thread * max(1, sum(client.nthreads().values()))):
+        submit_next()
+    for future in finished(client, running):
+        tag = owner.pop(future.key)
+        try:
+            result = future.result()
+        except Exception as exc:
+            raise TaskError(tag, exc) from exc
+        future.release()
+        yield tag, result
+        submit_next()
 
 
 def _hold_sigint():

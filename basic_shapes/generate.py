@@ -350,19 +350,14 @@ def _run(todo, cfg_json, workers, scheduler, progress):
             yield r
         bar.close()
         return
-    from distributed import as_completed
-
-    from basic_shapes.cluster import dask_client, finished
+    from basic_shapes.cluster import TaskError, dask_client, run_tasks
 
     with dask_client(workers, scheduler) as client:
-        futures = [
-            client.submit(
-                build_shard, path, plans, cfg_json, key=f"shard-{Path(path).name}", pure=False
-            )
-            for path, plans in todo
-        ]
-        for fut in finished(client, as_completed(futures)):
-            r = fut.result()
-            bar.update(r["meshes"])
-            yield r
+        tasks = ((path, (path, plans, cfg_json)) for path, plans in todo)
+        try:
+            for _, r in run_tasks(client, build_shard, tasks):
+                bar.update(r["meshes"])
+                yield r
+        except TaskError as exc:
+            raise exc.error from None
     bar.close()

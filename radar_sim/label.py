@@ -29,7 +29,7 @@ import h5py
 import numpy as np
 
 from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
-from basic_shapes.cluster import dask_client, finished
+from basic_shapes.cluster import TaskError, dask_client, run_tasks
 from basic_shapes.infra import warn
 from basic_shapes.shards import (
     Shard,
@@ -448,8 +448,6 @@ def label_directory(
     mismatch or an object outside the range window fails fast and changes nothing. Prints the
     planned work, an estimate calibrated on the first object, and one line per object.
     """
-    from distributed import as_completed
-
     from radar_sim import MeshError
 
     def log(text: str) -> None:  # stdout: stderr is kept for the one-line error
@@ -499,16 +497,10 @@ def label_directory(
             f"work {total_work:.3g} face x direction x frequency products"
         )
         n_threads = max(1, sum(client.nthreads().values()))
-        tasks = _tasks(todo)
-        running = as_completed()
-        owner = {}
-
-        def submit_next() -> None:
-            item = next(tasks, None)
-            if item is not None:
-                plan, obj, meshes = item
-                future = client.submit(
-                    label_object,
+        tasks = (
+            (
+                (plan, obj),
+                (
                     obj.class_name,
                     obj.scale,
                     obj.params,
@@ -516,26 +508,22 @@ def label_directory(
                     request.config,
                     request.mode,
                     request.frequency_response,
-                    pure=False,
-                )
-                owner[future.key] = (plan, obj)
-                running.add(future)
-
-        for _ in range(4 * n_threads):
-            submit_next()
+                ),
+            )
+            for plan, obj, meshes in _tasks(todo)
+        )
         progress_log = _Progress(log, n_todo, total_work, n_threads)
-        for future in finished(client, running):
-            plan, obj = owner.pop(future.key)
-            try:
-                result = future.result()
-            except MeshError as exc:
-                raise LabelError(f"{plan.path}: object {obj.object_id}: {exc}") from None
-            future.release()
-            write_object(plan, obj.index, result, _stamp(request, plan.fingerprint))
-            plan.done.add(obj.index)
-            progress_log.finished(plan, obj, result)
-            if len(plan.done) == plan.n_objects:
-                merge_shard(plan, request)
-                summary.labelled.append(plan.path)
-            submit_next()
+        try:
+            for (plan, obj), result in run_tasks(client, label_object, tasks):
+                write_object(plan, obj.index, result, _stamp(request, plan.fingerprint))
+                plan.done.add(obj.index)
+                progress_log.finished(plan, obj, result)
+                if len(plan.done) == plan.n_objects:
+                    merge_shard(plan, request)
+                    summary.labelled.append(plan.path)
+        except TaskError as exc:
+            if not isinstance(exc.error, MeshError):
+                raise exc.error from None
+            plan, obj = exc.tag
+            raise LabelError(f"{plan.path}: object {obj.object_id}: {exc.error}") from None
     return summary
