@@ -23,12 +23,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from basic_shapes.infra import atomic_path, hardware
 
 GOAL = 450.0
 ROOT = Path(__file__).resolve().parents[1]
@@ -238,8 +239,7 @@ def main() -> None:
         "variants": args.variants,
         "goal_meshes_per_second": GOAL,
         "load_average_at_start": load,
-        "cpu_count": os.cpu_count(),
-        "platform": platform.platform(),
+        "hardware": hardware(),
         "results": results,
     }
     if args.wall:
@@ -250,7 +250,8 @@ def main() -> None:
                 f"(load {r['load_average']:.2f})"
             )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1))
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
     print(f"wrote {args.out}")
 
 

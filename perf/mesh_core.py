@@ -25,7 +25,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives
-from basic_shapes.infra import hardware
+from basic_shapes.infra import atomic_path, hardware
 
 STAGES = (
     "simple",
@@ -161,9 +161,8 @@ def main(argv: list[str] | None = None) -> None:
         "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(args.out.name + ".tmp")
-    tmp.write_text(json.dumps(report, indent=1))
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
     print(f"wrote {args.out}")
     if args.figure:
         figure(results, args.figure)

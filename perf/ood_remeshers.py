@@ -29,7 +29,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives, remesh, verify
-from basic_shapes.infra import hardware
+from basic_shapes.infra import atomic_path, hardware
 from basic_shapes.render import draw_mesh
 from basic_shapes.scales import SCALE_RANGE
 from basic_shapes.shards import OOD_REMESHERS
@@ -172,9 +172,8 @@ def main(argv: list[str] | None = None) -> None:
         "results": rows,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(args.out.name + ".tmp")
-    tmp.write_text(json.dumps(report, indent=1))
-    tmp.replace(args.out)
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
     print(f"wrote {args.out}")
     if args.figure:
         figure("cylinder", np.array([1.6, 0.9, 1.2]), 3, args.figure)

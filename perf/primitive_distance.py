@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import analytic, blender, verify
+from basic_shapes.infra import atomic_path
 
 OUT = Path(__file__).parent / "results" / "primitive_distance.json"
 
@@ -60,9 +61,8 @@ def main() -> None:
             f"{row['max_ratio']:9.2f} {row['max_wavelengths']:6.3f}"
         )
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    tmp = OUT.with_suffix(".tmp")
-    tmp.write_text(json.dumps(table, indent=1) + "\n")
-    tmp.replace(OUT)
+    with atomic_path(OUT) as tmp:
+        tmp.write_text(json.dumps(table, indent=1) + "\n")
 
 
 if __name__ == "__main__":

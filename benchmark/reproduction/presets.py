@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from basic_shapes.infra import FlagError
 from benchmark.training.models import FACE_EMBEDDINGS, REGISTRY
 
 EMBEDDINGS = FACE_EMBEDDINGS  # the paper's encoders: pretrained, with an Ideal row
@@ -136,7 +137,7 @@ def rows_of(spec: str | None) -> list[tuple[str, str]]:
     known = {f"{e}-{r}": (e, r) for e, r in ROWS}
     bad = [s for s in spec.split(",") if s not in known]
     if bad:
-        raise SystemExit(f"unknown row(s) {', '.join(bad)}; known: {', '.join(known)}")
+        raise FlagError(f"--rows: unknown row(s) {', '.join(bad)}; known: {', '.join(known)}")
     return [known[s] for s in spec.split(",")]
 
 
@@ -147,7 +148,7 @@ def seeds_of(spec: str | None, preset: Preset) -> list[int]:
     try:
         seeds = [int(x) for x in spec.split(",")]
     except ValueError:
-        raise SystemExit(f"--seeds must be comma-separated integers, got {spec!r}") from None
+        raise FlagError(f"--seeds must be comma-separated integers, got {spec!r}") from None
     if len(set(seeds)) != len(seeds) or any(x < 0 for x in seeds):
-        raise SystemExit(f"--seeds must be distinct and >= 0, got {spec!r}")
+        raise FlagError(f"--seeds must be distinct and >= 0, got {spec!r}")
     return seeds

@@ -15,7 +15,7 @@ import time
 from dataclasses import asdict, fields
 from pathlib import Path
 
-from basic_shapes.infra import load_json
+from basic_shapes.infra import atomic_path, load_json
 from benchmark.reproduction.presets import Preset
 from benchmark.training.models import REGISTRY
 from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
@@ -383,13 +383,11 @@ def publish_row(out: Path, name: str, seeds: list[int]) -> None:
 
     src_results, src_preds = row_files(out, name, seeds[0])
     dst_results, dst_preds = row_files(out, name)
-    tmp = dst_preds.with_name(dst_preds.name + ".tmp")
-    tmp.unlink(missing_ok=True)
-    try:
-        os.link(src_preds, tmp)
-    except OSError:
-        shutil.copyfile(src_preds, tmp)
-    os.replace(tmp, dst_preds)
+    with atomic_path(dst_preds) as tmp:
+        try:
+            os.link(src_preds, tmp)
+        except OSError:
+            shutil.copyfile(src_preds, tmp)
     results = load_results(src_results)
     results["seeds"]["train_all"] = list(seeds)
     write_results(dst_results, results)
