@@ -12,6 +12,30 @@ all there it merges them into the shard (one atomic rewrite) and removes them. A
 loses at most the objects in flight, and a rerun reuses the finished ones. Each label depends
 only on its object and the config, never on the worker or on interruptions, so the bytes of a
 labelled shard do not depend on the number of workers or on how often the run was resumed.
+
+Resume is a small state machine per shard (``plan_shard``) and per object, decided from the
+disk alone, so any kill leaves a state the next run knows:
+
+    shard state                                   next run
+    ---------------------------------------------------------------------------------------
+    labelled, same request, fingerprint holds     done: skipped (``plan_shard`` -> None)
+    labelled, same request, fingerprint broken    relabelled, with a warning
+    labelled, other request                       refused unless --overwrite
+    unlabelled (or being relabelled)              planned; each object is one of:
+
+    object state (its file in .labels/)           next run
+    ---------------------------------------------------------------------------------------
+    no file                                       computed
+    file stamped with this request and shard      done (reused, never recomputed)
+    file with another stamp, or unreadable        stale: deleted once every shard is valid,
+                                                  then computed
+    all objects done                              merged into the shard (one atomic rewrite),
+                                                  then the shard's .labels/ folder removed
+
+A kill during the merge leaves the old shard intact (the rewrite is atomic) and every object
+file in place; a kill after it leaves only the object files, which the next run removes
+(their shard plans as done). The stamp (``_stamp``) is the request plus the shard's mesh
+fingerprint, so an object computed for other meshes or another config is never reused.
 """
 
 from __future__ import annotations
