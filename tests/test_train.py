@@ -255,8 +255,15 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         "class-scale-nn",
     }
     md = (out / "table.md").read_text()
-    # the main table, and the per-remesher sub-table of the OOD meshes: header, 4 refs, 14 rows
-    assert md.count("\n| ") == 15 + 4 + 19 and table["command"] in md
+    # the main table, the per-remesher sub-table of the OOD meshes and the peak-relative one
+    # (header, 4 refs, 14 rows each), and the plateau table (header, 14 rows)
+    assert md.count("\n| ") == 15 + 4 + 19 + 19 + 15 and table["command"] in md
+    assert "### Peak-relative MSE (secondary)" in md and "### Training to the plateau" in md
+    for row in table["rows"]:  # the tiny preset's cap (2 epochs) ends runs still improving
+        assert row["epochs_to_plateau"] in ([1], [2]) and len(row["val_curves"][0]) == 2
+        assert row["capped"] == [row["epochs_to_plateau"][0] == 2]
+        assert row["peak_simple_mse"] is not None
+    assert (out / "training_curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "reference: train-mean" in md and "### Out-of-distribution meshes per remesher" in md
     assert all(row["ood_complex_mse"] is not None for row in table["rows"])
     assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

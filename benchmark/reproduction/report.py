@@ -95,7 +95,7 @@ def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
                 raise ReportError(f"{path}: no per_object errors (made by an older harness)")
             records.setdefault(name, {})[seed] = {
                 "results": results,
-                "train_seconds": _train_seconds(out, name, seed, preset_name),
+                **_training(out, name, seed, preset_name),
             }
     if not records:
         raise ReportError(
@@ -104,10 +104,16 @@ def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
     return records
 
 
-def _train_seconds(out: Path, name: str, seed: int, preset_name: str) -> float | None:
+MAX_CURVE = 10_000  # epochs in a validation curve read back from a checkpoint
+
+
+def _training(out: Path, name: str, seed: int, preset_name: str) -> dict:
+    """``train_seconds``, ``epochs_to_plateau``, ``capped`` and the validation curve
+    (``val_curve``) of a run, from its checkpoint's config.json (Nones where not kept)."""
     path = checkpoint_dir(out, name, seed) / "config.json"
+    none = {"train_seconds": None, "epochs_to_plateau": None, "capped": None, "val_curve": None}
     if not path.is_file():
-        return None
+        return none
     config = load_json(path, max_bytes=CONFIG_MAX_BYTES, error=ReportError)
     config = config if isinstance(config, dict) else {}
     trained = config.get("train") if isinstance(config.get("train"), dict) else {}
@@ -119,9 +125,23 @@ def _train_seconds(out: Path, name: str, seed: int, preset_name: str) -> float |
             f"{preset_name} preset's {want!r}; is --preset right?"
         )
     value = config.get("train_seconds")
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0:
+    if not _number(value) or not value >= 0:
         raise ReportError(f"{path}: train_seconds must be a number >= 0, got {value!r}")
-    return value
+    chosen = config.get("selection") if isinstance(config.get("selection"), dict) else {}
+    history = config.get("history") if isinstance(config.get("history"), dict) else {}
+    epochs = history.get("train") if isinstance(history.get("train"), list) else []
+    curve = [e.get("val_mse") if isinstance(e, dict) else None for e in epochs[:MAX_CURVE]]
+    plateau = chosen.get("epochs_to_plateau")
+    return {
+        "train_seconds": value,
+        "epochs_to_plateau": plateau if _number(plateau) else None,
+        "capped": chosen.get("capped") if isinstance(chosen.get("capped"), bool) else None,
+        "val_curve": curve if curve and all(_number(v) for v in curve) else None,
+    }
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
 
 
 def build_table(
@@ -234,6 +254,10 @@ def table_rows(
             "ms_per_mesh": res[0]["speed"]["ms_per_mesh"],
             "speed": res[0]["speed"],
             "train_seconds": _mean([r.get("train_seconds") for r in recs]),
+            # training to the plateau, per seed (None where the checkpoint was not kept)
+            "epochs_to_plateau": [r.get("epochs_to_plateau") for r in recs],
+            "capped": [r.get("capped") for r in recs],
+            "val_curves": [r.get("val_curve") for r in recs],
             "per_class": {},
             "per_object": {
                 k: [None if np.isnan(x) else float(x) for x in v]
@@ -447,6 +471,31 @@ def remesher_table(rows: list[dict], references: dict) -> list[str]:
     return lines
 
 
+def plateau_table(rows: list[dict]) -> list[str]:
+    """Markdown lines: epochs to the validation plateau per row and seed, and how many runs
+    the epoch cap ended while still improving (none when no checkpoint was kept)."""
+    rows = [r for r in rows if any(e is not None for e in r.get("epochs_to_plateau", []))]
+    if not rows:
+        return []
+    lines = [
+        "",
+        "### Training to the plateau",
+        "",
+        "Epochs to the best validation epoch, per seed (the checkpoint holds that epoch); "
+        "capped: runs the epoch cap ended while the validation error was still improving "
+        "(a best epoch within the last `patience` epochs). Validation curves: "
+        "`training_curves.png`.",
+        "",
+        "| Row | Epochs to plateau (per seed) | Capped |",
+        "|---|---|---:|",
+    ]
+    for r in rows:
+        epochs = ", ".join("-" if e is None else str(e) for e in r["epochs_to_plateau"])
+        capped = sum(bool(c) for c in r["capped"])
+        lines.append(f"| {r['name']} | {epochs} | {capped} of {len(r['capped'])} |")
+    return lines
+
+
 def peak_table(rows: list[dict], references: dict) -> list[str]:
     """Markdown lines: the secondary, peak-relative metric for every reference and model row
     (none when no row has it: results made before it)."""
@@ -573,6 +622,7 @@ def render_markdown(table: dict) -> str:
     lines += oracle_lines(table.get("oracle"))
     lines += remesher_table(table["rows"], table["references"])
     lines += peak_table(table["rows"], table["references"])
+    lines += plateau_table(table["rows"])
     lines += ["", "## The paper's findings on this table", ""]
     if not table["findings"]:
         lines.append(table.get("no_findings", NO_FINDINGS))
@@ -626,8 +676,45 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
         tmp.write_bytes(plotting.png(fig))
 
 
+def plot_curves(rows: list[dict], path: Path, title: str) -> bool:
+    """Validation MSE against epoch, one panel per row, one line per seed, the selected
+    (best) epoch marked; False (nothing written) where no row kept its curves."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    from benchmark.scoring import plotting
+
+    rows = [r for r in rows if any(c for c in r.get("val_curves", []))]
+    if not rows:
+        return False
+    cols = min(4, len(rows))
+    grid = (len(rows) + cols - 1) // cols
+    fig, axes = plt.subplots(grid, cols, figsize=(3.2 * cols, 2.4 * grid), squeeze=False)
+    for ax, r in zip(axes.flat, rows):
+        for seed, curve, best in zip(r["seeds"], r["val_curves"], r["epochs_to_plateau"]):
+            if not curve:
+                continue
+            line = ax.plot(range(1, len(curve) + 1), curve, lw=1, label=f"seed {seed}")[0]
+            if best is not None:
+                ax.plot([best], [curve[best - 1]], "o", ms=4, color=line.get_color())
+        ax.set_title(r["name"], fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+    for ax in axes.flat[len(rows) :]:
+        ax.set_visible(False)
+    axes[0, 0].legend(fontsize=7)
+    fig.supxlabel("epoch")
+    fig.supylabel("validation MSE (dB²); dot: the selected epoch")
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(plotting.png(fig))
+    return True
+
+
 def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
-    """table.json, table.md and (``with_plot``) the plot, each replaced atomically."""
+    """table.json, table.md and (``with_plot``) the plots, each replaced atomically."""
     with atomic_path(out / "table.json") as tmp:
         tmp.write_text(json.dumps(table, indent=1, sort_keys=True, allow_nan=False) + "\n")
     with atomic_path(out / "table.md") as tmp:
@@ -638,4 +725,9 @@ def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
             out / "speed_vs_error.png",
             f"Basic Shapes, preset {table['preset']}: speed vs error",
             table["references"],
+        )
+        plot_curves(
+            table["rows"],
+            out / "training_curves.png",
+            f"Basic Shapes, preset {table['preset']}: validation curves",
         )
