@@ -22,7 +22,9 @@ EPILOG = """examples:
   benchmark reproduce --preset tiny --out out/tiny
   benchmark report --preset tiny --data out/tiny/data --out out/tiny
   benchmark dataset --list
-  benchmark dataset cpu-v1 --data data/cpu-v1"""
+  benchmark dataset cpu-v1 --data data/cpu-v1
+  benchmark dataset cpu-v1 --data heldout/cpu-v1 --secret-seed-file ~/secret
+  benchmark export-onnx out/tiny/checkpoints/graph-basic/seed-0 --out graph-basic.onnx"""
 
 DELEGATED = {
     "train": (
@@ -40,6 +42,10 @@ DELEGATED = {
     "dataset": (
         "benchmark.scoring.versions",
         "build a named dataset version (generate + label) and check its fingerprints",
+    ),
+    "export-onnx": (
+        "benchmark.training.onnx_export",
+        "export checkpoints to the board's ONNX model contract, checked against PyTorch",
     ),
 }
 

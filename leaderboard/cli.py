@@ -20,6 +20,8 @@ EPILOG = """examples:
   leaderboard submit out/results.json --predictions out/predictions.h5 --data data/bs \\
       --name "my-model" --link https://example.org/paper
   leaderboard seed --from out/reproduce/results --data out/reproduce/data
+  leaderboard evaluate-model model.onnx --data heldout/tiny-v1 --entries leaderboard/entries \
+      --name "my-model" --link https://example.org/paper
   leaderboard simulator --data data/bs
   leaderboard render --out site/
   leaderboard serve site/ --port 8000
@@ -94,6 +96,43 @@ def build_parser() -> ArgumentParser:
     d.add_argument("--unregistered", **unregistered)
     d.add_argument("--link", help="http(s) URL shared by the seeded entries")
     add_quiet_flag(d)
+
+    x = sub.add_parser(
+        "evaluate-model",
+        help="the ranked track: run ONNX models on a held-out build and add their entries",
+        description="Validate each ONNX model file (the contract of docs/SUBMITTING.md: "
+        "standard operators only, no external data), count its parameters from the graph, "
+        "run it with onnxruntime (one thread, memory and time limits, in a child process) "
+        "over every test mesh of a held-out build (benchmark dataset NAME --secret-seed-file "
+        "F), score it and write a held-out-track entry with the board-measured ms per mesh. "
+        "Predictions files are refused here: the ranked track runs models only.",
+    )
+    x.add_argument("models", type=Path, nargs="+", metavar="MODEL.onnx", help="ONNX model files")
+    x.add_argument("--data", type=Path, required=True, help="the held-out build's directory")
+    x.add_argument("--entries", **new_entries)
+    x.add_argument(
+        "--unregistered",
+        action="store_true",
+        help="accept a dataset that is no held-out build of a registered version (a private "
+        "board); a public build is refused whatever",
+    )
+    x.add_argument("--name", help="name on the board (one model; default: the file's stem)")
+    x.add_argument("--link", help="http(s) URL of a paper or code for this entry")
+    x.add_argument(
+        "--time-limit",
+        type=number(float, above=0),
+        default=600.0,
+        metavar="S",
+        help="wall-time limit of one model over all test meshes, s (default: %(default)s)",
+    )
+    x.add_argument(
+        "--memory-limit",
+        type=number(int, minimum=256),
+        default=4096,
+        metavar="MIB",
+        help="address-space limit of the process running it, MiB (default: %(default)s)",
+    )
+    add_quiet_flag(x)
 
     m = sub.add_parser(
         "simulator",
@@ -181,6 +220,34 @@ def run(args) -> None:
                 print(f"accepted: {path}")
             for msg in skipped:
                 print(f"skipped: {msg}")
+        for msg in refused:
+            print(f"refused: {msg}", file=sys.stderr)
+        if refused:
+            raise SystemExit(
+                f"{len(accepted)} accepted, {len(skipped)} skipped, "
+                f"{len(refused)} refused (first: {refused[0]})"
+            )
+    elif args.command == "evaluate-model":
+        from leaderboard.evaluate_model import evaluate_models
+
+        separate_outputs({"--entries": args.entries}, {"--data": args.data})
+        accepted, skipped, refused = evaluate_models(
+            args.models,
+            args.data,
+            args.entries,
+            args.name,
+            args.link,
+            unregistered=args.unregistered,
+            time_limit=args.time_limit,
+            memory_mib=args.memory_limit,
+            progress=not args.quiet,
+        )
+        for path in accepted:
+            print(f"accepted: {path}")
+        for msg in skipped:
+            print(f"skipped: {msg}")
+        if len(args.models) == 1 and refused:
+            raise SystemExit(refused[0])
         for msg in refused:
             print(f"refused: {msg}", file=sys.stderr)
         if refused:

@@ -4,7 +4,9 @@ Speed against error puts every model of one dataset at (ms per mesh, Complex MSE
 95% interval, the physics simulator as the reference point (a model is only useful left of it,
 and only as good as it is low) and the harness's reference rows as dashed lines (they cost
 nothing to run: a model must be below them). Speeds the harness did not measure (every
-``leaderboard submit`` entry's, ``store.speed_self_reported``) are drawn as diamonds.
+``leaderboard submit`` entry's, ``store.speed_self_reported``) are drawn as diamonds. On the
+ranked track the Pareto front of the board-measured points (and the simulator) is drawn: the
+models worth running at their speed.
 The example shows one test object's physics response beside the best models' predictions for
 its simple mesh and for a complex mesh of exactly the same shape.
 """
@@ -29,11 +31,40 @@ def plottable(models: list[dict]) -> list[dict]:
     ]
 
 
+def pareto_front(models: list[dict], simulator: dict | None) -> list[tuple[str, float, float]]:
+    """(name, ms per mesh, Complex MSE) of the points no other point beats on both axes (faster
+    and lower), fastest first: the models whose speed the board measured (never a
+    self-reported one) and the timed physics simulator."""
+    points = [
+        (e["name"], e["speed"]["ms_per_mesh"], e["metrics"]["complex_mse"])
+        for e in plottable(models)
+        if not speed_self_reported(e)
+    ]
+    if (
+        simulator is not None
+        and simulator["metrics"]["complex_mse"] is not None
+        and simulator["speed"].get("ms_per_mesh")
+        and not speed_self_reported(simulator)
+    ):
+        sim = simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"]
+        points.append(("physics simulator", *sim))
+    front, best = [], float("inf")
+    for name, ms, err in sorted(points, key=lambda p: (p[1], p[2], p[0])):
+        if err < best:
+            front.append((name, ms, err))
+            best = err
+    return front
+
+
 def speed_vs_error(
-    models: list[dict], simulator: dict | None, references: dict | None = None
+    models: list[dict],
+    simulator: dict | None,
+    references: dict | None = None,
+    front: bool = False,
 ) -> bytes:
     """Every plottable model at (ms per mesh, Complex MSE); models without skill hollow,
-    self-reported speeds as diamonds (``benchmark.scoring.plotting`` draws it, as for the table)."""
+    self-reported speeds as diamonds (``benchmark.scoring.plotting`` draws it, as for the table);
+    with ``front``, the Pareto front of the board-measured points as a step line."""
     points = []
     for e in plottable(models):
         m, own = e["metrics"], speed_self_reported(e)
@@ -52,7 +83,10 @@ def speed_vs_error(
         sim = (simulator["speed"]["ms_per_mesh"], simulator["metrics"]["complex_mse"])
     return plotting.png(
         plotting.speed_vs_error(
-            points, {k: r.get("complex_mse") for k, r in (references or {}).items()}, sim
+            points,
+            {k: r.get("complex_mse") for k, r in (references or {}).items()},
+            sim,
+            front=[(x, y) for _, x, y in pareto_front(models, simulator)] if front else None,
         )
     )
 

@@ -38,6 +38,7 @@ from leaderboard.store import (
     params_self_reported,
     read_regular,
     speed_self_reported,
+    track,
 )
 
 FIGURES = ("speed-vs-error-*.png", "example-*.png")
@@ -153,8 +154,11 @@ def datasets(entries: list[dict]) -> list[dict]:
                 "dataset": e["dataset"],
                 "models": [],
                 "simulator": None,
+                "track": "public",
             },
         )
+        if track(e) == "heldout":
+            g["track"] = "heldout"
         if e["kind"] == "simulator":
             g["simulator"] = e
         else:
@@ -173,15 +177,22 @@ def datasets(entries: list[dict]) -> list[dict]:
             for e in with_sample  # the best model's object, in case entries differ
             if e["sample"]["object_id"] == with_sample[0]["sample"]["object_id"]
         ]
-    return sorted(groups.values(), key=lambda g: (-len(g["models"]), g["fingerprint"]))
+    return sorted(
+        groups.values(),
+        key=lambda g: (g["track"] != "heldout", -len(g["models"]), g["fingerprint"]),
+    )
 
 
-def describe(dataset: dict) -> str:
+def describe(dataset: dict, heldout: bool = False) -> str:
     """The dataset's line: its registered version (grid, radar config, the command that builds
-    it) or that it is none, then classes and test split."""
+    it) or that it is none, then classes and test split; for the ranked track, the held-out
+    build of which version (its recipe, a secret seed) and whether its fingerprints are the
+    recorded ones."""
     from benchmark.scoring.versions import VERSIONS
 
     v = VERSIONS.get(dataset.get("version") or "")
+    if heldout:
+        return describe_heldout(dataset, v)
     head = (
         f"version {v.name}: {v.summary}; grid {v.grid()}, radar config "
         f"{v.radar_config().name}; built by: benchmark dataset {v.name} --data DIR. "
@@ -199,6 +210,61 @@ def describe(dataset: dict) -> str:
     return (
         head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
         f"test objects, {dataset['test_meshes']} test meshes"
+    )
+
+
+def describe_heldout(dataset: dict, v) -> str:
+    from benchmark.scoring import heldout
+
+    split = (
+        f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} test objects, "
+        f"{dataset['test_meshes']} test meshes"
+    )
+    if v is None:
+        return (
+            "a private held-out dataset, no build of a registered version (evaluate-model "
+            "--unregistered). " + split
+        )
+    rec = heldout.recorded(v)
+    if rec is None:
+        where = "no fingerprints recorded for it yet"
+    elif rec.get("mesh") == dataset.get("fingerprint"):
+        where = f"its fingerprints are the recorded ones (manifests/heldout/{v.name}.json)"
+    else:
+        where = "NOT the recorded held-out build (fingerprints differ)"
+    return (
+        f"The recipe of version {v.name} ({v.summary}; grid {v.grid()}, radar config "
+        f"{v.radar_config().name}) generated from a secret seed; its labels are never "
+        f"published; {where}. " + split
+    )
+
+
+TRACK_NOTES = {
+    "heldout": (
+        "Ranked track: every model here is an ONNX file run by the board itself (leaderboard "
+        "evaluate-model) on the held-out build, one mesh per call, with onnxruntime on one "
+        "thread under memory and time limits. ms / mesh was measured there (the board's "
+        "hardware is the cell's tooltip) and the parameters were counted from the file's "
+        "graph: neither is self-reported."
+    ),
+    "public": (
+        "Self-scored track: scored from predictions files on the public test split, whose "
+        "labels ship with the dataset (an answer key scores perfectly here), so it is not "
+        "ranked with the held-out track. The metrics are re-scored; speeds and parameter "
+        "counts are the submitter's."
+    ),
+}
+TRACK_TITLES = {"heldout": "Ranked track (held-out)", "public": "Self-scored track"}
+
+
+def pareto_note(g: dict) -> str:
+    """Plain-text sentence naming the Pareto front of the chart ('' where none is drawn)."""
+    front = figures.pareto_front(g["models"], g["simulator"]) if g["track"] == "heldout" else []
+    if not front:
+        return ""
+    return (
+        "Pareto front of Complex MSE against board-measured ms per mesh (no other point is "
+        "both faster and lower): " + ", ".join(name for name, _, _ in front) + "."
     )
 
 
@@ -391,18 +457,20 @@ def _img(name: str, size: tuple[int, int], alt: str) -> str:
 
 
 def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
-    short = g["short"]
+    short, heldout = g["short"], g["track"] == "heldout"
     parts = [
-        f'<section id="dataset-{short}">',
-        f"<h2>Dataset {_e(g['dataset'].get('version') or 'unregistered')} "
-        f"<code>{short}</code></h2>",
-        f'<p class="note">{_e(describe(g["dataset"]))}</p>',
+        f'<section id="dataset-{short}" class="track-{g["track"]}">',
+        f"<h2>{_e(TRACK_TITLES[g['track']])}: "
+        f"{'held-out build of ' if heldout else 'dataset '}"
+        f"{_e(g['dataset'].get('version') or 'unregistered')} <code>{short}</code></h2>",
+        f'<p class="note">{_e(describe(g["dataset"], heldout))}</p>',
+        f'<p class="note track">{_e(TRACK_NOTES[g["track"]])}</p>',
     ]
     if g["models"]:
         parts += [html_table(g), f'<p class="note">{_e(skill_note(g))}</p>']
     if self_reported_note(g):
         parts.append(f'<p class="note self-reported">{_e(self_reported_note(g))}</p>')
-    notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
+    notes = " ".join(filter(None, [simulator_note(g["simulator"]), pareto_note(g), chart_note(g)]))
     parts += [
         "<h3>Speed against error</h3>",
         f"<p>{_e(notes)}</p>",
@@ -447,7 +515,10 @@ def markdown(groups: list[dict]) -> str:
     out = [
         "# Basic Shapes leaderboard",
         "",
-        "Verified by re-scoring each submission's predictions against the dataset; MSE in dB² "
+        "The ranked track comes first: ONNX models the board ran itself on a held-out build "
+        "(labels never published), with speed measured and parameters counted by the board. "
+        "Then the self-scored track: predictions on a public test split, each verified by "
+        "re-scoring it against the dataset. MSE in dB² "
         "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
         "computed by the harness and not ranked. Models with no skill (not better than the "
         "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
@@ -459,11 +530,14 @@ def markdown(groups: list[dict]) -> str:
     if not groups:
         out += ["No entries yet: see docs/SUBMITTING.md.", ""]
     for g in groups:
-        short = g["short"]
+        short, heldout = g["short"], g["track"] == "heldout"
         out += [
-            f"## Dataset {g['dataset'].get('version') or 'unregistered'} `{short}`",
+            f"## {TRACK_TITLES[g['track']]}: {'held-out build of' if heldout else 'dataset'} "
+            f"{g['dataset'].get('version') or 'unregistered'} `{short}`",
             "",
-            _md(describe(g["dataset"])),
+            _md(describe(g["dataset"], heldout)),
+            "",
+            _md(TRACK_NOTES[g["track"]]),
             "",
         ]
         if g["models"]:
@@ -495,7 +569,9 @@ def markdown(groups: list[dict]) -> str:
             out += ["", _md(skill_note(g)), ""]
         if self_reported_note(g):
             out += [_md(self_reported_note(g)), ""]
-        notes = " ".join(filter(None, [simulator_note(g["simulator"]), chart_note(g)]))
+        notes = " ".join(
+            filter(None, [simulator_note(g["simulator"]), pareto_note(g), chart_note(g)])
+        )
         out += [_md(notes), "", f"![Speed against error](speed-vs-error-{short}.png)", ""]
         if g["models"]:
             out += [
@@ -530,7 +606,7 @@ def build(entries: list[dict]) -> dict[str, bytes]:
     files: dict[str, bytes] = {}
     for g in groups:
         files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(
-            g["models"], g["simulator"], references(g)
+            g["models"], g["simulator"], references(g), front=g["track"] == "heldout"
         )
         if g["example"]:
             files[f"example-{g['short']}.png"] = figures.example(g["example"])

@@ -118,6 +118,18 @@ def measure_ms_per_mesh(data: BenchmarkData, n: int = TIMING_MESHES) -> float:
     return 1000.0 * (time.perf_counter() - t0) / len(meshes)
 
 
+def _track(data_dir) -> str:
+    """``heldout`` for a held-out build (the simulator is the ranked track's reference point
+    too), else ``public``."""
+    from benchmark.scoring import heldout
+
+    try:
+        follows = heldout.recipe_of(data_dir)
+    except (OSError, ValueError):
+        return "public"
+    return "heldout" if follows is not None and follows[1] != follows[0].seed else "public"
+
+
 def record(
     data_dir: str | os.PathLike,
     entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
@@ -145,6 +157,7 @@ def record(
         "id": f"physics-{fingerprint[:12]}",
         "kind": "simulator",
         "origin": "simulator",
+        "track": _track(data_dir),
         "name": name,
         "link": None,
         "params": None,

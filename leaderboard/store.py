@@ -29,12 +29,19 @@ MAX_TEXT = schema.MAX_TEXT
 ENTRY_MAX_BYTES = 4 << 20
 # predictions_content_sha256 covers the data scored (``benchmark.scoring.protocol.content_sha256``);
 # predictions_sha256 is the container's, kept for entries made before it existed
-FILE_HASHES = ("results_sha256", "predictions_sha256", "predictions_content_sha256")
+# onnx_sha256: the model file a held-out entry's numbers were measured with (evaluate-model)
+FILE_HASHES = (
+    "results_sha256",
+    "predictions_sha256",
+    "predictions_content_sha256",
+    "onnx_sha256",
+)
 ENTRY_FIELDS = (
     "entry_version",
     "id",
     "kind",
     "origin",
+    "track",
     "name",
     "link",
     "model",
@@ -54,8 +61,14 @@ ENTRY_FIELDS = (
 # Which command wrote an entry, so the board knows what the harness measured itself:
 # ``submit`` scores a predictions file and runs no model (its speed and params are claims),
 # ``seed`` publishes the maintainers' own `benchmark reproduce` runs (timed and counted by the
-# harness), ``simulator`` times radar_sim. Entries made before the field read as ``submit``.
-ORIGINS = {"model": ("submit", "seed"), "simulator": ("simulator",)}
+# harness), ``simulator`` times radar_sim, ``board`` ran an ONNX model on a held-out build
+# (``leaderboard evaluate-model``: speed measured, parameters counted, by the board). Entries
+# made before the field read as ``submit``.
+ORIGINS = {"model": ("submit", "seed", "board"), "simulator": ("simulator",)}
+# ``heldout``: the ranked track, scored on a held-out build whose labels are not published
+# (models only through ``evaluate-model``); ``public``: the self-scored track, scored from
+# predictions files on a public test split. Entries made before the field are ``public``.
+TRACKS = ("heldout", "public")
 # Unicode categories refused in any entry text: controls (Cc), format characters such as the
 # bidi override U+202E or zero-width spaces (Cf), line and paragraph separators (Zl, Zp) and
 # lone surrogates (Cs, not encodable): they reorder or hide what the board shows.
@@ -201,6 +214,12 @@ def validate_entry(entry) -> dict:
             f"origin of a {entry['kind']} entry must be one of {', '.join(ORIGINS[entry['kind']])}"
         )
     _check_strings(entry, "")
+    if entry.get("track", "public") not in TRACKS:
+        raise EntryError(f"track must be one of {', '.join(TRACKS)}")
+    if entry["kind"] == "model" and (origin(entry) == "board") != (track(entry) == "heldout"):
+        raise EntryError(
+            "the held-out track holds only models the board ran (origin board), and they only it"
+        )
     if not re.fullmatch(r"[a-z0-9][a-z0-9-]*", str(entry.get("id", ""))):
         raise EntryError("id must be lower-case letters, digits and dashes")
     check_text(entry.get("name"), "name", MAX_NAME)
@@ -344,6 +363,11 @@ def origin(entry: dict) -> str:
     """The command that wrote ``entry``; an entry made before ``origin`` existed reads as
     ``submit`` (a model) or ``simulator``: the reading that claims the least."""
     return entry.get("origin") or ("simulator" if entry["kind"] == "simulator" else "submit")
+
+
+def track(entry: dict) -> str:
+    """``heldout`` (the ranked track) or ``public`` (self-scored; entries made before tracks)."""
+    return entry.get("track") or "public"
 
 
 def speed_self_reported(entry: dict) -> bool:

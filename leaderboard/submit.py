@@ -111,6 +111,25 @@ def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> 
         raise SubmissionError(f"{exc}; pass --unregistered for a private board") from None
 
 
+def refuse_heldout(data_dir: str | os.PathLike) -> None:
+    """Refuse a held-out build as the dataset of a predictions file: the ranked track scores
+    only models the board runs (``leaderboard evaluate-model``), so no predictions file, the
+    true labels included, can enter it."""
+    from benchmark.scoring import heldout
+
+    try:
+        follows = heldout.recipe_of(data_dir)
+    except (OSError, ValueError):  # unreadable: refused later, with its own message
+        return
+    if follows is None or follows[1] == follows[0].seed:  # no recipe, or the public build
+        return
+    raise SubmissionError(
+        f"{data_dir}: a held-out build of {follows[0].name}, the ranked track, which "
+        f"accepts only ONNX models run by the board (leaderboard evaluate-model MODEL.onnx), "
+        f"never a predictions file"
+    )
+
+
 SPEED_SOURCES = {
     "submit": "self-reported by the submitter (benchmark evaluate), not re-measured",
     "seed": "measured by the benchmark harness (benchmark reproduce, the maintainers' run)",
@@ -136,6 +155,7 @@ def submit(
     """
     if origin not in ("submit", "seed"):
         raise ValueError(f"origin must be submit or seed, not {origin!r}")
+    refuse_heldout(data_dir)
     try:
         results = load_results(results_path)
     except ValueError as exc:

@@ -71,12 +71,14 @@ def speed_vs_error(
     simulator: tuple[float, float] | None = None,
     title: str | None = None,
     xlabel: str = "ms per mesh (log scale; lower is faster)",
+    front: list[tuple[float, float]] | None = None,
 ):
     """The figure of ms per mesh (log) against Complex MSE (symlog, from 0 = the physics):
     ``references`` name -> Complex MSE as dashed lines (they cost nothing to run: a model
-    must be below them), ``simulator`` (ms, MSE) as a star."""
+    must be below them), ``simulator`` (ms, MSE) as a star, ``front`` (the Pareto front's
+    points, fastest first) as a step line."""
     references = {k: v for k, v in (references or {}).items() if v is not None}
-    n_labels = len(points) + len(references) + (simulator is not None)
+    n_labels = len(points) + len(references) + (simulator is not None) + bool(front)
     line_in = LINE * FONT_PT / 72
     axes_h = max(AXES_IN[1], n_labels * line_in + 0.1)
     width = MARGIN_IN["left"] + AXES_IN[0] + MARGIN_IN["right"]
@@ -127,6 +129,10 @@ def speed_vs_error(
     for name, y in references.items():
         ax.axhline(y, color="0.55", lw=0.8, ls="--", zorder=1)
         labels.append((None, y, f"reference: {literal(name)}", "0.4"))
+    if front:
+        xs, ys = [x for x, _ in front], [y for _, y in front]
+        ax.step(xs, ys, where="post", color="tab:green", lw=1.2, alpha=0.8, zorder=1)
+        labels.append((xs[-1], ys[-1], "Pareto front", "tab:green"))
     ax.set_xlabel(xlabel)
     ax.set_ylabel("Complex MSE (dB², 95% interval; symlog)")
     if title:

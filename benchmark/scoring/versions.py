@@ -342,6 +342,17 @@ def add_arguments(p) -> None:
         type=_indices,
         help="build only these shards of the version (a slice, checked shard by shard)",
     )
+    secret = p.add_mutually_exclusive_group()
+    secret.add_argument(
+        "--secret-seed-file",
+        metavar="FILE",
+        help="build (or --check, --record) the version's held-out build: its recipe with a "
+        "seed derived from the secret in FILE (benchmark.scoring.heldout; only the "
+        "fingerprints are printed or recorded)",
+    )
+    secret.add_argument(
+        "--secret-seed-env", metavar="VAR", help="as --secret-seed-file, the secret in $VAR"
+    )
     add_cluster_flags(p)
     add_quiet_flag(p)
 
@@ -378,6 +389,10 @@ def run(args) -> int:
             "--data DIR is required (the directory to build, check, pack or fetch into)"
         )
     version = get(args.name)
+    if getattr(args, "secret_seed_file", None) or getattr(args, "secret_seed_env", None):
+        from benchmark.scoring import heldout
+
+        return heldout.run(args, version)
     if args.record:
         found = mf.build(args.data, version.name, stack())
         with atomic_path(version.manifest_path) as tmp:

@@ -1,7 +1,8 @@
 """Per-face features and ragged-batch collation shared by every baseline encoder.
 
-Features are computed once per mesh in numpy (``featurize``) and cached by the caller, so
-training epochs only pad and stack (``collate``). Meshes arrive scale-normalized
+Features are computed once per mesh in numpy (``featurize``, from the torch-free
+``benchmark.scoring.mesh_features``, which the board's ONNX contract shares) and cached by the
+caller, so training epochs only pad and stack (``collate``). Meshes arrive scale-normalized
 (``benchmark.scoring.data.normalize_mesh``: the longest axis spans [-0.5, 0.5]); discretization
 covers ``[-COORD_RANGE, COORD_RANGE]`` and clips anything outside.
 """
@@ -13,70 +14,19 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from basic_shapes.meshcheck import directed_edges
-from benchmark.training.models.probes import ray_probes
-
-N_BINS = 128  # discretization levels per quantity, as in MeshGPT
-COORD_RANGE = 0.5
-DIRECT_DIM = 15  # centre (3) + corner vectors (9) + unit normal (3)
-N_TOKENS = 16  # discretized: coordinates (9) + interior angles (3) + area (1) + normal (3)
-TOKEN_GROUPS = (("coord", 9), ("angle", 3), ("area", 1), ("normal", 3))
-MAX_LOG_AREA, MIN_LOG_AREA = 0.0, -14.0  # natural log of a face area in normalized units
-
-
-def face_adjacency(faces: np.ndarray) -> np.ndarray:
-    """(2, E) int64 directed edges between faces that share a mesh edge (both directions).
-
-    Faces around a non-manifold edge are all connected pairwise. Sorted, without duplicates.
-    """
-    faces = np.asarray(faces, np.int64)
-    n_faces = len(faces)
-    if n_faces == 0:
-        return np.zeros((2, 0), np.int64)
-    edges = np.sort(directed_edges(faces), axis=1)  # undirected: either winding meets
-    keys = edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1]
-    owner = np.tile(np.arange(n_faces), 3)  # row k * F + i of directed_edges is face i's
-    order = np.argsort(keys, kind="stable")
-    keys, owner = keys[order], owner[order]
-    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    lengths = np.diff(np.r_[starts, len(keys)])
-    pairs = [np.stack([owner[starts[lengths == 2]], owner[starts[lengths == 2] + 1]], 1)]
-    for s, n in zip(starts[lengths > 2], lengths[lengths > 2]):
-        group = owner[s : s + n]
-        i, j = np.triu_indices(n, 1)
-        pairs.append(np.stack([group[i], group[j]], 1))
-    pairs = np.concatenate(pairs)
-    pairs = pairs[pairs[:, 0] != pairs[:, 1]]  # a face repeating an edge is not its own neighbour
-    both = np.concatenate([pairs, pairs[:, ::-1]])
-    both = np.unique(both, axis=0)
-    return np.ascontiguousarray(both.T)
-
-
-def _discretize(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    q = np.floor((np.asarray(x, np.float64) - lo) / (hi - lo) * N_BINS)
-    return np.clip(q, 0, N_BINS - 1).astype(np.int64)
-
-
-def face_geometry(vertices: np.ndarray, faces: np.ndarray) -> dict[str, np.ndarray]:
-    """Triangles, centres, areas, unit normals and interior angles of every face."""
-    tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]  # (F, 3, 3)
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(cross, axis=1)
-    normal = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
-    angles = np.empty((len(tri), 3))
-    for k in range(3):
-        a = tri[:, (k + 1) % 3] - tri[:, k]
-        b = tri[:, (k + 2) % 3] - tri[:, k]
-        na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
-        cos = np.einsum("ij,ij->i", a, b) / np.maximum(na * nb, 1e-30)
-        angles[:, k] = np.arccos(np.clip(cos, -1.0, 1.0))
-    return {
-        "triangles": tri,
-        "centre": tri.mean(1),
-        "area": 0.5 * norm,
-        "normal": normal,
-        "angles": angles,
-    }
+from benchmark.scoring.mesh_features import (  # noqa: F401  (re-exported: the models' names)
+    COORD_RANGE,
+    DIRECT_DIM,
+    MAX_LOG_AREA,
+    MIN_LOG_AREA,
+    N_BINS,
+    N_TOKENS,
+    TOKEN_GROUPS,
+    face_adjacency,
+    face_features,
+    face_geometry,
+    ray_probes,
+)
 
 
 @dataclass
@@ -97,28 +47,11 @@ class MeshFeatures:
 def featurize(vertices: np.ndarray, faces: np.ndarray, probes: bool = False) -> MeshFeatures:
     """Direct (Kohler et al.) and discretized MeshGPT-style features of one normalized mesh;
     with ``probes``, also the ray probes of the invariant model."""
-    g = face_geometry(vertices, faces)
-    # Corners in a canonical order, sorted by (z, y, x) as MeshGPT does, so that neither
-    # embedding depends on which corner a file lists first (the normal keeps the winding).
-    tri = g["triangles"]
-    order = np.lexsort((tri[:, :, 0], tri[:, :, 1], tri[:, :, 2]), axis=1)
-    canon = np.take_along_axis(tri, order[:, :, None], 1)
-    corners = canon - g["centre"][:, None]
-    direct = np.concatenate([g["centre"], corners.reshape(-1, 9), g["normal"]], 1)
-    log_area = np.log(np.maximum(g["area"], np.exp(MIN_LOG_AREA)))
-    tokens = np.concatenate(
-        [
-            _discretize(canon.reshape(-1, 9), -COORD_RANGE, COORD_RANGE),
-            _discretize(np.take_along_axis(g["angles"], order, 1), 0.0, np.pi),
-            _discretize(log_area[:, None], MIN_LOG_AREA, MAX_LOG_AREA),
-            _discretize(g["normal"], -1.0, 1.0),
-        ],
-        1,
-    )
+    direct, tokens, area = face_features(vertices, faces)
     return MeshFeatures(
-        direct=direct.astype(np.float32),
+        direct=direct,
         tokens=tokens,
-        area=g["area"].astype(np.float32),
+        area=area,
         edge_index=face_adjacency(faces),
         probes=ray_probes(vertices, faces) if probes else None,
     )
