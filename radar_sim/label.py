@@ -277,9 +277,10 @@ def _warm_up() -> None:
     from radar_sim import RadarConfig, simulate
 
     v, f = simulation_mesh(solid_for("cube", (0.01, 0.01, 0.01)), 1e9)
-    simulate(
-        v, f, RadarConfig(name="warm-up", n_aspect=1, n_roll=1, n_freq=3, n_range=3), mode="convex"
-    )
+    grid = {"n_aspect": 1, "n_roll": 1, "n_freq": 3, "n_range": 3}
+    simulate(v, f, RadarConfig(name="warm-up", **grid), mode="convex")
+    edged = RadarConfig(name="warm-up-edges", channels="HH,VV,HV", edges="mec", **grid)
+    simulate(v, f, edged, mode="convex")  # the edge kernel too (a cube has edges)
 
 
 def label_object(
