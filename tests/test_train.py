@@ -291,7 +291,7 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
     )
     assert len(list(entries.glob("*.json"))) == 14
     assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} == {
-        "tiny-v1"
+        "tiny-v2"
     }  # reproduce built the registered version, and submit identified it
     assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None
     assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])

@@ -64,7 +64,7 @@ cores even if every run reaches the cap, about 3.5 without contention."""
 PRESETS = {
     # For the test suite: every row on a few objects, with models too small to learn much.
     "tiny": Preset(
-        dataset="tiny-v1",
+        dataset="tiny-v2",
         workers=0,
         train=dict(
             dim=16,
@@ -85,7 +85,7 @@ PRESETS = {
     ),
     # The demo's dataset with the CPU models: a quick look, too few test objects for findings.
     "small": Preset(
-        dataset="demo-v1",
+        dataset="demo-v2",
         workers=None,
         jobs=2,
         train=dict(SMALL_MODEL, **PLATEAU, batch_size=8),
@@ -95,7 +95,7 @@ PRESETS = {
     ),
     # The CPU benchmark (docs/RESULTS.md): 150 test objects, 3 seeds, paired intervals.
     "cpu": Preset(
-        dataset="cpu-v1",
+        dataset="cpu-v2",
         workers=None,
         jobs=2,
         train=dict(SMALL_MODEL, **PLATEAU, batch_size=16),
@@ -104,7 +104,7 @@ PRESETS = {
     ),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
-        dataset="paper-v1",
+        dataset="paper-v2",
         workers=None,
         train=dict(
             dim=256,
