@@ -711,9 +711,14 @@ class RadarGroup:
         """Range profiles of the representation mesh in row ``mesh_index[j]`` of /meshes."""
         return self.group["mesh_response"][j]
 
+    @property
+    def has_polarimetric(self) -> bool:
+        """Whether every channel of a polarimetric config is stored (``polarimetric``)."""
+        return "polarimetric" in self.group
+
     def polarimetric(self, k: int) -> np.ndarray:
         """(polarization, aspect, roll, range) complex64 of object ``k``, channels ``channels``."""
-        if "polarimetric" not in self.group:
+        if not self.has_polarimetric:
             raise ShardError(
                 f"{self.path}: labelled with the VV channel only (no /radar/polarimetric)"
             )

@@ -46,6 +46,7 @@ from leaderboard.store import (
     check_link,
     check_metrics,
     check_text,
+    dataset_record,
     entries_lock,
     load_entries,
     slug,
@@ -200,14 +201,7 @@ def evaluate_model(
                     content_sha = preds.content_sha256()
             except (OSError, ValueError) as exc:
                 raise _refuse(model_path, exc) from None
-        dataset = {
-            "fingerprint": data.fingerprint,
-            "label_fingerprint": data.label_fingerprint,
-            "version": version,
-            "classes": data.class_names,
-            "test_objects": len(data.object_rows("test")),
-            "test_meshes": len(data.mesh_rows("test")),
-        }
+        dataset = dataset_record(data, version=version)
     hw = report["hardware"]
     declared = dict(info.metadata)  # labels the file declares (shown, never trusted as numbers)
     detail = {}

@@ -27,6 +27,7 @@ from benchmark.scoring.metrics import Scorer
 from leaderboard.store import (
     DEFAULT_ENTRIES,
     ENTRY_VERSION,
+    dataset_record,
     entries_lock,
     validate_entry,
     write_entry,
@@ -144,13 +145,7 @@ def record(
         if timed:
             ms_per_mesh = measure_ms_per_mesh(data)
         config = radar_config(data)
-        dataset = {
-            "fingerprint": fingerprint,
-            "label_fingerprint": data.label_fingerprint,
-            "classes": data.class_names,
-            "test_objects": len(data.object_rows("test")),
-            "test_meshes": len(data.mesh_rows("test")),
-        }
+        dataset = dataset_record(data)  # no version field (as simulator entries always were)
     name = f"radar_sim on the representation mesh {config.get('name', '')}".strip()
     entry = {
         "entry_version": ENTRY_VERSION,

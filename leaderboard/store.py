@@ -2,7 +2,9 @@
 
 Entries reach the repository by pull request, so ``render`` validates every file again: a
 hand-edited entry with a non-http link, a missing number or a malformed sample is refused
-with a one-line error naming the file, never rendered.
+with a one-line error naming the file, never rendered. The entry record (its fields, their
+bounds and the rules between them) is declared once, in ``benchmark.scoring.schema``
+(``ENTRY``, ``DATASET``, ``SAMPLE``, ``check_entry``); this module reads and writes it.
 """
 
 from __future__ import annotations
@@ -10,69 +12,19 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
-import math
 import os
 import re
 import stat
-import unicodedata
 from pathlib import Path
 
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.scoring import schema
+from benchmark.scoring.schema import ENTRY_VERSION as ENTRY_VERSION  # the record's owner
+from benchmark.scoring.schema import MAX_TEXT
+from benchmark.scoring.schema import METRIC_NAMES as METRIC_NAMES
 
-ENTRY_VERSION = 1
 DEFAULT_ENTRIES = Path(__file__).resolve().parent / "entries"
-KINDS = ("model", "simulator")
-METRIC_NAMES = schema.METRIC_NAMES
-MAX_NAME = schema.MAX_NAME
-MAX_TEXT = schema.MAX_TEXT
 ENTRY_MAX_BYTES = 4 << 20
-# predictions_content_sha256 covers the data scored (``benchmark.scoring.protocol.content_sha256``);
-# predictions_sha256 is the container's, kept for entries made before it existed
-# onnx_sha256: the model file a held-out entry's numbers were measured with (evaluate-model)
-FILE_HASHES = (
-    "results_sha256",
-    "predictions_sha256",
-    "predictions_content_sha256",
-    "onnx_sha256",
-)
-ENTRY_FIELDS = (
-    "entry_version",
-    "id",
-    "kind",
-    "origin",
-    "track",
-    "name",
-    "link",
-    "model",
-    "params",
-    "params_self_reported",
-    "benchmark_version",
-    "dataset",
-    "metrics",
-    "speed",
-    "seeds",
-    "created",
-    "submitted",
-    "files",
-    "sample",
-    "complex_mse_source",
-)
-# Which command wrote an entry, so the board knows what the harness measured itself:
-# ``submit`` scores a predictions file and runs no model (its speed and params are claims),
-# ``seed`` publishes the maintainers' own `benchmark reproduce` runs (timed and counted by the
-# harness), ``simulator`` times radar_sim, ``board`` ran an ONNX model on a held-out build
-# (``leaderboard evaluate-model``: speed measured, parameters counted, by the board). Entries
-# made before the field read as ``submit``.
-ORIGINS = {"model": ("submit", "seed", "board"), "simulator": ("simulator",)}
-# ``heldout``: the ranked track, scored on a held-out build whose labels are not published
-# (models only through ``evaluate-model``); ``public``: the self-scored track, scored from
-# predictions files on a public test split. Entries made before the field are ``public``.
-TRACKS = ("heldout", "public")
-# Unicode categories refused in any entry text: controls (Cc), format characters such as the
-# bidi override U+202E or zero-width spaces (Cf), line and paragraph separators (Zl, Zp) and
-# lone surrogates (Cs, not encodable): they reorder or hide what the board shows.
-FORBIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
 
 
 class EntryError(ValueError):
@@ -85,204 +37,47 @@ def slug(text: str) -> str:
     return s[:40] or "model"
 
 
-def hidden_character(text: str) -> str | None:
-    """The first character of ``text`` that is invisible or reorders text (a control, a bidi
-    override, a zero-width or line separator), as ``U+XXXX``; None if there is none."""
-    for c in text:
-        if unicodedata.category(c) in FORBIDDEN_CATEGORIES:
-            return f"U+{ord(c):04X}"
-    return None
+def _schema_check(check, *args):
+    try:
+        return check(*args)
+    except schema.SchemaError as exc:
+        raise EntryError(str(exc)) from None
 
 
 def check_text(value, what: str, max_len: int = MAX_TEXT) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise EntryError(f"{what} must be a non-empty string")
-    bad = hidden_character(value)
-    if len(value) > max_len or bad:
-        raise EntryError(
-            f"{what} must be one printable line of at most {max_len} characters"
-            + (f" (has the control or format character {bad})" if bad else "")
-        )
+    """One printable line of at most ``max_len`` characters (a name, a label; as in entries)."""
+    _schema_check(schema.Field("text", hi=max_len).check, value, what)
     return value
-
-
-def _check_strings(value, where: str) -> None:
-    """Every text of an entry, keys included, free of ``FORBIDDEN_CATEGORIES``: the schema's
-    own check refuses only ASCII controls, and a U+202E in a hardware line or a class name
-    would reorder the table around it."""
-    if isinstance(value, str):
-        bad = hidden_character(value)
-        if bad:
-            raise EntryError(f"{where} has the control or format character {bad}")
-    elif isinstance(value, dict):
-        for k, v in value.items():
-            _check_strings(k, f"{where or 'entry'} key")
-            _check_strings(v, f"{where}.{k}" if where else str(k))
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            _check_strings(v, f"{where}[{i}]")
 
 
 def check_link(value) -> str | None:
     """Only absolute http(s) URLs: a link is rendered into the page, so no javascript: etc."""
-    if value is None:
-        return None
-    check_text(value, "link", 500)
-    if not re.fullmatch(r"https?://[^\s\"'<>`]+", value):
-        raise EntryError(f"link {value!r} is not an http:// or https:// URL")
+    _schema_check(schema.ENTRY["link"].check, value, "link")
     return value
-
-
-def check_number(value, what: str, minimum: float = 0.0, optional: bool = False) -> float | None:
-    if value is None and optional:
-        return None
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(value)
-        or value < minimum
-    ):
-        raise EntryError(
-            f"{what} must be a finite number >= {minimum:g}{' or null' * optional}, got {value!r}"
-        )
-    return float(value)
 
 
 def check_metrics(m, what: str = "metrics") -> dict:
     """The ``metrics`` structure of the results JSON (``benchmark.scoring.schema``)."""
-    try:
-        return schema.check_metrics(m, what)
-    except schema.SchemaError as exc:
-        raise EntryError(str(exc)) from None
+    return _schema_check(schema.check_metrics, m, what)
 
 
-def _check_schema(check, *args) -> None:
-    try:
-        check(*args)
-    except schema.SchemaError as exc:
-        raise EntryError(str(exc)) from None
-
-
-def _check_image(img, rows: int, cols: int, what: str) -> None:
-    if not (
-        isinstance(img, list)
-        and len(img) == rows
-        and all(isinstance(r, list) and len(r) == cols for r in img)
-    ):
-        raise EntryError(f"{what} must be a {rows} x {cols} list of lists")
-    for r in img:
-        for v in r:
-            check_number(v, what, -1e9)
-
-
-def check_sample(s) -> dict:
-    """Downsampled dB images (aspect x range at one roll) of one test object."""
-    if not isinstance(s, dict):
-        raise EntryError("sample must be an object")
-    for k in ("aspect_deg", "range_m"):
-        if not isinstance(s.get(k), list) or not s[k]:
-            raise EntryError(f"sample.{k} must be a non-empty list")
-    shape = (len(s["aspect_deg"]), len(s["range_m"]))
-    check_number(s.get("object_id"), "sample.object_id")
-    check_text(s.get("class"), "sample.class", MAX_NAME)
-    check_number(s.get("roll_deg"), "sample.roll_deg", -360.0)
-    _check_image(s.get("physics_db"), *shape, "sample.physics_db")
-    meshes = s.get("meshes")
-    if not isinstance(meshes, list) or len(meshes) != 2:
-        raise EntryError("sample.meshes must list the simple mesh and one complex mesh")
-    for i, mesh in enumerate(meshes):
-        if not isinstance(mesh, dict):
-            raise EntryError(f"sample.meshes[{i}] must be an object")
-        for k in ("mesh_uid", "variant", "n_faces"):
-            check_number(mesh.get(k), f"sample.meshes[{i}].{k}")
-        _check_image(mesh.get("predicted_db"), *shape, f"sample.meshes[{i}].predicted_db")
-    return s
+def dataset_record(data, **version) -> dict:
+    """The ``dataset`` block of an entry (``schema.DATASET``) for an open ``BenchmarkData``;
+    ``version=`` the registered version name (or None) where the command knows it."""
+    return {
+        "fingerprint": data.fingerprint,
+        "label_fingerprint": data.label_fingerprint,
+        **version,
+        "classes": data.class_names,
+        "test_objects": len(data.object_rows("test")),
+        "test_meshes": len(data.mesh_rows("test")),
+    }
 
 
 def validate_entry(entry) -> dict:
-    """Raise EntryError unless ``entry`` is a complete, renderable entry."""
-    if not isinstance(entry, dict):
-        raise EntryError("an entry must be a JSON object")
-    if entry.get("entry_version") != ENTRY_VERSION:
-        raise EntryError(
-            f"entry_version must be {ENTRY_VERSION}, got {entry.get('entry_version')!r}"
-        )
-    if entry.get("kind") not in KINDS:
-        raise EntryError(f"kind must be one of {', '.join(KINDS)}")
-    if entry.get("origin") is not None and entry["origin"] not in ORIGINS[entry["kind"]]:
-        raise EntryError(
-            f"origin of a {entry['kind']} entry must be one of {', '.join(ORIGINS[entry['kind']])}"
-        )
-    _check_strings(entry, "")
-    if entry.get("track", "public") not in TRACKS:
-        raise EntryError(f"track must be one of {', '.join(TRACKS)}")
-    if entry["kind"] == "model" and (origin(entry) == "board") != (track(entry) == "heldout"):
-        raise EntryError(
-            "the held-out track holds only models the board ran (origin board), and they only it"
-        )
-    if not re.fullmatch(r"[a-z0-9][a-z0-9-]*", str(entry.get("id", ""))):
-        raise EntryError("id must be lower-case letters, digits and dashes")
-    check_text(entry.get("name"), "name", MAX_NAME)
-    check_link(entry.get("link"))
-    dataset = entry.get("dataset")
-    if not isinstance(dataset, dict) or not re.fullmatch(
-        r"[0-9a-f]{64}", str(dataset.get("fingerprint", ""))
-    ):
-        raise EntryError("dataset.fingerprint must be a sha256 hex digest")
-    if not re.fullmatch(r"[0-9a-f]{64}", str(dataset.get("label_fingerprint", ""))):
-        raise EntryError("dataset.label_fingerprint must be a sha256 hex digest")
-    classes = dataset.get("classes")
-    if (
-        not isinstance(classes, list)
-        or len(classes) > schema.MAX_CLASSES
-        or not all(isinstance(c, str) and len(c) <= MAX_NAME for c in classes)
-    ):
-        raise EntryError("dataset.classes must be a list of class names")
-    version = dataset.get("version")
-    if version is not None and not re.fullmatch(r"[a-z0-9][a-z0-9.-]{0,39}", str(version)):
-        raise EntryError("dataset.version must be a registered version name or null")
-    if set(dataset) - {
-        "fingerprint",
-        "label_fingerprint",
-        "version",
-        "classes",
-        "test_objects",
-        "test_meshes",
-    }:
-        raise EntryError("dataset has unknown fields")
-    unknown = sorted(str(k)[:40] for k in set(entry) - set(ENTRY_FIELDS))
-    if unknown:
-        raise EntryError(f"unknown field(s) {', '.join(unknown[:5])}")
-    for k in ("test_objects", "test_meshes"):
-        _check_schema(
-            schema.Field("int", 0, schema.MAX_COUNT).check, dataset.get(k), f"dataset.{k}"
-        )
-    if "model" in entry:
-        _check_schema(schema.check_fields, entry["model"], schema.MODEL, "model")
-    check_metrics(entry.get("metrics"))
-    _check_schema(schema.check_fields, entry.get("speed"), schema.SPEED, "speed", ("source",))
-    if entry["speed"].get("source") is not None:
-        check_text(entry["speed"]["source"], "speed.source")
-    _check_schema(schema.MODEL["params"].check, entry.get("params"), "params")
-    if not isinstance(entry.get("params_self_reported", False), bool):
-        raise EntryError("params_self_reported must be true or false")
-    if entry.get("seeds") is not None:
-        _check_schema(schema.check_seeds, entry["seeds"])
-    for k in ("benchmark_version", "complex_mse_source"):
-        if entry.get(k) is not None:
-            check_text(entry[k], k)
-    files = entry.get("files", {})
-    if (
-        not isinstance(files, dict)
-        or set(files) - set(FILE_HASHES)
-        or not all(re.fullmatch(r"[0-9a-f]{64}", str(v)) for v in files.values())
-    ):
-        raise EntryError(f"files must map {'/'.join(FILE_HASHES)} to sha256 digests")
-    if not re.fullmatch(r"\d{4}-\d\d-\d\d(T[\d:.]+Z)?", str(entry.get("submitted", ""))):
-        raise EntryError("submitted must be an ISO date (YYYY-MM-DD or YYYY-MM-DDTHH:MM:SSZ)")
-    if entry.get("sample") is not None:
-        check_sample(entry["sample"])
-    return entry
+    """Raise EntryError unless ``entry`` is a complete, renderable entry
+    (``benchmark.scoring.schema.check_entry``)."""
+    return _schema_check(schema.check_entry, entry)
 
 
 def read_regular(path: str | os.PathLike, max_bytes: int, error=EntryError) -> bytes:

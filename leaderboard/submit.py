@@ -36,6 +36,7 @@ from leaderboard.store import (
     check_link,
     check_metrics,
     check_text,
+    dataset_record,
     entries_lock,
     load_entries,
     slug,
@@ -196,7 +197,7 @@ def submit(
         content_sha = preds.content_sha256()
         _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)  # fail early
         sample = example.sample(data, preds)
-        test_objects, test_meshes = len(data.object_rows("test")), len(data.mesh_rows("test"))
+        dataset = dataset_record(data, version=version)
     measured = origin == "seed" and results["speed"].get("self_reported") is False
     entry = {
         "entry_version": ENTRY_VERSION,
@@ -210,14 +211,7 @@ def submit(
         # counted by the harness only in the maintainers' reproduce runs (checkpoint.params)
         "params_self_reported": origin != "seed",
         "benchmark_version": results["benchmark_version"],
-        "dataset": {
-            "fingerprint": fingerprint,
-            "label_fingerprint": labels,
-            "version": version,
-            "classes": data.class_names,
-            "test_objects": test_objects,
-            "test_meshes": test_meshes,
-        },
+        "dataset": dataset,
         "metrics": check_metrics(rescored, "re-scored metrics"),
         "speed": {
             **results["speed"],

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmark.scoring import references, schema
 from leaderboard import render, store
 from leaderboard.serve import make_server
 from test_leaderboard import make_dataset, refused, run, write_predictions, write_results
@@ -153,6 +154,46 @@ def test_old_entries_without_origin_read_as_submitted(tmp_path):
     assert f"{render.fmt_ms(physics['speed']['ms_per_mesh'])} ms per mesh" in md
     with pytest.raises(store.EntryError, match="origin"):  # a model cannot claim the timer
         store.validate_entry({**model, "origin": "simulator"})
+
+
+def test_entries_are_checked_by_the_schemas_field_table():
+    """One owner per record: an entry is the field table ``schema.ENTRY`` (with its dataset
+    and sample blocks), checked by the same ``Field`` checks as a results JSON; a wrong value
+    in any field is refused naming that field, and the committed entries use no other field."""
+    committed = store.load_entries(store.DEFAULT_ENTRIES)
+    entry = next(e for e in committed if e.get("sample"))
+    for e in committed:
+        assert set(e) <= set(schema.ENTRY) and set(e["dataset"]) <= set(schema.DATASET)
+    for name in schema.ENTRY:
+        with pytest.raises(store.EntryError, match=f"^{name} "):
+            store.validate_entry({**entry, name: ["a", "list"]})
+    for name in schema.DATASET:
+        with pytest.raises(store.EntryError, match=rf"^dataset\.{name}"):
+            store.validate_entry({**entry, "dataset": {**entry["dataset"], name: {}}})
+    for name in schema.SAMPLE:
+        with pytest.raises(store.EntryError, match=rf"^sample\.{name}"):
+            store.validate_entry({**entry, "sample": {**entry["sample"], name: {}}})
+    cases = {
+        # one time format, the schema's ("submitted" once had a regex of its own)
+        "submitted": ({"submitted": "2026-01-01"}, "submitted is not a UTC timestamp"),
+        "sample field": (
+            {"sample": {**entry["sample"], "note": 1}},
+            "sample has unknown field(s) note",
+        ),
+        "image shape": (
+            {"sample": {**entry["sample"], "range_m": entry["sample"]["range_m"][1:]}},
+            "sample.physics_db must be a",
+        ),
+        "unknown": ({"junk": 1}, "the entry has unknown field(s) junk"),
+        "bidi key": ({"ju\u202enk": 1}, "the entry key has the control or format character U+202E"),
+    }
+    for case, (edit, phrase) in cases.items():
+        with pytest.raises(store.EntryError) as exc:
+            store.validate_entry({**entry, **edit})
+        assert str(exc.value).startswith(phrase), (case, str(exc.value))
+    # the names are declared once and imported
+    assert store.ENTRY_VERSION is schema.ENTRY_VERSION and store.METRIC_NAMES is schema.METRIC_NAMES
+    assert references.REFERENCES is schema.REFERENCE_NAMES
 
 
 # --- 2. submission is atomic -------------------------------------------------------------

@@ -20,6 +20,7 @@ import numpy as np
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.reproduction.presets import EMBEDDINGS, PRESETS, PRETRAINING, ROWS
 from benchmark.reproduction.runner import checkpoint_dir, row_files
+from benchmark.scoring.schema import METRIC_NAMES, OOD_METRIC_NAMES, PEAK_METRIC_NAMES
 from benchmark.training.models import REGISTRY
 from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
 
@@ -182,9 +183,7 @@ def build_table(
 
 
 # --- table ------------------------------------------------------------------------------------
-METRICS = ("simple_mse", "complex_mse", "variation_mse")
-OOD_METRICS = ("ood_complex_mse", "ood_variation_mse")
-PEAK_METRICS = ("peak_simple_mse", "peak_complex_mse")
+METRICS, OOD_METRICS, PEAK_METRICS = METRIC_NAMES, OOD_METRIC_NAMES, PEAK_METRIC_NAMES
 
 
 def _mean_per_object(seed_results: list[dict]) -> dict:

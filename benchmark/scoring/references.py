@@ -30,9 +30,10 @@ from basic_shapes.meshcheck import area_normals
 from basic_shapes.shards import ood_remesher
 from benchmark.scoring.data import BenchmarkData
 from benchmark.scoring.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
+from benchmark.scoring.schema import REFERENCE_NAMES
 from benchmark.scoring.uncertainty import paired, verdict
 
-REFERENCES = ("train-mean", "class-mean", "nearest-scale", "class-scale-nn")
+REFERENCES = REFERENCE_NAMES  # the names' owner is the schema (the rows results may carry)
 K_NEAREST = 3
 HIST_BINS = 6
 AZIMUTH_BINS = 24

@@ -1,11 +1,14 @@
-"""The results and metrics schema: one table of fields, used by ``scoring.protocol`` (results
-JSON) and ``leaderboard.store`` (entries), so that what `evaluate` writes and what `submit` and
-`render` accept cannot drift apart.
+"""The records' one owner: the results JSON (``RESULTS``), its metrics blocks, and the
+leaderboard entry (``ENTRY``, with its ``DATASET`` and ``SAMPLE`` blocks) as tables of fields,
+checked by one function (``check_fields``) for ``scoring.protocol`` (results JSON) and
+``leaderboard.store`` (entries), so that what `evaluate` writes and what `submit` and `render`
+accept cannot drift apart. The metric names are declared here and imported everywhere else.
 
 Results and entries are untrusted: every number must be finite and inside a documented range
-(docs/BENCHMARK.md, "Results JSON"), every text one printable line of bounded length, and a
-field not in the table is refused (never copied onto the board). To add a field, add a row
-to the table it belongs to.
+(docs/BENCHMARK.md, "Results JSON"), every text one printable line of bounded length with no
+control or format character (a bidi override would reorder the board around it), and a field
+not in the table is refused (never copied onto the board). To add a field, add a row to the
+table it belongs to.
 """
 
 from __future__ import annotations
@@ -13,7 +16,9 @@ from __future__ import annotations
 import datetime
 import math
 import re
-from dataclasses import dataclass
+import unicodedata
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 from basic_shapes.shards import OOD_REMESHERS
 
@@ -31,17 +36,77 @@ class SchemaError(ValueError):
     """A record breaks the schema (the message names the field)."""
 
 
+# Unicode categories refused in any text of a record: controls (Cc), format characters such as
+# the bidi override U+202E or zero-width spaces (Cf), line and paragraph separators (Zl, Zp)
+# and lone surrogates (Cs, not encodable): they reorder or hide what the board shows.
+FORBIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
+
+
+def hidden_character(text: str) -> str | None:
+    """The first character of ``text`` that is invisible or reorders text (a control, a bidi
+    override, a zero-width or line separator), as ``U+XXXX``; None if there is none."""
+    for c in text:
+        if unicodedata.category(c) in FORBIDDEN_CATEGORIES:
+            return f"U+{ord(c):04X}"
+    return None
+
+
+def check_hidden(value, where: str = "", top: str = "the record") -> None:
+    """Every text in ``value`` (a parsed JSON record; ``top`` names it where ``where`` is
+    empty), keys included, free of ``FORBIDDEN_CATEGORIES``; run before the fields are
+    checked, so that no error message echoes such a character (an unknown key is named in
+    one)."""
+    if isinstance(value, str):
+        bad = hidden_character(value)
+        if bad:
+            raise SchemaError(f"{where or top} has the control or format character {bad}")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            check_hidden(k, f"{where or top} key", top)
+            check_hidden(v, f"{where}.{k}" if where else str(k), top)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            check_hidden(v, f"{where}[{i}]", top)
+
+
+def _shown(value) -> str:
+    """A refused value as an error message may quote it: ASCII-escaped, bounded."""
+    try:
+        text = ascii(value)
+    except ValueError:  # an int past Python's digit limit for str()
+        return "an integer too long to show"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 @dataclass(frozen=True)
 class Field:
-    """One field: its kind ("number", "int", "bool", "text", "hex64", "time", "interval": a
-    [lo, hi] pair of numbers in the range with lo <= hi), its range or length, whether null
-    is allowed and whether it may be absent."""
+    """One field: its kind, its range or length, whether null is allowed and whether it may be
+    absent. Kinds:
+
+    - "number", "int": finite, in [lo, hi];
+    - "bool";
+    - "text": one printable line of at most ``hi`` characters, with no control or format
+      character; "hex64" (a sha256 hex digest), "time" (``2026-01-31T12:00:00Z``) and "url"
+      (http or https) are texts too;
+    - "interval": a [lo, hi] pair of numbers in the range with lo <= hi;
+    - "list": a list of ``lo``..``hi`` values, each an ``item`` field;
+    - "record": an object checked by ``check_fields`` against ``table``, or by ``checker``
+      (a nested block with rules of its own, e.g. ``check_metrics``).
+
+    ``choices`` limits a value to a few (a text or an int); ``pattern`` (a regular expression
+    the whole text must match) is described by ``what`` in the error message."""
 
     kind: str
     lo: float = 0
     hi: float = math.inf
     null: bool = False
     required: bool = True
+    choices: tuple = ()
+    pattern: str | None = None
+    what: str = ""
+    item: Field | None = field(default=None, compare=False)
+    table: dict | None = field(default=None, compare=False, hash=False)
+    checker: Callable | None = field(default=None, compare=False)
 
     def check(self, value, where: str) -> None:
         if value is None:
@@ -52,9 +117,12 @@ class Field:
             is_int = isinstance(value, int) and not isinstance(value, bool)
             if not (is_int or (self.kind == "number" and isinstance(value, float))):
                 what = "an integer" if self.kind == "int" else "a number"
-                raise SchemaError(f"{where} must be {what}")
+                raise SchemaError(f"{where} must be {what}, got {_shown(value)}")
             if (not is_int and not math.isfinite(value)) or not self.lo <= value <= self.hi:
-                raise SchemaError(f"{where} must be a finite number in [{self.lo:g}, {self.hi:g}]")
+                raise SchemaError(
+                    f"{where} must be a finite number in [{self.lo:g}, {self.hi:g}], "
+                    f"got {_shown(value)}"
+                )
         elif self.kind == "interval":
             if not (isinstance(value, list) and len(value) == 2):
                 raise SchemaError(f"{where} must be an interval [lo, hi]")
@@ -65,25 +133,45 @@ class Field:
         elif self.kind == "bool":
             if not isinstance(value, bool):
                 raise SchemaError(f"{where} must be true or false")
-        else:
-            if (
-                not isinstance(value, str)
-                or not value.strip()
-                or len(value) > self.hi
-                or any(ord(c) < 32 for c in value)
-            ):
+        elif self.kind == "list":
+            if not isinstance(value, list) or not self.lo <= len(value) <= self.hi:
                 raise SchemaError(
-                    f"{where} must be one printable line of at most {self.hi:g} characters"
+                    f"{where} must be {self.what or f'a list of {self.lo:g} to {self.hi:g} values'}"
                 )
-            if self.kind == "hex64" and not re.fullmatch(r"[0-9a-f]{64}", value):
-                raise SchemaError(f"{where} is not a sha256 hex digest")
-            if self.kind == "time":
-                try:
-                    datetime.datetime.strptime(value, "%Y-%m-%dT%H:%M:%SZ")
-                except ValueError:
-                    raise SchemaError(
-                        f"{where} is not a UTC timestamp like 2026-01-31T12:00:00Z"
-                    ) from None
+            for i, x in enumerate(value):
+                self.item.check(x, f"{where}[{i}]")
+        elif self.kind == "record":
+            if self.checker is not None:
+                self.checker(value, where)
+            else:
+                check_fields(value, self.table, where)
+        else:
+            self._check_text(value, where)
+        if self.choices and value not in self.choices:
+            raise SchemaError(
+                f"{where} must be one of {', '.join(map(str, self.choices))}, got {_shown(value)}"
+            )
+
+    def _check_text(self, value, where: str) -> None:
+        bad = hidden_character(value) if isinstance(value, str) else None
+        if not isinstance(value, str) or not value.strip() or len(value) > self.hi or bad:
+            raise SchemaError(
+                f"{where} must be one printable line of at most {self.hi:g} characters"
+                + (f" (has the control or format character {bad})" if bad else "")
+            )
+        if self.pattern is not None and not re.fullmatch(self.pattern, value):
+            raise SchemaError(f"{where} must be {self.what}{' or null' * self.null}")
+        if self.kind == "hex64" and not re.fullmatch(r"[0-9a-f]{64}", value):
+            raise SchemaError(f"{where} is not a sha256 hex digest")
+        if self.kind == "url" and not re.fullmatch(r"https?://[^\s\"'<>`]+", value):
+            raise SchemaError(f"{where} {value!r} is not an http:// or https:// URL")
+        if self.kind == "time":
+            try:
+                datetime.datetime.strptime(value, "%Y-%m-%dT%H:%M:%SZ")
+            except ValueError:
+                raise SchemaError(
+                    f"{where} is not a UTC timestamp like 2026-01-31T12:00:00Z"
+                ) from None
 
 
 def mse(null: bool = True) -> Field:
@@ -167,14 +255,22 @@ RESULTS = {
 SEED = Field("int", 0, 2**64 - 1, null=True)
 
 
-def check_fields(record, table: dict[str, Field], where: str, extra: tuple[str, ...] = ()) -> None:
-    """``record`` (at dotted path ``where``; "" for the top level) must be an object holding
-    the table's fields (and ``extra`` names) only."""
+def check_fields(
+    record,
+    table: dict[str, Field],
+    where: str,
+    extra: tuple[str, ...] = (),
+    top: str = "the record",
+) -> None:
+    """``record`` (at dotted path ``where``; "" for the top level, named ``top`` in messages)
+    must be an object holding the table's fields (and ``extra`` names) only."""
     if not isinstance(record, dict):
-        raise SchemaError(f"{where or 'the record'} must be a JSON object")
-    unknown = sorted(str(k)[:40] for k in set(record) - set(table) - set(extra))
+        raise SchemaError(f"{where or top} must be a JSON object")
+    unknown = sorted(ascii(str(k))[1:-1][:40] for k in set(record) - set(table) - set(extra))
     if unknown:
-        raise SchemaError(f"{where or 'the record'} has unknown field(s) {', '.join(unknown[:5])}")
+        known = [*table, *extra]
+        hint = f" (known: {', '.join(known)})" if len(known) <= 8 else ""
+        raise SchemaError(f"{where or top} has unknown field(s) {', '.join(unknown[:5])}{hint}")
     for name, spec in table.items():
         if name not in record and not spec.required:
             continue
@@ -299,3 +395,140 @@ def check_results(r, source: str = "results") -> dict:
     except SchemaError as exc:
         raise SchemaError(f"{source}: {exc}") from None
     return r
+
+
+# --- the leaderboard entry (leaderboard/store.py reads and writes it) ------------------------
+ENTRY_VERSION = 1
+KINDS = ("model", "simulator")
+# Which command wrote an entry, so the board knows what the harness measured itself:
+# ``submit`` scores a predictions file and runs no model (its speed and params are claims),
+# ``seed`` publishes the maintainers' own `benchmark reproduce` runs (timed and counted by the
+# harness), ``simulator`` times radar_sim, ``board`` ran an ONNX model on a held-out build
+# (``leaderboard evaluate-model``: speed measured, parameters counted, by the board). Entries
+# made before the field read as ``submit``.
+ORIGINS = {"model": ("submit", "seed", "board"), "simulator": ("simulator",)}
+# ``heldout``: the ranked track, scored on a held-out build whose labels are not published
+# (models only through ``evaluate-model``); ``public``: the self-scored track, scored from
+# predictions files on a public test split. Entries made before the field are ``public``.
+TRACKS = ("heldout", "public")
+# predictions_content_sha256 covers the data scored (``benchmark.scoring.protocol.content_sha256``);
+# predictions_sha256 is the container's, kept for entries made before it existed;
+# onnx_sha256: the model file a held-out entry's numbers were measured with (evaluate-model)
+FILE_HASHES = ("results_sha256", "predictions_sha256", "predictions_content_sha256", "onnx_sha256")
+MAX_LINK = 500
+MAX_SAMPLE_SIDE = 1024  # points per axis of a sample image (leaderboard.example keeps <= 32)
+MAX_DB = 1e9  # |dB| of a sample image value; the -80 dB floor bounds honest ones
+MAX_ID = 2**63 - 1
+
+DATASET = {  # the dataset an entry was scored on
+    "fingerprint": Field("hex64"),
+    "label_fingerprint": Field("hex64"),
+    "version": Field(
+        "text",
+        hi=40,
+        pattern=r"[a-z0-9][a-z0-9.-]*",
+        what="a registered version name",
+        null=True,
+        required=False,
+    ),
+    "classes": Field(
+        "list", hi=MAX_CLASSES, item=Field("text", hi=MAX_NAME), what="a list of class names"
+    ),
+    "test_objects": Field("int", 0, MAX_COUNT),
+    "test_meshes": Field("int", 0, MAX_COUNT),
+}
+IMAGE = Field(  # aspect x range, dB; its shape is checked against the axes by check_sample
+    "list",
+    1,
+    MAX_SAMPLE_SIDE,
+    item=Field("list", 1, MAX_SAMPLE_SIDE, item=Field("number", -MAX_DB, MAX_DB)),
+)
+SAMPLE_MESH = {  # one of the two meshes of a sample, with this model's prediction for it
+    "mesh_uid": Field("int", 0, MAX_ID),
+    "variant": Field("int", 0, MAX_COUNT),
+    "n_faces": Field("int", 0, MAX_COUNT),
+    "predicted_db": IMAGE,
+}
+SAMPLE = {  # leaderboard.example.sample: downsampled dB images of the example test object
+    "object_id": Field("int", 0, MAX_ID),
+    "class": Field("text", hi=MAX_NAME),
+    "roll_deg": Field("number", -360, 360),
+    "aspect_deg": Field("list", 1, MAX_SAMPLE_SIDE, item=Field("number", -360, 360)),
+    "range_m": Field("list", 1, MAX_SAMPLE_SIDE, item=Field("number", -1e6, 1e6)),
+    "physics_db": IMAGE,
+    "meshes": Field(
+        "list",
+        2,
+        2,
+        item=Field("record", table=SAMPLE_MESH),
+        what="a list of the simple mesh and one complex mesh",
+    ),
+}
+
+
+def check_sample(s, where: str = "sample") -> dict:
+    """``SAMPLE``, and every image as many rows as aspects and columns as range bins."""
+    check_fields(s, SAMPLE, where)
+    shape = (len(s["aspect_deg"]), len(s["range_m"]))
+    images = [("physics_db", s["physics_db"])] + [
+        (f"meshes[{i}].predicted_db", m["predicted_db"]) for i, m in enumerate(s["meshes"])
+    ]
+    for name, img in images:
+        if (len(img), *{len(row) for row in img}) != shape:
+            raise SchemaError(f"{where}.{name} must be a {shape[0]} x {shape[1]} list of lists")
+    return s
+
+
+ENTRY = {  # one file of leaderboard/entries (leaderboard/entries/README.md)
+    "entry_version": Field("int", choices=(ENTRY_VERSION,)),
+    "id": Field(
+        "text",
+        hi=MAX_NAME,
+        pattern=r"[a-z0-9][a-z0-9-]*",
+        what="lower-case letters, digits and dashes",
+    ),
+    "kind": Field("text", choices=KINDS),
+    "origin": Field(  # per kind: check_entry
+        "text", choices=tuple(o for k in KINDS for o in ORIGINS[k]), null=True, required=False
+    ),
+    "track": Field("text", choices=TRACKS, required=False),
+    "name": Field("text", hi=MAX_NAME),
+    "link": Field("url", hi=MAX_LINK, null=True, required=False),
+    "model": Field("record", table=MODEL, required=False),
+    "params": MODEL["params"],
+    "params_self_reported": Field("bool", required=False),
+    "benchmark_version": replace(RESULTS["benchmark_version"], null=True, required=False),
+    "dataset": Field("record", table=DATASET),
+    "metrics": Field("record", checker=check_metrics),
+    "speed": Field(
+        "record", table={**SPEED, "source": Field("text", hi=MAX_TEXT, null=True, required=False)}
+    ),
+    "seeds": Field("record", checker=check_seeds, null=True, required=False),
+    "created": replace(RESULTS["created"], null=True, required=False),
+    "submitted": Field("time"),  # UTC time of acceptance
+    "files": Field(
+        "record",
+        table={name: Field("hex64", required=False) for name in FILE_HASHES},
+        required=False,
+    ),
+    "sample": Field("record", checker=check_sample, null=True, required=False),
+    "complex_mse_source": Field("text", hi=MAX_TEXT, null=True, required=False),  # simulator
+}
+
+
+def check_entry(e) -> dict:
+    """A whole leaderboard entry: ``ENTRY``, no hidden character in any text (keys included),
+    and the rules between fields: an origin allowed for the entry's kind, and the held-out
+    track holding exactly the models the board ran."""
+    if not isinstance(e, dict):
+        raise SchemaError("an entry must be a JSON object")
+    check_hidden(e, "", top="the entry")
+    check_fields(e, ENTRY, "", top="the entry")
+    kind, origin, track = e["kind"], e.get("origin"), e.get("track", "public")
+    if origin is not None and origin not in ORIGINS[kind]:
+        raise SchemaError(f"origin of a {kind} entry must be one of {', '.join(ORIGINS[kind])}")
+    if kind == "model" and (origin == "board") != (track == "heldout"):
+        raise SchemaError(
+            "the held-out track holds only models the board ran (origin board), and they only it"
+        )
+    return e
