@@ -183,6 +183,53 @@ def datasets(entries: list[dict]) -> list[dict]:
     )
 
 
+BUDGET_NOTE = (
+    "The labels' own physics error: each class's labels against the exact answer "
+    "(docs/RESULTS.md, physics error budget), in this board's metric, over the sizes measured. "
+    "Differences between models smaller than this are physics noise."
+)
+
+
+def budget(dataset: dict) -> list[tuple[str, str, str, str]]:
+    """(class, all bins, bins within 30 dB of the peak, exact reference) for a registered
+    version's classes under its radar physics; [] where none is measured."""
+    from benchmark.scoring import budget as physics_budget
+    from benchmark.scoring.versions import VERSIONS
+
+    v = VERSIONS.get(dataset.get("version") or "")
+    if v is None:
+        return []
+
+    def value(x: float) -> str:
+        return "<0.01" if x < 0.005 else f"{x:.3g}"
+
+    def span(lo_hi) -> str:
+        lo, hi = (value(x) for x in lo_hi)
+        return lo if lo == hi else f"{lo}–{hi}"
+
+    return [
+        (r["class"], span(r["all_bins_db2"]), span(r["near_peak_db2"]), r["reference"])
+        for r in physics_budget.rows(v.physics, list(dataset["classes"]))
+    ]
+
+
+def html_budget(dataset: dict) -> str:
+    rows = budget(dataset)
+    if not rows:
+        return ""
+    body = "\n".join(
+        f"<tr><td>{_e(c)}</td><td>{_e(a)}</td><td>{_e(n)}</td><td>{_e(ref)}</td></tr>"
+        for c, a, n, ref in rows
+    )
+    return (
+        "<h3>Physics error budget</h3>\n"
+        f'<p class="note">{_e(BUDGET_NOTE)}</p>\n'
+        '<div class="scroll"><table class="budget"><thead><tr><th>Class</th>'
+        "<th>Labels vs exact, all bins (dB²)</th><th>Within 30 dB of the peak (dB²)</th>"
+        f"<th>Exact reference</th></tr></thead>\n<tbody>\n{body}\n</tbody></table></div>"
+    )
+
+
 def describe(dataset: dict, heldout: bool = False) -> str:
     """The dataset's line: its registered version (grid, radar config, the command that builds
     it) or that it is none, then classes and test split; for the ranked track, the held-out
@@ -480,6 +527,8 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
             "ms per mesh against Complex MSE for every model and the physics simulator",
         ),
     ]
+    if html_budget(g["dataset"]):
+        parts.append(html_budget(g["dataset"]))
     if g["models"]:
         parts += ["<h3>Per class</h3>", html_per_class(g)]
     if g["example"]:
@@ -573,6 +622,20 @@ def markdown(groups: list[dict]) -> str:
             filter(None, [simulator_note(g["simulator"]), pareto_note(g), chart_note(g)])
         )
         out += [_md(notes), "", f"![Speed against error](speed-vs-error-{short}.png)", ""]
+        if budget(g["dataset"]):
+            out += [
+                "### Physics error budget",
+                "",
+                _md(BUDGET_NOTE),
+                "",
+                "| Class | Labels vs exact, all bins (dB²) | Within 30 dB of the peak (dB²) "
+                "| Exact reference |",
+                "|---|---:|---:|---|",
+            ]
+            out += [
+                f"| {_md(c)} | {a} | {n} | {_md(ref)} |" for c, a, n, ref in budget(g["dataset"])
+            ]
+            out += [""]
         if g["models"]:
             out += [
                 "### Per class",

@@ -756,3 +756,23 @@ def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path
         np.testing.assert_allclose(
             _simple_physics(d, obj), stored, rtol=0, atol=1e-6 * abs(stored).max()
         )
+
+
+def test_board_shows_the_labels_physics_budget_of_the_version():
+    """Each registered version's classes get their labels' error against the exact answer,
+    under the version's own physics (PO for v1, PO + edges for v2), from the committed
+    budget that perf/budget_summary.py makes; an unregistered dataset gets none."""
+    import json
+
+    from benchmark.scoring import budget as physics_budget
+    from leaderboard import render
+
+    classes = ["cube", "cylinder", "sphere"]
+    v1 = render.budget({"version": "demo-v1", "classes": classes})
+    v2 = render.budget({"version": "demo-v2", "classes": classes})
+    assert [r[0] for r in v1] == classes and {"cylinder", "sphere"} <= {r[0] for r in v2}
+    stored = json.loads(physics_budget.PATH.read_text())["physics"]["xband-v1"]["sphere"]
+    lo, hi = stored["all_bins_db2"]
+    assert v1[2][1] == f"{lo:.3g}–{hi:.3g}" and "Mie" in v1[2][3]
+    assert render.budget({"version": None, "classes": classes}) == []
+    assert "Physics error budget" in render.html_budget({"version": "demo-v1", "classes": classes})

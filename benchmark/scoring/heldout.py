@@ -20,7 +20,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,30 +104,13 @@ def build(
 ) -> dict:
     """Generate and label ``version``'s recipe with the secret's seed into ``directory``
     (resumes); return the version, timings and fingerprints (never the seed)."""
-    from basic_shapes.generate import GenerateConfig, generate
-    from radar_sim.label import LabelRequest, label_directory
+    from benchmark.scoring import versions
 
-    cfg = GenerateConfig(
-        classes=tuple(version.classes),
-        objects_per_class=version.objects_per_class,
-        variants=version.variants,
-        seed=seed_of(secret, version),
+    seed = seed_of(secret, version)
+    timings = versions.make(
+        version, directory, seed=seed, workers=workers, scheduler=scheduler, quiet=quiet
     )
-    t0 = time.perf_counter()
-    generate(directory, cfg, workers=workers, scheduler=scheduler, progress=not quiet)
-    t1 = time.perf_counter()
-    label_directory(
-        directory,
-        LabelRequest(version.radar_config(), version.mesh_labels),
-        workers=workers,
-        scheduler=scheduler,
-        progress=not quiet,
-    )
-    return {
-        "generate_s": round(t1 - t0, 1),
-        "label_s": round(time.perf_counter() - t1, 1),
-        **check(version, directory),
-    }
+    return {**timings, **check(version, directory)}
 
 
 def check(version: DatasetVersion, directory: str | os.PathLike) -> dict:

@@ -185,6 +185,24 @@ def build(
     """Generate and label ``version`` into ``directory`` (both resume), or only the shards
     numbered ``shards`` (a slice: the same bytes as in a whole build); return timings and the
     comparison with the version's manifest (``check``)."""
+    timings = make(
+        version, directory, workers=workers, scheduler=scheduler, quiet=quiet, shards=shards
+    )
+    return {"version": version.name, **timings, **check(version, Path(directory))}
+
+
+def make(
+    version: DatasetVersion,
+    directory: str | Path,
+    *,
+    seed: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    quiet: bool = False,
+    shards: list[int] | None = None,
+) -> dict:
+    """Generate and label ``version``'s recipe into ``directory`` (both resume), with its own
+    seed or ``seed`` (a held-out build, ``benchmark.scoring.heldout``); return the timings."""
     from basic_shapes.generate import GenerateConfig, generate
     from radar_sim.label import LabelRequest, label_directory
 
@@ -193,7 +211,7 @@ def build(
         classes=tuple(version.classes),
         objects_per_class=version.objects_per_class,
         variants=version.variants,
-        seed=version.seed,
+        seed=version.seed if seed is None else seed,
     )
     t0 = time.perf_counter()
     generate(
@@ -207,12 +225,7 @@ def build(
         scheduler=scheduler,
         progress=not quiet,
     )
-    return {
-        "version": version.name,
-        "generate_s": round(t1 - t0, 1),
-        "label_s": round(time.perf_counter() - t1, 1),
-        **check(version, directory),
-    }
+    return {"generate_s": round(t1 - t0, 1), "label_s": round(time.perf_counter() - t1, 1)}
 
 
 def check(version: DatasetVersion, directory: str | Path) -> dict:
