@@ -60,24 +60,36 @@ def matmul(a, b) -> np.ndarray:
     if a.ndim != 2 or b2.ndim != 2 or a.shape[1] != b2.shape[0]:
         raise ValueError(f"matmul: shapes {a.shape} and {b.shape} do not chain")
     if np.iscomplexobj(a) or np.iscomplexobj(b2):
-        a, b2 = a.astype(np.complex128), b2.astype(np.complex128)
-        re = np.zeros((a.shape[0], b2.shape[1]))
-        im = np.zeros_like(re)
-        _compiled()[1](
-            np.ascontiguousarray(a.real),
-            np.ascontiguousarray(a.imag),
-            np.ascontiguousarray(b2.real),
-            np.ascontiguousarray(b2.imag),
-            re,
-            im,
-        )
-        out = re + 1j * im
+        out = matmul_parts(a, complex_parts(b2))
     else:
         out = np.zeros((a.shape[0], b2.shape[1]))
         _compiled()[0](
             np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b2, np.float64), out
         )
     return out[:, 0] if vector else out
+
+
+def complex_parts(b) -> tuple[np.ndarray, np.ndarray]:
+    """The right factor of ``matmul_parts``: a 2-D matrix's real and imaginary parts (float64,
+    C-contiguous). A matrix used in many products is split once."""
+    b = np.asarray(b, dtype=np.complex128)
+    if b.ndim != 2:
+        raise ValueError(f"complex_parts: a 2-D matrix, got shape {b.shape}")
+    return np.ascontiguousarray(b.real), np.ascontiguousarray(b.imag)
+
+
+def matmul_parts(a, parts: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``matmul(a, b)`` for ``parts = complex_parts(b)``, bit for bit: complex128 (n, m) times
+    (m, k), each output summed over the inner index in increasing order."""
+    b_re, b_im = parts
+    a = np.ascontiguousarray(a, dtype=np.complex128)
+    if a.ndim != 2 or a.shape[1] != b_re.shape[0] or b_re.shape != b_im.shape:
+        raise ValueError(f"matmul: shapes {a.shape} and {b_re.shape} do not chain")
+    re = np.zeros((a.shape[0], b_re.shape[1]))
+    im = np.zeros_like(re)
+    if a.size and re.size:
+        _compiled()[1](a.view(np.float64), b_re, b_im, re, im)
+    return re + 1j * im
 
 
 @functools.cache
@@ -100,15 +112,21 @@ def _matmul_real(a, b, out):  # pragma: no cover - compiled
                 out[i, j] += x * b[p, j]
 
 
-def _matmul_complex(a_re, a_im, b_re, b_im, re, im):  # pragma: no cover - compiled
-    n, m = a_re.shape
-    k = b_re.shape[1]
-    for i in range(n):
+def _matmul_complex(a, b_re, b_im, re, im):  # pragma: no cover - compiled
+    """a: (n, 2m) float64, the complex left factor's real and imaginary parts interleaved (its
+    float view). Rows of a are taken 8 at a time, so each row of b, read from memory once for
+    them, serves 8 rows of outputs; every output still sums over p in increasing order."""
+    n = a.shape[0]
+    m, k = b_re.shape
+    rows = 8
+    for i0 in range(0, n, rows):
+        i1 = min(i0 + rows, n)
         for p in range(m):
-            xr = a_re[i, p]
-            xi = a_im[i, p]
-            if xr == 0.0 and xi == 0.0:
-                continue
-            for j in range(k):
-                re[i, j] += xr * b_re[p, j] - xi * b_im[p, j]
-                im[i, j] += xr * b_im[p, j] + xi * b_re[p, j]
+            for i in range(i0, i1):
+                xr = a[i, 2 * p]
+                xi = a[i, 2 * p + 1]
+                if xr == 0.0 and xi == 0.0:
+                    continue
+                for j in range(k):
+                    re[i, j] += xr * b_re[p, j] - xi * b_im[p, j]
+                    im[i, j] += xr * b_im[p, j] + xi * b_re[p, j]

@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 
-from basic_shapes.portable import matmul
+from basic_shapes.portable import complex_parts, matmul, matmul_parts
 from radar_sim import facet, po_kernel
 from radar_sim.geometry import Mesh, RayCaster, UnitsWarning, check_units, mode_of, prepare
 
@@ -184,16 +184,36 @@ def _indices(channels: tuple[str, ...]) -> list[int]:
 
 
 class _Geometry:
-    """Per-mesh arrays of the kernel: facet area vectors (double-double) and corners."""
+    """Per-mesh arrays of the kernel: facet area vectors (double-double) and corners, with the
+    vertices renumbered in the order the faces first use them (``v``, ``f``; ``local[i]`` is
+    the new number of the mesh's vertex i). ``prepare`` sorts vertices by x, y, z, which puts
+    a face's three corners far apart in memory: once the per-vertex positions and weights
+    outgrow the core's L2 cache (about 130k faces), the facet pass waited on memory for every
+    corner (perf/kernel_bound.py). Renumbered, neighbouring faces share cache lines. The
+    moment sums still run over the mesh's own order (``v_in_order``): no sum changes order."""
 
     def __init__(self, mesh: Mesh):
-        self.v = np.ascontiguousarray(mesh.vertices)
-        self.f = np.ascontiguousarray(mesh.faces, dtype=np.int32)  # half the traffic
-        self.area, self.area_lo = facet.area_vectors_split(self.v[self.f])
+        faces = np.asarray(mesh.faces)
+        first = np.full(len(mesh.vertices), faces.size, dtype=np.int64)
+        np.minimum.at(first, faces.ravel(), np.arange(faces.size))
+        order = np.argsort(first, kind="stable")  # vertices by first use (unused: last)
+        self.local = np.empty(len(order), dtype=np.int32)
+        self.local[order] = np.arange(len(order), dtype=np.int32)
+        self.v_in_order = np.ascontiguousarray(mesh.vertices)
+        self.v = np.ascontiguousarray(self.v_in_order[order])
+        self.f = np.ascontiguousarray(self.local[faces])  # int32: half the traffic
+        self.area, self.area_lo = facet.area_vectors_split(self.v_in_order[faces])
         self.area_split = np.concatenate(facet.split(self.area), axis=1)  # (F, 6)
         self.two_sided = not mesh.closed
-        self.centroids = mesh.centroids
-        self.normals = self.area / np.linalg.norm(self.area, axis=1, keepdims=True)
+        self._mesh = mesh
+
+    @functools.cached_property
+    def centroids(self) -> np.ndarray:  # shadow rays only
+        return self._mesh.centroids
+
+    @functools.cached_property
+    def normals(self) -> np.ndarray:  # shadow rays only
+        return self.area / np.linalg.norm(self.area, axis=1, keepdims=True)
 
 
 class _Moments:
@@ -241,7 +261,7 @@ class _Moments:
         self.taylor = np.array(taylor)  # (M, n_k)
         self.chunk = max(1, MOMENT_BUDGET // (max(self.terms, 1) * len(k) * 16))  # bins/block
         small = self.terms and self.n_bins <= self.chunk
-        self._matrix = self._block(0, self.n_bins) if small else None
+        self._parts = complex_parts(self._block(0, self.n_bins)) if small else None
 
     def _block(self, lo: int, hi: int) -> np.ndarray:
         """Rows (b, m) of e^{j2k_n c_b}(jκ_n h)^m/m! for bins lo <= b - b_min < hi."""
@@ -251,8 +271,8 @@ class _Moments:
 
     def contract(self, mom: np.ndarray) -> np.ndarray:
         """Σ_(b,m) mom[:, (b,m)] · matrix[(b,m), :]: the k⁻¹-weighted frequency sums."""
-        if self._matrix is not None:
-            return matmul(mom, self._matrix)
+        if self._parts is not None:
+            return matmul_parts(mom, self._parts)  # = matmul(mom, matrix), split once
         out = np.zeros((len(mom), len(self.k)), dtype=np.complex128)
         for lo in range(0, self.n_bins, self.chunk):
             hi = min(lo + self.chunk, self.n_bins)
@@ -274,7 +294,9 @@ def _po_field(
     mesh: Mesh, k: np.ndarray, dirs: np.ndarray, caster: RayCaster | None, tol: float
 ) -> np.ndarray:
     """First-bounce PO by ``po_kernel`` in groups of directions (memory of the moments and
-    shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too."""
+    shadow masks); the grouping depends only on the mesh and the grid, so the bytes do too
+    (within a group the kernel's blocks of directions and its vertex numbering change no sum's
+    order either)."""
     geo = _Geometry(mesh)
     plan = _Moments(k, mesh.radius, len(mesh.vertices))
     group = max(1, min(GROUP, MOMENT_BUDGET // (16 * max(plan.width, 1))))
@@ -283,11 +305,13 @@ def _po_field(
     for lo in range(0, len(dirs), group):
         r = dirs[lo : lo + group]
         blocked = no_shadow if caster is None else _blocked(r, geo, caster)
-        mom = np.zeros((len(r), plan.width), dtype=np.complex128)
+        mom = np.zeros((len(r), 2 * plan.width))  # complex moments as (re, im) pairs
         part = out[lo : lo + group]
         idx, val = po_kernel.first_bounce(
             geo.v,
             geo.f,
+            geo.v_in_order,
+            geo.local,
             geo.area,
             geo.area_lo,
             geo.area_split,
@@ -307,8 +331,11 @@ def _po_field(
             po_kernel.CIS_TABLE,
             po_kernel.CIS_PARAMS,
         )
+        if len(idx) > 1:  # listed by blocks of directions, then faces: by direction, face
+            order = np.lexsort((idx[:, 0], idx[:, 1]))
+            idx, val = idx[order], val[order]
         if plan.terms:
-            part += plan.contract(mom) / k
+            part += plan.contract(mom.view(np.complex128)) / k
         if len(idx):
             x = 2.0 * val[:, 1:, None] * k
             dd = facet.exp_divided_difference(x[:, 0], x[:, 1], x[:, 2])

@@ -1,4 +1,4 @@
-"""Compiled (numba) first-bounce PO kernel: one pass over the facets per direction.
+"""Compiled (numba) first-bounce PO kernel: one pass over the facets per block of directions.
 
 Per direction, every lit facet is classified (docs/RADAR.md, "Numerics") and either scattered
 as three frequency-independent k⁻¹ vertex weights onto the mesh's vertices, or, when its
@@ -13,6 +13,13 @@ k_n − k_mid and u = 2δ/h in [−1, 1]. Per direction each lit vertex adds M m
 with the direction-independent matrix e^{j2k_n c_b}(jκ_n h)^m/m! in one matrix product. That
 is one phasor and M complex updates per lit vertex and direction instead of n_k complex
 multiply-adds.
+
+Speed without changing a bit (perf/kernel_bound.py): one pass over the facets serves BLOCK
+directions; the facet pass reads the mesh renumbered for locality while the moments are summed
+in the mesh's own vertex order; the moments of a lane's lit vertices are formed in stages
+(phasors first, then the updates of two vertices interleaved term by term); the special forms
+run Horner's scheme across all frequencies at once. Every sum keeps the order of one
+direction at a time over the mesh's own numbering.
 """
 
 from __future__ import annotations
@@ -138,9 +145,10 @@ def _phasors(s, k, two_dk, re, im, tab, par):
 
 
 @njit(cache=True)
-def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im, tab, par):
+def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, work, tab, par):
     """Near-specular facet: e^{j2k s_mid} Σ_n (2/√π) P (2jk)^n h_n(σ_lo, σ_hi)/(n+2)! · k,
-    truncated where (2k_max d)^N (N+1)/(N+2)! <= tol/2 (at most 16 terms)."""
+    truncated where (2k_max d)^N (N+1)/(N+2)! <= tol/2 (at most 16 terms). ``work``: scratch
+    rows (``first_bounce``), row 4 holding k²."""
     if s0 > s1:
         s0, s1 = s1, s0
     if s1 > s2:
@@ -169,27 +177,35 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, re, im, tab, par):
         if bound <= 0.5 * tol:
             terms = n + 1
             break
+    re, im, k2, pr, pi = work[0], work[1], work[4], work[5], work[6]
     _phasors(s1, k, two_dk, re, im, tab, par)
     top_even = (terms - 1) // 2 * 2
     top_odd = terms - 1 if terms % 2 == 0 else terms - 2
-    for i in range(len(k)):
-        kk = k[i]
-        k2 = kk * kk
-        pr = 0.0  # even n: real, Horner in k²
-        for n in range(top_even, -1, -2):
-            pr = pr * k2 + coef[n]
-        pi = 0.0  # odd n: imaginary, k·(Horner in k²)
-        for n in range(top_odd, 0, -2):
-            pi = pi * k2 + coef[n]
-        pr *= kk
-        pi *= k2
-        row[i] += complex(pr * re[i] - pi * im[i], pr * im[i] + pi * re[i])
+    # Horner in k² term by term over all frequencies (the same operations per frequency as
+    # one frequency at a time, in a loop the compiler vectorizes)
+    n_k = len(k)
+    for i in range(n_k):
+        pr[i] = 0.0  # even n: real
+        pi[i] = 0.0  # odd n: imaginary, k·(Horner in k²)
+    for n in range(top_even, -1, -2):
+        cn = coef[n]
+        for i in range(n_k):
+            pr[i] = pr[i] * k2[i] + cn
+    for n in range(top_odd, 0, -2):
+        cn = coef[n]
+        for i in range(n_k):
+            pi[i] = pi[i] * k2[i] + cn
+    for i in range(n_k):
+        a = pr[i] * k[i]
+        b = pi[i] * k2[i]
+        row[i] += complex(a * re[i] - b * im[i], a * im[i] + b * re[i])
 
 
 @njit(cache=True)
-def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2, tab, par):
+def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, work, tab, par):
     """The k⁰⁺ part of a near pair: −j e D T(kg) (e^{j2ks_i} + e^{j2ks_j}), T = tan(y)/y
-    truncated where TAN_m (k_max g)^{2m}/(k_min e) <= tol/2 (at most 8 terms)."""
+    truncated where TAN_m (k_max g)^{2m}/(k_min e) <= tol/2 (at most 8 terms). ``work``:
+    scratch rows (``first_bounce``)."""
     n_tan = len(_TAN)
     y2_max = (k.max() * g) ** 2
     bound = 1.0 / abs(k.min() * e)
@@ -199,22 +215,88 @@ def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, re, im, re2, im2, tab, p
         if _TAN[m] * bound <= 0.5 * tol:
             terms = m
             break
+    re, im, re2, im2, t_k, y2 = work[0], work[1], work[2], work[3], work[5], work[6]
     _phasors(si, k, two_dk, re, im, tab, par)
     _phasors(sj, k, two_dk, re2, im2, tab, par)
-    for i in range(len(k)):
-        kk = k[i]
-        y2 = (kk * g) * (kk * g)
-        t = _TAN[terms - 1]
-        for m in range(terms - 2, -1, -1):
-            t = t * y2 + _TAN[m]
-        amp = -e * d * t  # times j
+    n_k = len(k)
+    for i in range(n_k):
+        y2[i] = (k[i] * g) * (k[i] * g)
+        t_k[i] = _TAN[terms - 1]
+    for m in range(terms - 2, -1, -1):  # Horner term by term over all frequencies
+        cm = _TAN[m]
+        for i in range(n_k):
+            t_k[i] = t_k[i] * y2[i] + cm
+    for i in range(n_k):
+        amp = -e * d * t_k[i]  # times j
         row[i] += complex(-amp * (im[i] + im2[i]), amp * (re[i] + re2[i]))
+
+
+_STAGE = 256  # vertices whose phasors are formed before their moments are added
+BLOCK = 8  # directions per pass over the facets (any number gives the same bytes)
+
+
+@njit(cache=True)
+def _add_moments(m_f, lit_s, lit_w, n_lit, inv_h, h, b_min, n_terms, two_k_mid, tab, par):
+    """Add the moments of the first ``n_lit`` weighted vertices (positions ``lit_s``, weights
+    ``lit_w``, in the mesh's vertex order) to ``m_f``, the float64 view (re, im interleaved)
+    of one direction's (n_bins·n_terms) complex moments.
+
+    In stages of _STAGE vertices: first every vertex's bin, u and w·e^{j2k_mid δ}, then the
+    moment updates two vertices at a time, interleaved term by term. A moment receives its
+    additions in the vertices' order either way (vertex t's term m before vertex t+1's), so
+    the sums are those of one vertex at a time, bit for bit; indices are unsigned (no
+    negative-index wrap-around)."""
+    two_over_h = 2.0 * inv_h
+    u_buf = np.empty(_STAGE)
+    re_buf = np.empty(_STAGE)
+    im_buf = np.empty(_STAGE)
+    at_buf = np.empty(_STAGE, dtype=np.uint64)
+    two = np.uint64(2)
+    one = np.uint64(1)
+    for t0 in range(0, n_lit, _STAGE):
+        n = min(_STAGE, n_lit - t0)
+        for t in range(n):
+            si = lit_s[t0 + t]
+            wi = lit_w[t0 + t]
+            bf = math.floor(si * inv_h + 0.5)
+            delta = si - bf * h  # exact: h is a power of two
+            u_buf[t] = delta * two_over_h
+            c, sn = _cis_of_product(delta, two_k_mid, tab, par)
+            re_buf[t] = wi * c
+            im_buf[t] = wi * sn
+            at_buf[t] = np.uint64(2 * (int(bf) - b_min) * n_terms)
+        t = 0
+        while t + 1 < n:
+            a, b = at_buf[t], at_buf[t + 1]
+            ra, ia, ua = re_buf[t], im_buf[t], u_buf[t]
+            rb, ib, ub = re_buf[t + 1], im_buf[t + 1], u_buf[t + 1]
+            pa = 1.0
+            pb = 1.0
+            for m in range(n_terms):
+                j = two * np.uint64(m)
+                m_f[a + j] += ra * pa
+                m_f[a + j + one] += ia * pa
+                m_f[b + j] += rb * pb
+                m_f[b + j + one] += ib * pb
+                pa *= ua
+                pb *= ub
+            t += 2
+        if t < n:
+            a, ra, ia, ua = at_buf[t], re_buf[t], im_buf[t], u_buf[t]
+            pa = 1.0
+            for m in range(n_terms):
+                j = two * np.uint64(m)
+                m_f[a + j] += ra * pa
+                m_f[a + j + one] += ia * pa
+                pa *= ua
 
 
 @njit(cache=True)
 def first_bounce(
     v,
     faces,
+    v_in_order,
+    local,
     area,
     area_lo,
     area_split,
@@ -234,139 +316,148 @@ def first_bounce(
     tab,
     par,
 ):
-    """Moments ``mom`` (n_dirs, n_bins·n_terms) of the k⁻¹ vertex weights (n_terms = 0: their
-    frequency sums added to ``out`` directly), special facets added to ``out`` (n_dirs, n_k);
-    returns the facets left for the stable integral as (face, direction) index pairs, their
-    projected areas and their three positions r̂·r_i.
-    ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size 0: none); ``area_split``
-    holds the Veltkamp halves of ``area`` (hi parts, then lo parts); ``two_dk`` is 2Δk of a
-    uniform frequency grid (0: not uniform); ``tab``, ``par``: CIS_TABLE, CIS_PARAMS."""
+    """Moments ``mom`` (n_dirs, 2·n_bins·n_terms: the float64 view of complex moments) of the
+    k⁻¹ vertex weights (n_terms = 0: their frequency sums added to ``out`` directly), special
+    facets added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
+    (face, direction) index pairs, their projected areas and their three positions r̂·r_i,
+    by blocks of BLOCK directions and within a block by face.
+    ``v``, ``faces``: the mesh renumbered for locality (``field._Geometry``); ``v_in_order``:
+    the mesh's own vertices, whose order is the order of the moment sums, and ``local[i]`` the
+    renumbered index of its vertex i. ``blocked`` (n_faces, n_dirs) uint8 marks shadowed
+    facets (size 0: none); ``area_split`` holds the Veltkamp halves of ``area`` (hi parts, then
+    lo parts); ``two_dk`` is 2Δk of a uniform frequency grid (0: not uniform); ``tab``,
+    ``par``: CIS_TABLE, CIS_PARAMS.
+
+    One pass over the facets serves BLOCK directions (their positions and weights side by
+    side per vertex). Every sum is formed in the same order as one direction at a time over
+    the mesh's own numbering: a vertex weight and a row of ``out`` over the faces in face
+    order, a moment over the vertices in the mesh's order; the blocks and the renumbering
+    only change where the numbers are kept."""
     n_v = len(v)
     n_f = len(faces)
+    n_dirs = len(dirs)
     k_lo = k.min()
     k_hi = k.max()
     k_lo2 = k_lo * k_lo
     h = 1.0 / inv_h
     shadowed = blocked.size > 0
-    s = np.empty(n_v)
-    w = np.empty(n_v)
-    r_split = np.empty(6)
-    scratch = np.empty((4, len(k)))
+    s = np.empty((n_v, BLOCK))
+    w = np.empty((n_v, BLOCK))
+    lit_s = np.empty(n_v)
+    lit_w = np.empty(n_v)
+    r = np.empty((BLOCK, 3))
+    r_split = np.empty((BLOCK, 6))
+    scratch = np.empty((7, len(k)))  # phasors (4 rows), k², Horner sums (2 rows)
+    for n in range(len(k)):
+        scratch[4, n] = k[n] * k[n]
     cap = 64
     st_idx = np.empty((cap, 2), dtype=np.int64)
     st_val = np.empty((cap, 4))
     n_st = 0
-    for d in range(len(dirs)):
-        r0, r1, r2 = dirs[d, 0], dirs[d, 1], dirs[d, 2]
-        for c in range(3):
-            r_split[c], r_split[3 + c] = _split(dirs[d, c])
+    for d0 in range(0, n_dirs, BLOCK):
+        nd = min(BLOCK, n_dirs - d0)
+        for e in range(BLOCK):  # lanes past the last direction repeat it (never read)
+            for c in range(3):
+                r[e, c] = dirs[min(d0 + e, n_dirs - 1), c]
+                r_split[e, c], r_split[e, 3 + c] = _split(r[e, c])
         for i in range(n_v):
-            s[i] = v[i, 0] * r0 + v[i, 1] * r1 + v[i, 2] * r2
-            w[i] = 0.0
-        row = out[d]
+            x0, x1, x2 = v[i, 0], v[i, 1], v[i, 2]
+            for e in range(BLOCK):
+                s[i, e] = x0 * r[e, 0] + x1 * r[e, 1] + x2 * r[e, 2]
+                w[i, e] = 0.0
         for f in range(n_f):
-            p = _projected(area, area_lo, area_split, f, r0, r1, r2, r_split)
-            if two_sided:
-                p = abs(p)
-            if not p > 0.0 or (shadowed and blocked[f, d]):
-                continue
             i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-            s0, s1, s2 = s[i0], s[i1], s[i2]
-            a = s0 - s1
-            b = s1 - s2
-            c = s2 - s0
-            abc = a * b * c
-            aa, bb, cc = abs(a), abs(b), abs(c)
-            d_max = max(aa, bb, cc)
-            if abc != 0.0 and d_max * phase_error <= tol * k_lo2 * abs(abc):
-                q = p / ((2.0 * _SQRT_PI) * abc)
-                w[i0] += q * b
-                w[i1] += q * c
-                w[i2] += q * a
-                continue
-            if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
-                _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch[0], scratch[1], tab, par)
-                continue
-            d_min = min(aa, bb, cc)
-            ke = k_lo * d_max
-            if (
-                ke > 0.0
-                and (
-                    _TAN_NEXT * (k_hi * d_min) ** 16 / ke
-                    + phase_error * (1.0 / ke + 1.0 / (ke * ke))
-                )
-                <= tol
-            ):
-                if aa == d_min:  # pair (0, 1), third 2
-                    pi_, pj, pm = i0, i1, i2
-                    si, sj, sm = s0, s1, s2
-                elif bb == d_min:  # pair (1, 2), third 0
-                    pi_, pj, pm = i1, i2, i0
-                    si, sj, sm = s1, s2, s0
-                else:  # pair (2, 0), third 1
-                    pi_, pj, pm = i2, i0, i1
-                    si, sj, sm = s2, s0, s1
-                e = 0.5 * (si + sj) - sm
-                g = si - sj
-                dd = _TWO_OVER_SQRT_PI * p / (4.0 * e * e - g * g)
-                w[pi_] += 0.5 * dd
-                w[pj] += 0.5 * dd
-                w[pm] -= dd
-                _add_pair_tan(
-                    row,
-                    k,
-                    two_dk,
-                    tol,
-                    dd,
-                    e,
-                    g,
-                    si,
-                    sj,
-                    scratch[0],
-                    scratch[1],
-                    scratch[2],
-                    scratch[3],
-                    tab,
-                    par,
-                )
-                continue
-            if n_st == cap:
-                cap *= 2
-                grown_idx = np.empty((cap, 2), dtype=np.int64)
-                grown_val = np.empty((cap, 4))
-                grown_idx[:n_st] = st_idx
-                grown_val[:n_st] = st_val
-                st_idx, st_val = grown_idx, grown_val
-            st_idx[n_st, 0] = f
-            st_idx[n_st, 1] = d
-            st_val[n_st, 0] = p
-            st_val[n_st, 1] = s0
-            st_val[n_st, 2] = s1
-            st_val[n_st, 3] = s2
-            n_st += 1
-        if n_terms == 0:  # few vertices: direct sums
-            for i in range(n_v):
-                if w[i] != 0.0:
-                    _phasors(s[i], k, two_dk, scratch[0], scratch[1], tab, par)
-                    for n in range(len(k)):
-                        wk = w[i] / k[n]
-                        row[n] += complex(wk * scratch[0, n], wk * scratch[1, n])
-            continue
-        m_row = mom[d]
-        two_over_h = 2.0 * inv_h
+            for e in range(nd):
+                p = _projected(area, area_lo, area_split, f, r[e, 0], r[e, 1], r[e, 2], r_split[e])
+                if two_sided:
+                    p = abs(p)
+                if not p > 0.0 or (shadowed and blocked[f, d0 + e]):
+                    continue
+                s0, s1, s2 = s[i0, e], s[i1, e], s[i2, e]
+                a = s0 - s1
+                b = s1 - s2
+                c = s2 - s0
+                abc = a * b * c
+                aa, bb, cc = abs(a), abs(b), abs(c)
+                d_max = max(aa, bb, cc)
+                if abc != 0.0 and d_max * phase_error <= tol * k_lo2 * abs(abc):
+                    q = p / ((2.0 * _SQRT_PI) * abc)
+                    w[i0, e] += q * b
+                    w[i1, e] += q * c
+                    w[i2, e] += q * a
+                    continue
+                row = out[d0 + e]
+                if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
+                    _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch, tab, par)
+                    continue
+                d_min = min(aa, bb, cc)
+                ke = k_lo * d_max
+                if (
+                    ke > 0.0
+                    and (
+                        _TAN_NEXT * (k_hi * d_min) ** 16 / ke
+                        + phase_error * (1.0 / ke + 1.0 / (ke * ke))
+                    )
+                    <= tol
+                ):
+                    if aa == d_min:  # pair (0, 1), third 2
+                        pi_, pj, pm = i0, i1, i2
+                        si, sj, sm = s0, s1, s2
+                    elif bb == d_min:  # pair (1, 2), third 0
+                        pi_, pj, pm = i1, i2, i0
+                        si, sj, sm = s1, s2, s0
+                    else:  # pair (2, 0), third 1
+                        pi_, pj, pm = i2, i0, i1
+                        si, sj, sm = s2, s0, s1
+                    gap = 0.5 * (si + sj) - sm
+                    g = si - sj
+                    dd = _TWO_OVER_SQRT_PI * p / (4.0 * gap * gap - g * g)
+                    w[pi_, e] += 0.5 * dd
+                    w[pj, e] += 0.5 * dd
+                    w[pm, e] -= dd
+                    _add_pair_tan(row, k, two_dk, tol, dd, gap, g, si, sj, scratch, tab, par)
+                    continue
+                if n_st == cap:
+                    cap *= 2
+                    grown_idx = np.empty((cap, 2), dtype=np.int64)
+                    grown_val = np.empty((cap, 4))
+                    grown_idx[:n_st] = st_idx
+                    grown_val[:n_st] = st_val
+                    st_idx, st_val = grown_idx, grown_val
+                st_idx[n_st, 0] = f
+                st_idx[n_st, 1] = d0 + e
+                st_val[n_st, 0] = p
+                st_val[n_st, 1] = s0
+                st_val[n_st, 2] = s1
+                st_val[n_st, 3] = s2
+                n_st += 1
+        # each lane's weights in the mesh's own vertex order (one cache line per vertex; kept
+        # in the positions' memory, which is not read again in this block), then per lane its
+        # weighted vertices in that order, without a branch per vertex, and their moments
+        w_in_order = s.reshape(BLOCK, n_v)
         for i in range(n_v):
-            wi = w[i]
-            if wi == 0.0:
-                continue
-            bf = math.floor(s[i] * inv_h + 0.5)
-            delta = s[i] - bf * h  # exact: h is a power of two
-            u = delta * two_over_h
-            c, sn = _cis_of_product(delta, two_k_mid, tab, par)
-            wr = wi * c
-            wim = wi * sn
-            base = (int(bf) - b_min) * n_terms
-            pw = 1.0
-            for m in range(n_terms):
-                m_row[base + m] += complex(wr * pw, wim * pw)
-                pw *= u
+            j = local[i]
+            for e in range(BLOCK):
+                w_in_order[e, i] = w[j, e]
+        for e in range(nd):
+            r0, r1, r2 = r[e, 0], r[e, 1], r[e, 2]
+            w_e = w_in_order[e]
+            n_lit = 0
+            for i in range(n_v):
+                wi = w_e[i]
+                lit_s[n_lit] = v_in_order[i, 0] * r0 + v_in_order[i, 1] * r1 + v_in_order[i, 2] * r2
+                lit_w[n_lit] = wi
+                n_lit += wi != 0.0
+            if n_terms == 0:  # few vertices: direct sums
+                row = out[d0 + e]
+                for t in range(n_lit):
+                    wi = lit_w[t]
+                    _phasors(lit_s[t], k, two_dk, scratch[0], scratch[1], tab, par)
+                    for n in range(len(k)):
+                        wk = wi / k[n]
+                        row[n] += complex(wk * scratch[0, n], wk * scratch[1, n])
+            else:
+                _add_moments(
+                    mom[d0 + e], lit_s, lit_w, n_lit, inv_h, h, b_min, n_terms, two_k_mid, tab, par
+                )
     return st_idx[:n_st], st_val[:n_st]

@@ -1,0 +1,314 @@
+"""The first-bounce PO kernel against its arithmetic bound, both measured in one run.
+
+    python perf/kernel_bound.py [--faces 8000 32000 130000 500000] [--step 1] [--repeats 3]
+                                [--baseline REV]
+
+Meshes: UV spheres scaled to an ellipsoid with semi-axes 0.5 x 0.7 x 0.9 m (``radar_kernel.py``'s
+``mesh_for``: the meshes of the documented figures and of the outside audit), mode "convex",
+on the xband-v1 grid: its 1241 unique directions (every ``--step``-th of them with --step > 1,
+the same sub-grid for every mesh and every code) x 128 frequencies. One core (thread limits
+set before numpy loads). For each mesh, CPU seconds (``time.process_time``, median of
+``--repeats``) of ``field.mesh_field`` after a warm-up call (numba compiled or loaded), split
+into the compiled pass (``po_kernel.first_bounce``) and the contraction (``_Moments.contract``).
+
+The bounds, measured on this core in this run:
+
+* **flop bound** (the definition of docs/RADAR.md since the kernel was written, and the one
+  the outside audit used): the direct frequency sums at BLAS speed, (4·n_k real multiply-adds
+  per lit vertex and direction + 10 per lit facet and direction) / R, R = real multiply-adds
+  per second of a single-threaded 1024³ dgemm (median over the run; one dgemm before every
+  timed call). It is a yardstick, not a lower bound of this algorithm, whose moments need
+  fewer operations per vertex than 4·n_k.
+* **work floor**: this algorithm's irreducible work, with its own compiled code on data that
+  is already in the cache: per lit vertex and direction one accurate phasor and M moment
+  updates (``po_kernel._add_moments`` on synthetic positions, scaled from 32 directions), plus
+  the contraction as one BLAS zgemm of the same shape (no zero skipping).
+
+Reported: time / flop bound, time / work floor, ns per face per direction, the contraction
+with the portable product and with BLAS, the load average around each mesh. With
+``--baseline REV``, ``radar_sim`` and ``basic_shapes.portable`` at REV (read with git archive)
+are timed in the same run, interleaved with the working tree's code, and the two outputs are
+compared bit for bit (sha256 of the complex128 array).
+Writes perf/results/kernel_bound.json and prints a table.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402 - thread limits are set before numpy loads
+import contextlib  # noqa: E402
+import hashlib  # noqa: E402
+import importlib  # noqa: E402
+import json  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import radar_sim  # noqa: E402
+from basic_shapes.infra import atomic_path, hardware  # noqa: E402
+from radar_sim import facet, geometry, po_kernel  # noqa: E402
+from radar_sim import field as current_field  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from radar_kernel import mesh_for  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = Path(__file__).parent / "results"
+FLOOR_DIRECTIONS = 32
+
+
+def load_baseline(rev: str, tmp: Path):
+    """``radar_sim`` and ``basic_shapes.portable`` at ``rev`` as the packages
+    ``baseline_radar_sim`` and ``baseline_portable``; returns the baseline's ``field``."""
+    for member in ("radar_sim", "basic_shapes/portable.py"):
+        archive = subprocess.run(
+            ["git", "-C", str(ROOT), "archive", rev, member], check=True, capture_output=True
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+    (tmp / "radar_sim").rename(tmp / "baseline_radar_sim")
+    (tmp / "basic_shapes" / "portable.py").rename(tmp / "baseline_portable.py")
+    for path in (tmp / "baseline_radar_sim").glob("*.py"):
+        text = re.sub(r"\bradar_sim\b", "baseline_radar_sim", path.read_text())
+        text = text.replace("basic_shapes.portable", "baseline_portable")
+        path.write_text(text)
+    sys.path.insert(0, str(tmp))
+    return importlib.import_module("baseline_radar_sim.field")
+
+
+class PartTimer:
+    """CPU seconds spent in ``po_kernel.first_bounce`` and ``_Moments.contract`` of a field
+    module, while active (wrappers installed on the module's own references)."""
+
+    def __init__(self, field_module):
+        self.field = field_module
+        self.kernel = self.contract = 0.0
+
+    @contextlib.contextmanager
+    def active(self):
+        kernel_module = self.field.po_kernel
+        first_bounce, contract = kernel_module.first_bounce, self.field._Moments.contract
+
+        def timed_kernel(*args):
+            t0 = time.process_time()
+            try:
+                return first_bounce(*args)
+            finally:
+                self.kernel += time.process_time() - t0
+
+        def timed_contract(plan, mom):
+            t0 = time.process_time()
+            try:
+                return contract(plan, mom)
+            finally:
+                self.contract += time.process_time() - t0
+
+        kernel_module.first_bounce, self.field._Moments.contract = timed_kernel, timed_contract
+        try:
+            yield self
+        finally:
+            kernel_module.first_bounce, self.field._Moments.contract = first_bounce, contract
+
+
+def dgemm_fma_rate() -> float:
+    """Real multiply-adds per second of this core: one single-threaded 1024³ dgemm."""
+    a = np.random.default_rng(0).normal(size=(1024, 1024))
+    a @ a
+    t0 = time.process_time()
+    a @ a
+    return 1024**3 / (time.process_time() - t0)
+
+
+def lit_counts(mesh, dirs) -> tuple[int, int]:
+    """Σ over directions of lit facets and of vertices of lit facets."""
+    area = facet.area_vectors(mesh.vertices[mesh.faces])
+    facets = vertices = 0
+    for lo in range(0, len(dirs), 64):
+        lit = area @ dirs[lo : lo + 64].T > 0
+        facets += int(lit.sum())
+        for col in lit.T:
+            seen = np.zeros(len(mesh.vertices), dtype=bool)
+            seen[mesh.faces[col].ravel()] = True
+            vertices += int(seen.sum())
+    return facets, vertices
+
+
+def work_floor(mesh, k, n_dirs: int, lit_vertices: int) -> dict:
+    """CPU seconds of the moment method's irreducible work (see the module docstring)."""
+    plan = current_field._Moments(k, mesh.radius, len(mesh.vertices))
+    per_dir = max(1, round(lit_vertices / n_dirs))
+    rng = np.random.default_rng(0)
+    s = rng.uniform(-mesh.radius, mesh.radius, per_dir)
+    w = rng.normal(size=per_dir)
+    row = np.zeros(2 * max(plan.width, 1))
+    args = (1.0 / plan.h, plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid)
+    tab, par = po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS
+    po_kernel._add_moments(row, s, w, per_dir, *args, tab, par)  # compile / warm the cache
+    t0 = time.process_time()
+    for _ in range(FLOOR_DIRECTIONS):
+        po_kernel._add_moments(row, s, w, per_dir, *args, tab, par)
+    vertex_s = (time.process_time() - t0) * n_dirs / FLOOR_DIRECTIONS
+    group = min(64, n_dirs)
+    mom = rng.normal(size=(group, plan.width)) + 1j * rng.normal(size=(group, plan.width))
+    matrix = plan._block(0, plan.n_bins)
+    mom @ matrix
+    t0 = time.process_time()
+    mom @ matrix
+    blas_s = (time.process_time() - t0) * n_dirs / group
+    return {
+        "terms": plan.terms,
+        "bins": plan.n_bins,
+        "lit_vertices_per_direction": per_dir,
+        "vertex_s": vertex_s,
+        "contraction_blas_s": blas_s,
+        "floor_s": vertex_s + blas_s,
+    }
+
+
+def measure(field_module, mesh, k, dirs, rates: list) -> tuple[dict, np.ndarray]:
+    rates.append(dgemm_fma_rate())
+    timer = PartTimer(field_module)
+    load = os.getloadavg()[0]
+    with timer.active():
+        t0 = time.process_time()
+        out = field_module.mesh_field(mesh, k, dirs, "convex")
+        total = time.process_time() - t0
+    return {
+        "total_s": total,
+        "kernel_s": timer.kernel,
+        "contract_s": timer.contract,
+        "rest_s": total - timer.kernel - timer.contract,
+        "load_1m": load,
+    }, out
+
+
+def digest(a: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(a, dtype=np.complex128).tobytes()).hexdigest()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--faces", type=int, nargs="+", default=[8000, 32000, 130000, 500000])
+    ap.add_argument("--step", type=int, default=1, help="every STEP-th unique direction")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--baseline", help="git revision whose kernel is timed alongside")
+    args = ap.parse_args(argv)
+    config = radar_sim.RadarConfig.named("xband-v1")
+    k = current_field.wavenumbers(config.frequency_hz)
+    all_dirs = np.unique(config.directions(), axis=0)
+    dirs = np.ascontiguousarray(all_dirs[:: args.step])
+    current_field._keep_heap()
+    codes = {"current": current_field}
+    rates: list[float] = []
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.baseline:
+            codes["baseline"] = load_baseline(args.baseline, Path(tmp))
+        v0, f0 = mesh_for(2000)
+        warm = geometry.prepare(v0, f0)
+        for code in codes.values():
+            code.mesh_field(warm, k, dirs[:9], "convex")  # numba: compile or load
+        start_load = os.getloadavg()
+        for n_faces in args.faces:
+            v, f = mesh_for(n_faces)
+            mesh = geometry.prepare(v, f)
+            runs = {name: [] for name in codes}
+            digests = {}
+            for rep in range(args.repeats):
+                order = list(codes) if rep % 2 == 0 else list(codes)[::-1]
+                for name in order:
+                    timing, out = measure(codes[name], mesh, k, dirs, rates)
+                    runs[name].append(timing)
+                    digests.setdefault(name, digest(out))
+            lit_f, lit_v = lit_counts(mesh, dirs)
+            row = {
+                "faces": len(mesh.faces),
+                "vertices": len(mesh.vertices),
+                "lit_facet_directions": lit_f,
+                "lit_vertex_directions": lit_v,
+                "work_floor": work_floor(mesh, k, len(dirs), lit_v),
+                "sha256": digests,
+            }
+            if "baseline" in digests:
+                row["bit_identical_to_baseline"] = digests["baseline"] == digests["current"]
+            for name, timings in runs.items():
+                row[name] = {key: float(np.median([t[key] for t in timings])) for key in timings[0]}
+                row[name]["repeats"] = timings
+            rows.append(row)
+            print(f"  {row['faces']} faces done", flush=True)
+    rate = float(np.median(rates))
+    for row in rows:
+        flop_bound = (
+            4.0 * len(k) * row["lit_vertex_directions"] + 10.0 * row["lit_facet_directions"]
+        ) / rate
+        row["flop_bound_s"] = flop_bound
+        for name in codes:
+            r = row[name]
+            r["over_flop_bound"] = r["total_s"] / flop_bound
+            r["over_work_floor"] = r["total_s"] / row["work_floor"]["floor_s"]
+            r["ns_per_face_direction"] = r["total_s"] / (row["faces"] * len(dirs)) * 1e9
+    result = {
+        "hardware": hardware(threads=1),
+        "load_1m_5m_15m_at_start": list(start_load),
+        "load_1m_5m_15m_at_end": list(os.getloadavg()),
+        "grid": {
+            "config": config.name,
+            "directions": len(dirs),
+            "of_unique_directions": len(all_dirs),
+            "step": args.step,
+            "frequencies": len(k),
+        },
+        "dgemm_fma_per_s": {"median": rate, "min": min(rates), "max": max(rates)},
+        "baseline": args.baseline,
+        "repeats": args.repeats,
+        "meshes": rows,
+    }
+    RESULTS.mkdir(exist_ok=True)
+    with atomic_path(RESULTS / "kernel_bound.json") as tmp_path:
+        tmp_path.write_text(json.dumps(result, indent=2) + "\n")
+    print(
+        f"\nfirst-bounce PO kernel (mesh_field, mode convex), {len(dirs)} of {len(all_dirs)} "
+        f"directions x {len(k)} frequencies, one core, CPU s, median of {args.repeats}; "
+        f"{result['hardware']['text']}"
+    )
+    print(
+        f"dgemm {2 * rate / 1e9:.1f} GFLOP/s (median of {len(rates)}, "
+        f"{2 * min(rates) / 1e9:.1f}-{2 * max(rates) / 1e9:.1f}); load average "
+        f"{start_load[0]:.1f} at start, {result['load_1m_5m_15m_at_end'][0]:.1f} at end"
+    )
+    head = (
+        f"{'faces':>8} {'code':>8} {'total s':>8} {'kernel':>7} {'contr.':>7} "
+        f"{'BLAS':>6} {'flop bd':>7} {'x bound':>7} {'floor':>6} {'x floor':>7} "
+        f"{'ns/f/dir':>8} {'same bits':>9}"
+    )
+    print(head)
+    for row in rows:
+        for name in codes:
+            r = row[name]
+            same = row.get("bit_identical_to_baseline")
+            print(
+                f"{row['faces']:>8} {name:>8} {r['total_s']:8.3f} {r['kernel_s']:7.3f} "
+                f"{r['contract_s']:7.3f} {row['work_floor']['contraction_blas_s']:6.3f} "
+                f"{row['flop_bound_s']:7.3f} {r['over_flop_bound']:7.2f} "
+                f"{row['work_floor']['floor_s']:6.3f} {r['over_work_floor']:7.2f} "
+                f"{r['ns_per_face_direction']:8.2f} {'-' if same is None else str(same):>9}"
+            )
+    print(
+        "kernel: po_kernel.first_bounce; contr.: the contraction (portable fixed-order "
+        "product); BLAS: the same contraction as one zgemm; flop bd: (4 n_k per lit vertex + "
+        "10 per lit facet) multiply-adds at the dgemm rate; floor: phasor + M moment updates "
+        "per lit vertex in cache + the BLAS contraction"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
