@@ -432,7 +432,9 @@ def _cis_of_product(s, two_k, tab, par):
 @njit(cache=True, inline="always")
 def _cis(x, x_lo, tab, par):
     """(cos, sin) of x + x_lo: ``facet.cis`` (4096-entry table and a short polynomial, a few
-    ulp), libm beyond 6.6e6 rad."""
+    ulp), libm beyond 6.6e6 rad. The same as ``po_kernel._cis`` on purpose: numba's on-disk
+    cache is keyed on the caller's file only, so a compiled helper imported from another
+    module would go stale in it when that module changes; each kernel file keeps its own."""
     if abs(x) > par[3]:
         c, sn = math.cos(x), math.sin(x)
         return c - sn * x_lo, sn + c * x_lo
