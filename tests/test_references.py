@@ -26,6 +26,7 @@ def generated(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # minutes of real training / real Blender meshes: CI's slow set
 def test_class_from_normals_on_real_meshes_of_every_variant(generated):
     objs = list(iter_objects(generated))
     train = [(o, m) for k, (_, o, m) in enumerate(objs) if k % 2 == 0]

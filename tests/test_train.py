@@ -99,6 +99,7 @@ def test_basic_sees_simple_meshes_and_ideal_all_meshes(data_dir):
     assert len(seen) > len(groups)  # complex meshes are drawn too
 
 
+@pytest.mark.slow  # minutes of real training / real Blender meshes: CI's slow set
 def test_autoencoder_reconstruction_loss_decreases():
     meshes = corpus.procedural_corpus(24, seed=3, max_faces=120)
     examples = corpus_examples(meshes)
