@@ -55,11 +55,11 @@ import numpy as np  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes.infra import atomic_path, hardware  # noqa: E402
-from radar_sim import facet, geometry, po_kernel  # noqa: E402
 from radar_sim import field as current_field  # noqa: E402
+from radar_sim import geometry, po_kernel  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from radar_kernel import mesh_for  # noqa: E402
+from radar_kernel import lit_counts, mesh_for  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results"
@@ -125,20 +125,6 @@ def dgemm_fma_rate() -> float:
     t0 = time.process_time()
     a @ a
     return 1024**3 / (time.process_time() - t0)
-
-
-def lit_counts(mesh, dirs) -> tuple[int, int]:
-    """Σ over directions of lit facets and of vertices of lit facets."""
-    area = facet.area_vectors(mesh.vertices[mesh.faces])
-    facets = vertices = 0
-    for lo in range(0, len(dirs), 64):
-        lit = area @ dirs[lo : lo + 64].T > 0
-        facets += int(lit.sum())
-        for col in lit.T:
-            seen = np.zeros(len(mesh.vertices), dtype=bool)
-            seen[mesh.faces[col].ravel()] = True
-            vertices += int(seen.sum())
-    return facets, vertices
 
 
 def work_floor(mesh, k, n_dirs: int, lit_vertices: int) -> dict:

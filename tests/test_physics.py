@@ -162,17 +162,7 @@ def test_cylinder_broadside():
 def test_dihedral_peak_with_second_bounce():
     """90° dihedral of two a x b plates, seen along the bisector: σ = 8πa²b²/λ² within 0.2 dB."""
     a, b, freq = 0.3, 0.4, 10e9
-    v = np.array(
-        [
-            [0, 0, -b / 2],
-            [0, 0, b / 2],
-            [0, a, b / 2],
-            [0, a, -b / 2],
-            [a, 0, b / 2],
-            [a, 0, -b / 2],
-        ]
-    )
-    f = np.array([[0, 1, 2], [0, 2, 3], [0, 4, 1], [0, 5, 4]])
+    v, f = _dihedral(a, b)
     assert detect_mode(v, f) == "bounce2"
     los = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
     exact = 8 * np.pi * a**2 * b**2 / (C0 / freq) ** 2
