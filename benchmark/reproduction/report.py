@@ -19,7 +19,7 @@ import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.reproduction.presets import EMBEDDINGS, PRESETS, PRETRAINING, ROWS
-from benchmark.reproduction.runner import checkpoint_dir, row_files
+from benchmark.reproduction.runner import checkpoint_dir, number, plateau_record, row_files
 from benchmark.scoring.schema import METRIC_NAMES, OOD_METRIC_NAMES, PEAK_METRIC_NAMES
 from benchmark.training.models import REGISTRY
 from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
@@ -105,9 +105,6 @@ def load_records(out: Path, preset_name: str, seeds: list[int], data) -> dict:
     return records
 
 
-MAX_CURVE = 10_000  # epochs in a validation curve read back from a checkpoint
-
-
 def _training(out: Path, name: str, seed: int, preset_name: str) -> dict:
     """``train_seconds``, ``epochs_to_plateau``, ``capped`` and the validation curve
     (``val_curve``) of a run, from its checkpoint's config.json (Nones where not kept)."""
@@ -126,23 +123,9 @@ def _training(out: Path, name: str, seed: int, preset_name: str) -> dict:
             f"{preset_name} preset's {want!r}; is --preset right?"
         )
     value = config.get("train_seconds")
-    if not _number(value) or not value >= 0:
+    if not number(value) or not value >= 0:
         raise ReportError(f"{path}: train_seconds must be a number >= 0, got {value!r}")
-    chosen = config.get("selection") if isinstance(config.get("selection"), dict) else {}
-    history = config.get("history") if isinstance(config.get("history"), dict) else {}
-    epochs = history.get("train") if isinstance(history.get("train"), list) else []
-    curve = [e.get("val_mse") if isinstance(e, dict) else None for e in epochs[:MAX_CURVE]]
-    plateau = chosen.get("epochs_to_plateau")
-    return {
-        "train_seconds": value,
-        "epochs_to_plateau": plateau if _number(plateau) else None,
-        "capped": chosen.get("capped") if isinstance(chosen.get("capped"), bool) else None,
-        "val_curve": curve if curve and all(_number(v) for v in curve) else None,
-    }
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+    return {"train_seconds": value, **plateau_record(config)}
 
 
 def build_table(
@@ -688,7 +671,9 @@ def plot_curves(rows: list[dict], path: Path, title: str) -> bool:
         return False
     cols = min(4, len(rows))
     grid = (len(rows) + cols - 1) // cols
-    fig, axes = plt.subplots(grid, cols, figsize=(3.2 * cols, 2.4 * grid), squeeze=False)
+    fig, axes = plt.subplots(
+        grid, cols, figsize=(3.2 * cols + 1.6, 2.4 * grid + 1.2), squeeze=False
+    )
     for ax, r in zip(axes.flat, rows):
         for seed, curve, best in zip(r["seeds"], r["val_curves"], r["epochs_to_plateau"]):
             if not curve:
@@ -703,9 +688,9 @@ def plot_curves(rows: list[dict], path: Path, title: str) -> bool:
     for ax in axes.flat[len(rows) :]:
         ax.set_visible(False)
     axes[0, 0].legend(fontsize=7)
-    fig.supxlabel("epoch")
-    fig.supylabel("validation MSE (dB²); dot: the selected epoch")
-    fig.suptitle(title)
+    fig.supxlabel("epoch (dot: the selected epoch)")
+    fig.supylabel("validation MSE (dB²)")
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         tmp.write_bytes(plotting.png(fig))

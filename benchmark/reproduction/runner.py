@@ -9,6 +9,7 @@ Every (row, seed) already finished with the same configuration on the same datas
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -72,6 +73,29 @@ def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
     return ck
 
 
+MAX_CURVE = 10_000  # epochs in a validation curve read back from a checkpoint
+
+
+def number(v) -> bool:
+    """A finite int or float (not a bool): what a config read back may be trusted to hold."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def plateau_record(config: dict) -> dict:
+    """``epochs_to_plateau``, ``capped`` and the validation curve (``val_curve``) of a run,
+    from its checkpoint config (Nones where absent or malformed: a run without a val split)."""
+    chosen = config.get("selection") if isinstance(config.get("selection"), dict) else {}
+    history = config.get("history") if isinstance(config.get("history"), dict) else {}
+    epochs = history.get("train") if isinstance(history.get("train"), list) else []
+    curve = [e.get("val_mse") if isinstance(e, dict) else None for e in epochs[:MAX_CURVE]]
+    plateau = chosen.get("epochs_to_plateau")
+    return {
+        "epochs_to_plateau": plateau if number(plateau) else None,
+        "capped": chosen.get("capped") if isinstance(chosen.get("capped"), bool) else None,
+        "val_curve": curve if curve and all(number(v) for v in curve) else None,
+    }
+
+
 def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
     """The results of a (row, seed) finished earlier with this exact config on this dataset."""
     from benchmark.scoring.protocol import ResultsError, load_results
@@ -89,7 +113,7 @@ def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
         or "per_object" not in results
     ):
         return None
-    return {"results": results, "train_seconds": ck.get("train_seconds")}
+    return {"results": results, "train_seconds": ck.get("train_seconds"), **plateau_record(ck)}
 
 
 def resume(cfgs: list, out: Path, fingerprint: str, overwrite: bool) -> tuple[list, dict]:
@@ -211,10 +235,12 @@ def run_row(
         device=shared["device"],
         predictions=predictions_path,
     )
+    config = load_json(ckpt / "config.json", max_bytes=CONFIG_MAX_BYTES)
     return {
         "results": results,
         "train_seconds": train_seconds,
         "wall_seconds": time.perf_counter() - t0,
+        **plateau_record(config if isinstance(config, dict) else {}),
     }
 
 
