@@ -134,6 +134,12 @@ def build_parser() -> ArgumentParser:
 
     i = sub.add_parser("info", help="counts, face-count histograms and Hausdorff statistics")
     i.add_argument("--data", required=True, metavar="DIR", help="dataset directory")
+    i.add_argument(
+        "--figure",
+        metavar="PNG",
+        help="also draw the histograms: per class, faces and Hausdorff distances of the simple, "
+        "complex and OOD meshes, and the objects' extents",
+    )
 
     s = sub.add_parser("show", help="render an object's simple mesh beside complex variants (PNG)")
     s.add_argument("--data", required=True, metavar="DIR", help="dataset directory")
@@ -189,9 +195,13 @@ def _main(argv: list[str]) -> int:
             f"({stats['meshes_per_second']:.1f} verified meshes/s)"
         )
     elif args.command == "info":
-        from basic_shapes.info import summary
+        from basic_shapes.info import figure, summary
 
         print(summary(args.data))
+        if args.figure:
+            separate_outputs({"--figure": args.figure}, {"--data": args.data})
+            figure(args.data, args.figure)
+            print(f"wrote {args.figure}")
     elif args.command == "show":
         from basic_shapes.render import show_object
 

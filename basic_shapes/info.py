@@ -1,12 +1,15 @@
-"""`basic-shapes info`: what a dataset holds, read from metadata only (no geometry)."""
+"""`basic-shapes info`: what a dataset holds, read from metadata only (no geometry): as text,
+or (``--figure``) as one row of histograms per class."""
 
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.infra import save_png
 from basic_shapes.shards import (
     Shard,
     dataset_fingerprint,
@@ -16,6 +19,59 @@ from basic_shapes.shards import (
 )
 
 BAR = 40
+KINDS = ("simple", "complex", "OOD")  # the meshes of an object, as the statistics split them
+
+
+@dataclass
+class ClassStats:
+    """One class's objects and meshes: counts, extents, and per mesh kind (KINDS) the face
+    counts and Hausdorff distances to the simple mesh (relative to the bbox diagonal)."""
+
+    splits: dict = field(default_factory=lambda: {"train": 0, "val": 0, "test": 0})
+    labelled: int = 0
+    scales: list = field(default_factory=list)
+    faces: dict = field(default_factory=lambda: {k: [] for k in KINDS})
+    hausdorff: dict = field(default_factory=lambda: {k: [] for k in KINDS})
+
+    @property
+    def objects(self) -> int:
+        return sum(self.splits.values())
+
+    def of(self, what: str, kind: str) -> np.ndarray:
+        return np.concatenate(getattr(self, what)[kind]) if getattr(self, what)[kind] else []
+
+
+def statistics(directory: str | Path) -> tuple[dict, dict[str, ClassStats]]:
+    """(the dataset's header: shards, config, fingerprints; ClassStats by class name). Every
+    shard is verified first (``dataset_fingerprint``)."""
+    shards = list_shards(directory)
+    header = {"shards": len(shards), "mesh_fingerprint": dataset_fingerprint(directory)}
+    per_class: dict[str, ClassStats] = defaultdict(ClassStats)
+    for p in shards:
+        with Shard(p) as s:
+            header["config"] = s.config
+            names = s.class_names
+            objs = s.objects()
+            table = s.mesh_table()
+            for k, c in enumerate(objs["class"]):
+                d = per_class[names[c]]
+                d.splits[objs["split"][k]] += 1
+                d.labelled += int(s.has_labels)
+                d.scales.append(objs["scale"][k])
+            cls_of_mesh = objs["class"][table["object_index"]]
+            ood = is_ood_variant(table["variant"])
+            kind = {
+                "simple": table["variant"] == 0,
+                "complex": (table["variant"] > 0) & ~ood,
+                "OOD": ood,
+            }
+            for c in np.unique(cls_of_mesh):
+                for name, sel in kind.items():
+                    sel = sel & (cls_of_mesh == c)
+                    per_class[names[c]].faces[name].append(table["n_faces"][sel])
+                    per_class[names[c]].hausdorff[name].append(table["hausdorff"][sel])
+    header["labels"] = _labels(directory)
+    return header, dict(per_class)
 
 
 def _histogram(n_faces: np.ndarray) -> list[str]:
@@ -41,54 +97,23 @@ def _labels(directory) -> str:
 
 
 def summary(directory: str | Path) -> str:
-    per_class = defaultdict(
-        lambda: {
-            "objects": 0,
-            "train": 0,
-            "val": 0,
-            "test": 0,
-            "faces": [],
-            "hausdorff": [],
-            "labelled": 0,
-            "ood": 0,
-        }
-    )
-    shards = list_shards(directory)
-    mesh_fingerprint = dataset_fingerprint(directory)  # every shard verified before reporting
-    config = None
-    for p in shards:
-        with Shard(p) as s:
-            config = s.config
-            names = s.class_names
-            objs = s.objects()
-            table = s.mesh_table()
-            for k, c in enumerate(objs["class"]):
-                d = per_class[names[c]]
-                d["objects"] += 1
-                d[objs["split"][k]] += 1
-                d["labelled"] += int(s.has_labels)
-            cls_of_mesh = objs["class"][table["object_index"]]
-            ood = is_ood_variant(table["variant"])  # counted apart, not in the statistics
-            for c in np.unique(cls_of_mesh):
-                per_class[names[c]]["ood"] += int(np.sum((cls_of_mesh == c) & ood))
-                sel = (cls_of_mesh == c) & ~ood
-                per_class[names[c]]["faces"].append(table["n_faces"][sel])
-                complex_ = sel & (table["variant"] > 0)
-                per_class[names[c]]["hausdorff"].append(table["hausdorff"][complex_])
+    header, per_class = statistics(directory)
+    config = header.get("config", {})
     lines = [
-        f"dataset {directory}: {len(shards)} shards, seed {config.get('seed', '?')}, "
+        f"dataset {directory}: {header['shards']} shards, seed {config.get('seed', '?')}, "
         f"{config.get('variants', '?')} complex variants per object",
-        f"mesh fingerprint  {mesh_fingerprint}",
-        f"label fingerprint {_labels(directory)}",
+        f"mesh fingerprint  {header['mesh_fingerprint']}",
+        f"label fingerprint {header['labels']}",
     ]
     for name, d in per_class.items():
-        faces = np.concatenate(d["faces"])
-        h = np.concatenate(d["hausdorff"])
+        faces = np.concatenate([d.of("faces", "simple"), d.of("faces", "complex")])
+        h = d.of("hausdorff", "complex")
+        n_ood = len(d.of("faces", "OOD"))
         lines.append(
-            f"\n{name}: {d['objects']} objects ({d['train']} train / {d['val']} val / "
-            f"{d['test']} test), {len(faces)} meshes"
-            + (f" + {d['ood']} out-of-distribution" if d["ood"] else "")
-            + f", {d['labelled']} objects radar-labelled"
+            f"\n{name}: {d.objects} objects ({d.splits['train']} train / {d.splits['val']} val"
+            f" / {d.splits['test']} test), {len(faces)} meshes"
+            + (f" + {n_ood} out-of-distribution" if n_ood else "")
+            + f", {d.labelled} objects radar-labelled"
         )
         lines.append(
             f"  faces: min {faces.min()}, median {int(np.median(faces))}, max {faces.max()}"
@@ -100,3 +125,62 @@ def summary(directory: str | Path) -> str:
                 f"99th pct {np.percentile(h, 99):.2e}, max {h.max():.2e}"
             )
     return "\n".join(lines)
+
+
+COLOURS = {"simple": "tab:gray", "complex": "tab:blue", "OOD": "tab:orange"}
+
+
+def figure(directory: str | Path, out: str | Path) -> None:
+    """Per class: face counts and Hausdorff distances of the simple, complex and OOD meshes
+    (log axes: both span decades), and the objects' extents per axis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    _, per_class = statistics(directory)
+    fig, axes = plt.subplots(
+        len(per_class), 3, figsize=(12, 2.8 * len(per_class) + 0.6), squeeze=False
+    )
+    for row, (name, d) in zip(axes, per_class.items()):
+        _log_histograms(row[0], {k: d.of("faces", k) for k in KINDS}, "faces per mesh")
+        _log_histograms(
+            row[1],
+            {k: d.of("hausdorff", k) for k in KINDS[1:]},
+            "Hausdorff to the simple mesh / bbox diagonal",
+        )
+        scales = np.asarray(d.scales)
+        row[2].hist(list(scales.T), bins=12, label=["x", "y", "z"], histtype="step", lw=1.5)
+        row[2].set_xlabel("bbox extent (m)")
+        row[2].legend(fontsize=8, frameon=False)
+        row[0].set_ylabel(f"{name}\n({d.objects} objects)", fontsize=11)
+    fig.suptitle(f"{Path(directory).name}: meshes and objects per class", fontsize=12)
+    fig.tight_layout()
+    save_png(fig, out)
+
+
+def _log_histograms(ax, values: dict, xlabel: str) -> None:
+    """Step histograms of positive values on shared log-spaced bins, one per mesh kind."""
+    from matplotlib.ticker import NullFormatter
+
+    present = {k: np.asarray(v) for k, v in values.items() if len(v) and np.any(np.asarray(v) > 0)}
+    if not present:
+        ax.text(0.5, 0.5, "none", ha="center", va="center", transform=ax.transAxes)
+        ax.set_xlabel(xlabel)
+        return
+    positive = np.concatenate([v[v > 0] for v in present.values()])
+    lo, hi = positive.min(), positive.max()
+    bins = np.geomspace(lo, hi * 1.001, 20) if hi > lo else np.array([lo * 0.9, hi * 1.1])
+    for kind, v in present.items():
+        ax.hist(
+            v[v > 0],
+            bins=bins,
+            histtype="step",
+            lw=1.5,
+            color=COLOURS[kind],
+            label=f"{kind} ({len(v)})",
+        )
+    ax.set_xscale("log")
+    ax.xaxis.set_minor_formatter(NullFormatter())  # decades only: no overlap
+    ax.set_xlabel(xlabel)
+    ax.legend(fontsize=8, frameon=False)

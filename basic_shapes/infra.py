@@ -57,6 +57,17 @@ def atomic_path(path: str | os.PathLike):
         tmp.unlink(missing_ok=True)
 
 
+def save_png(fig, out: str | os.PathLike, dpi: int = 110) -> None:
+    """Write a matplotlib figure as PNG atomically (a killed run leaves the old picture or
+    none, never half of one) and close it; no software tag, so same input, same bytes."""
+    import matplotlib.pyplot as plt
+
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None})
+    plt.close(fig)
+
+
 _DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 FREE_MARGIN = 64 << 20  # bytes kept free beyond a write's estimate (HDF5 metadata, labels)
 

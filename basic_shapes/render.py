@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.infra import save_png
 from basic_shapes.shards import find_object
 
 
@@ -55,6 +56,4 @@ def show_object(directory: str | Path, object_id: int, out: str | Path, count: i
         f"object {obj['id']} ({obj['class']}, {sx:.2f} x {sy:.2f} x {sz:.2f} m)", fontsize=11
     )
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.9, wspace=0, hspace=0.08)
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    save_png(fig, out)

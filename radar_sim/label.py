@@ -421,41 +421,19 @@ def _tasks(plans: list[ShardPlan]):
         yield plan, obj, meshes
 
 
-def _duration(seconds: float) -> str:
-    if seconds < 120:
-        return f"{seconds:.1f} s"
-    return f"{seconds / 60:.1f} min" if seconds < 7200 else f"{seconds / 3600:.1f} h"
+def _bar(n_todo: int, total_work: float, progress: bool):
+    """The job's tqdm bar on stderr, as every long job of the toolkit: advanced by each
+    object's work (faces x directions x frequencies), so the time left is right although the
+    largest objects come first; the objects done and the last one are shown beside it."""
+    from tqdm import tqdm
 
-
-class _Progress:
-    """One line per finished object, and the time left: the first (largest) object calibrates
-    a rate (work per second of its own compute, times the workers); later ones measure the
-    rate since then, so process start-up never enters the estimate."""
-
-    def __init__(self, log, n_todo: int, total_work: float, n_threads: int):
-        self.log, self.n_todo, self.total, self.n_threads = log, n_todo, total_work, n_threads
-        self.count, self.work, self.first = 0, 0.0, None
-
-    def finished(self, plan: ShardPlan, obj: ObjectPlan, result: dict) -> None:
-        self.count += 1
-        self.work += obj.work
-        now = time.perf_counter()
-        if self.first is None:
-            self.first = (now, self.work)
-            rate = obj.work / max(result["seconds"], 1e-9) * self.n_threads
-            self.log(
-                f"  first object: {result['seconds']:.2f} s; estimated total "
-                f"{_duration(self.total / rate)} on {self.n_threads} worker(s)"
-            )
-        else:
-            rate = (self.work - self.first[1]) / max(now - self.first[0], 1e-9)
-        extra = f" + {len(result['mesh_rows'])} mesh(es)" if result["mesh_rows"] else ""
-        self.log(
-            f"  [{self.count}/{self.n_todo}] {plan.path.name} object {obj.object_id} "
-            f"({obj.class_name}, {result['faces']} faces, {result['mode']}){extra}: "
-            f"{result['seconds']:.2f} s; about {_duration((self.total - self.work) / rate)}"
-            f" left"
-        )
+    return tqdm(
+        total=total_work,
+        desc="label",
+        disable=not progress,
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]",
+        postfix=f"0/{n_todo} objects",
+    )
 
 
 def label_directory(
@@ -471,7 +449,7 @@ def label_directory(
 
     Every shard is validated before any work starts, so a foreign or truncated shard, a config
     mismatch or an object outside the range window fails fast and changes nothing. Prints the
-    planned work, an estimate calibrated on the first object, and one line per object.
+    planned work (stdout), then a progress bar weighted by work (stderr).
     """
     from radar_sim import MeshError
 
@@ -517,11 +495,11 @@ def label_directory(
                 f"{directory}: cannot use the Dask cluster {scheduler or '(local)'}: {exc}"
             ) from None
         log(
-            f"radar-sim label: {n_todo} object(s) in {len(todo)} shard(s) to compute"
+            f"radar-sim label: {n_todo} object(s) in {len(todo)} shard(s) to compute on "
+            f"{max(1, sum(client.nthreads().values()))} worker thread(s)"
             f"{f', {summary.reused} reused from an interrupted run' if summary.reused else ''}; "
             f"work {total_work:.3g} face x direction x frequency products"
         )
-        n_threads = max(1, sum(client.nthreads().values()))
         tasks = (
             (
                 (plan, obj),
@@ -537,12 +515,18 @@ def label_directory(
             )
             for plan, obj, meshes in _tasks(todo)
         )
-        progress_log = _Progress(log, n_todo, total_work, n_threads)
+        bar, count = stack.enter_context(_bar(n_todo, total_work, progress)), 0
         try:
             for (plan, obj), result in run_tasks(client, label_object, tasks):
                 write_object(plan, obj.index, result, _stamp(request, plan.fingerprint))
                 plan.done.add(obj.index)
-                progress_log.finished(plan, obj, result)
+                count += 1
+                bar.set_postfix_str(
+                    f"{count}/{n_todo} objects, last {plan.path.name} object {obj.object_id} "
+                    f"({obj.class_name}, {result['faces']} faces, {result['mode']})",
+                    refresh=False,
+                )
+                bar.update(obj.work)
                 if len(plan.done) == plan.n_objects:
                     merge_shard(plan, request)
                     summary.labelled.append(plan.path)

@@ -12,6 +12,8 @@ import os
 
 import numpy as np
 
+from basic_shapes.infra import save_png
+
 DYNAMIC_RANGE_DB = 80.0
 
 
@@ -90,5 +92,4 @@ def plot_signature(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    save_png(fig, out)

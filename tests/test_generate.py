@@ -176,11 +176,35 @@ def test_truncated_shard_is_reported_by_info(dataset, tmp_path):
     assert r.returncode != 0 and "shard-00000.h5: not a readable HDF5 shard" in r.stderr
 
 
+def test_info_statistics_count_every_mesh_once(dataset):
+    """The figure's histograms hold every mesh of the shards once, in its kind: variant 0 is
+    the simple mesh, OOD variants apart (counted here from the raw mesh table)."""
+    from basic_shapes.info import KINDS, statistics
+    from basic_shapes.shards import OOD_FIRST, list_shards
+
+    _, per_class = statistics(dataset)
+    counted = {k: sum(len(d.of("faces", k)) for d in per_class.values()) for k in KINDS}
+    variants = []
+    for p in list_shards(dataset):
+        with Shard(p) as s:
+            variants.extend(s.mesh_table()["variant"])
+    variants = np.asarray(variants)
+    assert counted == {
+        "simple": int(np.sum(variants == 0)),
+        "complex": int(np.sum((variants > 0) & (variants < OOD_FIRST))),
+        "OOD": int(np.sum(variants >= OOD_FIRST)),
+    }
+    assert sum(d.objects for d in per_class.values()) == counted["simple"]
+
+
 def test_info_show_export(dataset, tmp_path):
     r = _run_cli("info", "--data", str(dataset))
     assert r.returncode == 0, r.stderr
     assert "cube: 2 objects (1 train / 0 val / 1 test), 8 meshes" in r.stdout
     assert dataset_fingerprint(dataset) in r.stdout
+    figure = tmp_path / "info.png"
+    assert cli.main(["info", "--data", str(dataset), "--figure", str(figure)]) == 0
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     png = tmp_path / "o.png"
     assert cli.main(["show", "--data", str(dataset), "--object", "2", "--out", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
