@@ -32,7 +32,7 @@ from benchmark.training.train import (
     fit,
     train,
 )
-from tests.benchmark_fixture import make_dataset
+from benchmark_fixture import make_dataset
 
 TINY = dict(
     dim=16,
@@ -84,8 +84,8 @@ def test_training_is_deterministic_for_a_seed(data_dir, embedding, regime):
 def test_basic_sees_simple_meshes_and_ideal_all_meshes(data_dir):
     with BenchmarkData(data_dir) as data:
         train_objects = data.object_rows("train")
-        basic, basic_groups = benchmark_examples(data, "basic", False, ScaleBins())
-        ideal, groups = benchmark_examples(data, "ideal", False, ScaleBins())
+        basic, basic_groups = benchmark_examples(data, "basic", (), ScaleBins())
+        ideal, groups = benchmark_examples(data, "ideal", (), ScaleBins())
         simple_faces = {len(data.mesh(int(data.meshes_of(o)[0]))[1]) for o in train_objects}
     assert len(basic) == len(basic_groups) == len(train_objects) == len(groups)
     assert {e.features.n_faces for e in basic} == simple_faces
@@ -247,6 +247,10 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         rescored = score_predictions(out / "data", out / "results" / row["name"] / "predictions.h5")
         assert rescored["complex_mse"] == results["metrics"]["complex_mse"]
         assert row["speed"]["threads"] >= 1 and "timed alone" in row["speed"]["hardware"]
+        for cname, block in results["metrics"]["per_class"].items():  # one seed: its own
+            assert row["per_class"][cname]["complex_mse"] == pytest.approx(
+                block["complex_mse"], rel=1e-12
+            )
     assert [r["name"] for r in table["rows"][-2:]] == ["invariant-basic", "blind-basic"]
     assert table["rows"][-1]["variation_mse"] == 0.0  # blind to the mesh
     assert set(table["references"]) == {
@@ -267,6 +271,9 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
     assert "reference: train-mean" in md and "### Out-of-distribution meshes per remesher" in md
     assert all(row["ood_complex_mse"] is not None for row in table["rows"])
     assert (out / "speed_vs_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "per_class.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for ref in table["references"].values():  # every test object in exactly one class
+        assert sum(b["n_objects"] for b in ref["per_class"].values()) == n_test
     assert table["findings"] == [] and "No findings" in md  # the tiny preset decides nothing
     # a rerun reuses every finished row instead of training again
     benchmark_main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet"])
@@ -483,7 +490,7 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     )
     with BenchmarkData(d) as data:
         model, config = train(TrainConfig(**{**TINY, "epochs": 4}), data, progress=False)
-        val, _ = benchmark_examples(data, "basic", False, data.scale_bins, split="val")
+        val, _ = benchmark_examples(data, "basic", (), data.scale_bins, split="val")
     hist = config["history"]["train"]
     sel = config["selection"]
     assert sel["on"] == "val" and len(val) == 3

@@ -39,9 +39,24 @@ def reference_rows(data) -> tuple[dict, dict, dict | None]:
     _, scorers = references.reference_scores(data)
     return (
         scorers,
-        {n: references.summary(sc) for n, sc in scorers.items()},
+        {
+            n: {**references.summary(sc), "per_class": per_class(sc.per_object(), sc.class_names)}
+            for n, sc in scorers.items()
+        },
         references.oracle_row(data, scorers),
     )
+
+
+def per_class(po: dict, names: list[str]) -> dict:
+    """The metric block (with intervals) of each class that has test objects."""
+    from benchmark.scoring.metrics import metric_block
+
+    out = {}
+    for c, name in enumerate(names):
+        sel = po["class_index"] == c
+        if sel.any():
+            out[name] = metric_block({k: v[sel] for k, v in po.items()}, po["class_index"][sel])
+    return out
 
 
 def dataset_info(data, directory) -> dict:
@@ -240,7 +255,7 @@ def table_rows(
             "epochs_to_plateau": [r.get("epochs_to_plateau") for r in recs],
             "capped": [r.get("capped") for r in recs],
             "val_curves": [r.get("val_curve") for r in recs],
-            "per_class": {},
+            "per_class": per_class(po, list(res[0]["metrics"]["per_class"])),
             "per_object": {
                 k: [None if np.isnan(x) else float(x) for x in v]
                 if v.dtype.kind == "f"
@@ -251,13 +266,6 @@ def table_rows(
             "per_seed_object": {m: [r["per_object"][m] for r in res] for m in METRICS},
         }
         row["no_skill"] = row["no_skill_seeds"] * 2 > len(seeds)
-        names = res[0]["metrics"]["per_class"]
-        for c, cname in enumerate(names):
-            sel = po["class_index"] == c
-            if sel.any():
-                row["per_class"][cname] = metric_block(
-                    {k: v[sel] for k, v in po.items()}, po["class_index"][sel]
-                )
         if ref_scorers is not None:
             row["skill"] = references.skill(po, ref_scorers, ref_rows)
         rows.append(row)
@@ -697,6 +705,63 @@ def plot_curves(rows: list[dict], path: Path, title: str) -> bool:
     return True
 
 
+def plot_per_class(rows: list[dict], references: dict, path: Path, title: str) -> None:
+    """One panel per class: each row's Simple (hollow) and Complex (filled) MSE with the
+    interval of its seed-mean, the references first (grey), so where each model fails and
+    whether it beats class + scale shows at a glance."""
+    import matplotlib.pyplot as plt
+
+    from benchmark.scoring import plotting
+
+    entries = [(f"ref: {n}", r, "0.45") for n, r in references.items()] + [
+        (r["name"], r, REGISTRY[r["embedding"]].colour) for r in rows
+    ]
+    classes = list(dict.fromkeys(c for _, r, _ in entries for c in r.get("per_class", {})))
+    fig, axes = plt.subplots(
+        1,
+        len(classes),
+        figsize=(3.4 * len(classes) + 2.2, 0.28 * len(entries) + 1.4),
+        sharey=True,
+        squeeze=False,
+    )
+    y = np.arange(len(entries))[::-1]
+    for ax, cname in zip(axes[0], classes):
+        for yk, (_, r, colour) in zip(y, entries):
+            block = r.get("per_class", {}).get(cname)
+            if not block:
+                continue
+            for metric, fill, dy in (("simple_mse", "none", 0.15), ("complex_mse", colour, -0.15)):
+                if block.get(metric) is None:
+                    continue
+                lo, hi = block.get(metric + "_ci") or (block[metric], block[metric])
+                ax.errorbar(
+                    block[metric],
+                    yk + dy,
+                    xerr=[[block[metric] - lo], [hi - block[metric]]],
+                    fmt="o",
+                    ms=4,
+                    color=colour,
+                    mfc=fill,
+                    elinewidth=0.8,
+                    capsize=0,
+                )
+        n = next(
+            r["per_class"][cname]["n_objects"]
+            for _, r, _ in entries
+            if cname in r.get("per_class", {})
+        )
+        ax.set_title(f"{cname} ({n} test objects)", fontsize=9)
+        ax.set_xlabel("MSE (dB²)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.set_xlim(left=0)
+        ax.grid(axis="x", lw=0.3)
+    axes[0, 0].set_yticks(y, [plotting.literal(n) for n, _, _ in entries], fontsize=7)
+    fig.suptitle(title + " (hollow: Simple MSE, filled: Complex MSE)", fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(plotting.png(fig))
+
+
 def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
     """table.json, table.md and (``with_plot``) the plots, each replaced atomically."""
     with atomic_path(out / "table.json") as tmp:
@@ -714,4 +779,10 @@ def write_outputs(out: Path, table: dict, with_plot: bool = True) -> None:
             table["rows"],
             out / "training_curves.png",
             f"Basic Shapes, preset {table['preset']}: validation curves",
+        )
+        plot_per_class(
+            table["rows"],
+            table["references"],
+            out / "per_class.png",
+            f"Basic Shapes, preset {table['preset']}: per class",
         )
