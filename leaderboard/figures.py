@@ -1,4 +1,4 @@
-"""The board's two figures, as PNG bytes (matplotlib, Agg; no fonts or files fetched).
+"""The board's figures, as PNG bytes (matplotlib, Agg; no fonts or files fetched).
 
 Speed against error puts every model of one dataset at (ms per mesh, Complex MSE) with its
 95% interval, the physics simulator as the reference point (a model is only useful left of it,
@@ -7,6 +7,7 @@ nothing to run: a model must be below them). Speeds the harness did not measure 
 ``leaderboard submit`` entry's, ``store.speed_self_reported``) are drawn as diamonds. On the
 ranked track the Pareto front of the board-measured points (and the simulator) is drawn: the
 models worth running at their speed.
+The per-class figure shows each model's Simple and Complex MSE per class, ranked order.
 The example shows one test object's physics response beside the best models' predictions for
 its simple mesh and for a complex mesh of exactly the same shape.
 """
@@ -87,6 +88,20 @@ def speed_vs_error(
             {k: r.get("complex_mse") for k, r in (references or {}).items()},
             sim,
             front=[(x, y) for _, x, y in pareto_front(models, simulator)] if front else None,
+        )
+    )
+
+
+def per_class(models: list[dict], title: str) -> bytes:
+    """Each model's Simple and Complex MSE per class with intervals, in the board's order."""
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    return plotting.png(
+        plotting.per_class(
+            [
+                (e["name"], e["metrics"]["per_class"], colours[k % len(colours)])
+                for k, e in enumerate(models)
+            ],
+            title,
         )
     )
 

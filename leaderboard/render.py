@@ -41,7 +41,7 @@ from leaderboard.store import (
     track,
 )
 
-FIGURES = ("speed-vs-error-*.png", "example-*.png")
+FIGURES = ("speed-vs-error-*.png", "per-class-*.png", "example-*.png")
 METRIC_TITLES = {
     "simple_mse": "Simple MSE",
     "complex_mse": "Complex MSE",
@@ -562,7 +562,15 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
     ]
     parts += [x for x in (html_budget(g["dataset"]), html_peak(g)) if x]
     if g["models"]:
-        parts += ["<h3>Per class</h3>", html_per_class(g)]
+        parts += [
+            "<h3>Per class</h3>",
+            _img(
+                f"per-class-{short}.png",
+                images[f"per-class-{short}.png"],
+                "Simple and Complex MSE of every model, one panel per class",
+            ),
+            html_per_class(g),
+        ]
     if g["example"]:
         s = g["example"][0]["sample"]
         parts += [
@@ -677,6 +685,8 @@ def markdown(groups: list[dict]) -> str:
             out += [
                 "### Per class",
                 "",
+                f"![Simple and Complex MSE per class](per-class-{short}.png)",
+                "",
                 "| Model | Class | " + " | ".join(METRIC_TITLES[k] for k in COLUMNS) + " |",
                 "|---|---|" + "---:|" * len(COLUMNS),
             ]
@@ -708,6 +718,10 @@ def build(entries: list[dict]) -> dict[str, bytes]:
         files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(
             g["models"], g["simulator"], references(g), front=g["track"] == "heldout"
         )
+        if g["models"]:
+            files[f"per-class-{g['short']}.png"] = figures.per_class(
+                g["models"], f"{g['dataset'].get('version') or g['short']}: per class"
+            )
         if g["example"]:
             files[f"example-{g['short']}.png"] = figures.example(g["example"])
     sizes = {name: _png_size(data) for name, data in files.items()}

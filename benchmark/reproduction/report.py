@@ -706,58 +706,17 @@ def plot_curves(rows: list[dict], path: Path, title: str) -> bool:
 
 
 def plot_per_class(rows: list[dict], references: dict, path: Path, title: str) -> None:
-    """One panel per class: each row's Simple (hollow) and Complex (filled) MSE with the
-    interval of its seed-mean, the references first (grey), so where each model fails and
-    whether it beats class + scale shows at a glance."""
-    import matplotlib.pyplot as plt
-
+    """Per class, each row's Simple and Complex MSE with intervals, references first."""
     from benchmark.scoring import plotting
 
-    entries = [(f"ref: {n}", r, "0.45") for n, r in references.items()] + [
-        (r["name"], r, REGISTRY[r["embedding"]].colour) for r in rows
-    ]
-    classes = list(dict.fromkeys(c for _, r, _ in entries for c in r.get("per_class", {})))
-    fig, axes = plt.subplots(
-        1,
-        len(classes),
-        figsize=(3.4 * len(classes) + 2.2, 0.28 * len(entries) + 1.4),
-        sharey=True,
-        squeeze=False,
+    fig = plotting.per_class(
+        [
+            (f"ref: {n}", r.get("per_class", {}), plotting.REFERENCE_GREY)
+            for n, r in references.items()
+        ]
+        + [(r["name"], r["per_class"], REGISTRY[r["embedding"]].colour) for r in rows],
+        title,
     )
-    y = np.arange(len(entries))[::-1]
-    for ax, cname in zip(axes[0], classes):
-        for yk, (_, r, colour) in zip(y, entries):
-            block = r.get("per_class", {}).get(cname)
-            if not block:
-                continue
-            for metric, fill, dy in (("simple_mse", "none", 0.15), ("complex_mse", colour, -0.15)):
-                if block.get(metric) is None:
-                    continue
-                lo, hi = block.get(metric + "_ci") or (block[metric], block[metric])
-                ax.errorbar(
-                    block[metric],
-                    yk + dy,
-                    xerr=[[block[metric] - lo], [hi - block[metric]]],
-                    fmt="o",
-                    ms=4,
-                    color=colour,
-                    mfc=fill,
-                    elinewidth=0.8,
-                    capsize=0,
-                )
-        n = next(
-            r["per_class"][cname]["n_objects"]
-            for _, r, _ in entries
-            if cname in r.get("per_class", {})
-        )
-        ax.set_title(f"{cname} ({n} test objects)", fontsize=9)
-        ax.set_xlabel("MSE (dB²)", fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.set_xlim(left=0)
-        ax.grid(axis="x", lw=0.3)
-    axes[0, 0].set_yticks(y, [plotting.literal(n) for n, _, _ in entries], fontsize=7)
-    fig.suptitle(title + " (hollow: Simple MSE, filled: Complex MSE)", fontsize=10)
-    fig.tight_layout()
     with atomic_path(path) as tmp:
         tmp.write_bytes(plotting.png(fig))
 

@@ -1,4 +1,5 @@
-"""The speed-against-error chart, drawn one way for the reproduction table and the board.
+"""The charts drawn one way for the reproduction table and the board: speed against error,
+and the errors per class.
 
 Labels never overlap: every point's name sits in one column right of the axes, at the height
 of its point where there is room and pushed apart by one line height where there is not, with
@@ -13,6 +14,7 @@ import io
 from dataclasses import dataclass
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -173,3 +175,51 @@ def _label_column(ax, labels: list[tuple], gap: float) -> None:
             annotation_clip=False,
             arrowprops=dict(arrowstyle="-", color="0.75", lw=0.5, shrinkA=0, shrinkB=2),
         )
+
+
+REFERENCE_GREY = "0.45"
+
+
+def per_class(entries: list[tuple[str, dict, str]], title: str):
+    """One panel per class: each entry's Simple (hollow) and Complex (filled) MSE with its 95%
+    interval, one line per entry in the given order. ``entries``: (name, per-class metric
+    blocks as the results JSON holds them, colour). Where each model fails, and whether it
+    beats the references, shows at a glance."""
+    classes = list(dict.fromkeys(c for _, blocks, _ in entries for c in blocks))
+    fig, axes = plt.subplots(
+        1,
+        max(len(classes), 1),
+        figsize=(3.4 * max(len(classes), 1) + 2.2, 0.28 * len(entries) + 1.4),
+        sharey=True,
+        squeeze=False,
+    )
+    y = np.arange(len(entries))[::-1]
+    for ax, cname in zip(axes[0], classes):
+        for yk, (_, blocks, colour) in zip(y, entries):
+            block = blocks.get(cname) or {}
+            for metric, fill, dy in (("simple_mse", "none", 0.15), ("complex_mse", colour, -0.15)):
+                if block.get(metric) is None:
+                    continue
+                v = block[metric]
+                lo, hi = block.get(metric + "_ci") or (v, v)
+                ax.errorbar(
+                    v,
+                    yk + dy,
+                    xerr=[[v - lo], [hi - v]],
+                    fmt="o",
+                    ms=4,
+                    color=colour,
+                    mfc=fill,
+                    elinewidth=0.8,
+                    capsize=0,
+                )
+        n = next(b[cname]["n_objects"] for _, b, _ in entries if cname in b)
+        ax.set_title(f"{literal(cname)} ({n} test objects)", fontsize=9)
+        ax.set_xlabel("MSE (dB²)", fontsize=FONT_PT)
+        ax.tick_params(labelsize=7)
+        ax.set_xlim(left=0)
+        ax.grid(axis="x", lw=0.3)
+    axes[0, 0].set_yticks(y, [literal(n) for n, _, _ in entries], fontsize=7)
+    fig.suptitle(f"{title} (hollow: Simple MSE, filled: Complex MSE)", fontsize=10)
+    fig.tight_layout()
+    return fig
