@@ -107,7 +107,7 @@ class GenerateConfig:
                 f"fewer objects, a wider --scale-range or a smaller distance"
             )
 
-    def to_json(self) -> dict:
+    def to_dict(self) -> dict:
         d = asdict(self)
         d["classes"] = list(self.classes)
         d["scale_range"] = list(self.scale_range)
@@ -230,9 +230,9 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
         old = load_json(cfg_path, max_bytes=1 << 16, error=ShardError)
         if not isinstance(old, dict):
             raise ShardError(f"{cfg_path}: dataset config is not a JSON object")
-        if old != cfg.to_json():
+        if old != cfg.to_dict():
             diff = sorted(
-                k for k in set(old) | set(cfg.to_json()) if old.get(k) != cfg.to_json().get(k)
+                k for k in set(old) | set(cfg.to_dict()) if old.get(k) != cfg.to_dict().get(k)
             )
             raise ShardError(
                 f"{out}: holds a dataset with a different config "
@@ -243,7 +243,7 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
         raise ShardError(f"{out}: holds shards but no {CONFIG_FILE}; use another --data")
     out.mkdir(parents=True, exist_ok=True)
     with atomic_path(cfg_path) as tmp:
-        tmp.write_text(json.dumps(cfg.to_json(), indent=2, sort_keys=True))
+        tmp.write_text(json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
 
 
 def _is_done(path: Path, cfg: GenerateConfig) -> bool:
@@ -251,7 +251,7 @@ def _is_done(path: Path, cfg: GenerateConfig) -> bool:
         return False
     try:
         with Shard(path) as s:
-            if s.config != cfg.to_json():
+            if s.config != cfg.to_dict():
                 return False
             s.verify()  # an edited shard with its fingerprint kept is rebuilt, not skipped
             return True
@@ -299,7 +299,7 @@ def generate(
         Path(path + ".tmp").unlink(missing_ok=True)
     todo = [t for t in tasks if not _is_done(Path(t[0]), cfg)]
     t0 = time.perf_counter()
-    results = list(_run(todo, cfg.to_json(), workers, scheduler, progress))
+    results = list(_run(todo, cfg.to_dict(), workers, scheduler, progress))
     wall = time.perf_counter() - t0
     meshes = sum(r["meshes"] for r in results)
     return {

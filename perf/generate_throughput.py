@@ -66,7 +66,7 @@ def measure(objects_per_class: int, variants: int, ood: int) -> dict:
                     Path(tmp) / f"{p.id}.h5",
                     objects[-1:],
                     list(cfg.classes),
-                    cfg.to_json(),
+                    cfg.to_dict(),
                     cfg.toolkit_version,
                 )
                 hdf5 += time.process_time() - t

@@ -29,7 +29,7 @@ with the portable product and with BLAS, the load average around each mesh. With
 ``--baseline REV``, ``radar_sim`` and ``basic_shapes.portable`` at REV (read with git archive)
 are timed in the same run, interleaved with the working tree's code, and the two outputs are
 compared bit for bit (sha256 of the complex128 array).
-Writes perf/results/kernel_bound.json and prints a table.
+Writes perf/results/kernel_bound.json (or ``--out``) and prints a table.
 """
 
 from __future__ import annotations
@@ -186,6 +186,7 @@ def main(argv=None) -> int:
     ap.add_argument("--step", type=int, default=1, help="every STEP-th unique direction")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--baseline", help="git revision whose kernel is timed alongside")
+    ap.add_argument("--out", type=Path, default=RESULTS / "kernel_bound.json", help="JSON path")
     args = ap.parse_args(argv)
     config = radar_sim.RadarConfig.named("xband-v1")
     k = current_field.wavenumbers(config.frequency_hz)
@@ -257,8 +258,8 @@ def main(argv=None) -> int:
         "repeats": args.repeats,
         "meshes": rows,
     }
-    RESULTS.mkdir(exist_ok=True)
-    with atomic_path(RESULTS / "kernel_bound.json") as tmp_path:
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(args.out) as tmp_path:
         tmp_path.write_text(json.dumps(result, indent=2) + "\n")
     print(
         f"\nfirst-bounce PO kernel (mesh_field, mode convex), {len(dirs)} of {len(all_dirs)} "

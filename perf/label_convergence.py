@@ -154,7 +154,7 @@ def main(argv=None) -> None:
         )
     out = {
         "grid": config.name,
-        "config": json.loads(config.to_json()),
+        "config": config.to_dict(),
         "rule": analytic.SIMULATION_RULE,
         "rows": rows,
         "faces_sample": sample,

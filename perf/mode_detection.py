@@ -98,7 +98,7 @@ def main() -> None:
         json.dumps(
             {
                 "command": "python perf/mode_detection.py",
-                "grid": json.loads(config.to_json()),
+                "grid": config.to_dict(),
                 "counts": counts,
                 "rows": rows,
             },

@@ -127,14 +127,18 @@ class RadarConfig:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: {exc}") from None
 
-    def to_json(self) -> str:
+    def to_dict(self) -> dict:
         """Fields added after xband-v1 appear only where set, so older versions keep their
         config text (and with it their label fingerprints)."""
         data = asdict(self)
         for name, default in LATER_FIELDS.items():
             if data[name] == default:
                 del data[name]
-        return json.dumps(data, sort_keys=True)
+        return data
+
+    def to_json(self) -> str:
+        """The config text that labels are stamped and fingerprinted with."""
+        return json.dumps(self.to_dict(), sort_keys=True)
 
     @property
     def channel_list(self) -> tuple[str, ...]:

@@ -302,35 +302,26 @@ def _po_field(
     group = max(1, min(GROUP, MOMENT_BUDGET // (16 * max(plan.width, 1))))
     out = np.zeros((len(dirs), len(k)), dtype=np.complex128)
     no_shadow = np.zeros((0, 0), dtype=np.uint8)
+    facets = po_kernel.Facets(
+        geo.v,
+        geo.f,
+        geo.v_in_order,
+        geo.local,
+        geo.area,
+        geo.area_lo,
+        geo.area_split,
+        geo.two_sided,
+    )
+    grid = po_kernel.Spectrum(
+        k, plan.two_dk, tol, plan.phase_error, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS
+    )
+    bins = po_kernel.Bins(1.0 / plan.h, plan.b_min, plan.terms, 2.0 * plan.k_mid)
     for lo in range(0, len(dirs), group):
         r = dirs[lo : lo + group]
         blocked = no_shadow if caster is None else _blocked(r, geo, caster)
         mom = np.zeros((len(r), 2 * plan.width))  # complex moments as (re, im) pairs
         part = out[lo : lo + group]
-        idx, val = po_kernel.first_bounce(
-            geo.v,
-            geo.f,
-            geo.v_in_order,
-            geo.local,
-            geo.area,
-            geo.area_lo,
-            geo.area_split,
-            r,
-            blocked,
-            geo.two_sided,
-            k,
-            plan.two_dk,
-            tol,
-            plan.phase_error,
-            1.0 / plan.h,
-            plan.b_min,
-            plan.terms,
-            2.0 * plan.k_mid,
-            mom,
-            part,
-            po_kernel.CIS_TABLE,
-            po_kernel.CIS_PARAMS,
-        )
+        idx, val = po_kernel.first_bounce(facets, grid, bins, r, blocked, mom, part)
         if len(idx) > 1:  # listed by blocks of directions, then faces: by direction, face
             order = np.lexsort((idx[:, 0], idx[:, 1]))
             idx, val = idx[order], val[order]

@@ -25,6 +25,7 @@ direction at a time over the mesh's own numbering.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -291,48 +292,42 @@ def _add_moments(m_f, lit_s, lit_w, n_lit, inv_h, h, b_min, n_terms, two_k_mid, 
                 pa *= ua
 
 
+Facets = namedtuple("Facets", "v faces v_in_order local area area_lo area_split two_sided")
+"""The mesh as the facet pass reads it (``field._Geometry.facets``): ``v``, ``faces`` renumbered
+for locality; ``v_in_order`` the mesh's own vertices, whose order is the order of the moment
+sums, and ``local[i]`` the renumbered index of its vertex i; ``area`` (n_faces, 3) area vectors
+with their low parts ``area_lo`` and Veltkamp halves ``area_split`` (hi parts, then lo parts);
+``two_sided``: an open mesh, lit from both sides."""
+
+Spectrum = namedtuple("Spectrum", "k two_dk tol phase_error tab par")
+"""The frequency grid as the sums need it: wavenumbers ``k``, ``two_dk`` = 2Δk of a uniform
+grid (0: not uniform), the accuracy ``tol`` and the vertices' ``phase_error`` bound, and the
+e^{jx} table ``tab`` and its constants ``par`` (CIS_TABLE, CIS_PARAMS)."""
+
+Bins = namedtuple("Bins", "inv_h b_min n_terms two_k_mid")
+"""The Taylor moments' bins (``field._Moments``): 1/h, the first bin's index, the terms per
+bin (0: direct sums instead of moments) and 2·k_mid."""
+
+
 @njit(cache=True)
-def first_bounce(
-    v,
-    faces,
-    v_in_order,
-    local,
-    area,
-    area_lo,
-    area_split,
-    dirs,
-    blocked,
-    two_sided,
-    k,
-    two_dk,
-    tol,
-    phase_error,
-    inv_h,
-    b_min,
-    n_terms,
-    two_k_mid,
-    mom,
-    out,
-    tab,
-    par,
-):
+def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):
     """Moments ``mom`` (n_dirs, 2·n_bins·n_terms: the float64 view of complex moments) of the
     k⁻¹ vertex weights (n_terms = 0: their frequency sums added to ``out`` directly), special
     facets added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as
     (face, direction) index pairs, their projected areas and their three positions r̂·r_i,
-    by blocks of BLOCK directions and within a block by face.
-    ``v``, ``faces``: the mesh renumbered for locality (``field._Geometry``); ``v_in_order``:
-    the mesh's own vertices, whose order is the order of the moment sums, and ``local[i]`` the
-    renumbered index of its vertex i. ``blocked`` (n_faces, n_dirs) uint8 marks shadowed
-    facets (size 0: none); ``area_split`` holds the Veltkamp halves of ``area`` (hi parts, then
-    lo parts); ``two_dk`` is 2Δk of a uniform frequency grid (0: not uniform); ``tab``,
-    ``par``: CIS_TABLE, CIS_PARAMS.
+    by blocks of BLOCK directions and within a block by face. ``mesh``: Facets; ``grid``:
+    Spectrum; ``bins``: Bins; ``blocked`` (n_faces, n_dirs) uint8 marks shadowed facets (size
+    0: none).
 
     One pass over the facets serves BLOCK directions (their positions and weights side by
     side per vertex). Every sum is formed in the same order as one direction at a time over
     the mesh's own numbering: a vertex weight and a row of ``out`` over the faces in face
     order, a moment over the vertices in the mesh's order; the blocks and the renumbering
     only change where the numbers are kept."""
+    v, faces, v_in_order, local = mesh.v, mesh.faces, mesh.v_in_order, mesh.local
+    area, area_lo, area_split, two_sided = mesh.area, mesh.area_lo, mesh.area_split, mesh.two_sided
+    k, two_dk, tol, phase_error, tab, par = grid
+    inv_h, b_min, n_terms, two_k_mid = bins
     n_v = len(v)
     n_f = len(faces)
     n_dirs = len(dirs)

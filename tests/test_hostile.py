@@ -716,7 +716,7 @@ def test_6_edited_shard_is_not_resumed_as_done(ws):
         config = s.config
 
     class Config:  # what _is_done compares: the config the shard was written with
-        def to_json(self):
+        def to_dict(self):
             return config
 
     cfg = Config()

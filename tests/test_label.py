@@ -142,7 +142,7 @@ def test_labels_are_the_primitives_physics(dataset, labelled):
             for name in ("meshes/vertices", "meshes/faces", "objects/id"):
                 np.testing.assert_array_equal(s.file[name][()], raw.file[name][()])
             radar = s.radar
-            assert radar.config == json.loads(config.to_json())
+            assert radar.config == config.to_dict()
             for name, value in radar.coordinates.items():
                 np.testing.assert_array_equal(value, getattr(config, name))
             assert s.file["radar/response"].dtype == np.complex64

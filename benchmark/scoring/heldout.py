@@ -152,7 +152,7 @@ def recipe_of(directory: str | os.PathLike) -> tuple[DatasetVersion, int | None]
     for v in VERSIONS.values():
         recipe = _generator_config(v)
         recipe.pop("seed")
-        if gen == recipe and radar == json.loads(v.radar_config().to_json()):
+        if gen == recipe and radar == v.radar_config().to_dict():
             return v, seed
     return None
 

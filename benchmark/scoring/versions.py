@@ -289,7 +289,7 @@ def _generator_config(version: DatasetVersion) -> dict:
         objects_per_class=version.objects_per_class,
         variants=version.variants,
         seed=version.seed,
-    ).to_json()
+    ).to_dict()
     cfg.pop("toolkit_version")
     return cfg
 
@@ -306,7 +306,7 @@ def identify(directory: str | Path, registry: dict | None = None) -> DatasetVers
         raise VersionError(f"{directory}: not labelled, so not a registered dataset version")
     gen.pop("toolkit_version", None)
     for v in (registry or VERSIONS).values():
-        if gen == _generator_config(v) and radar == json.loads(v.radar_config().to_json()):
+        if gen == _generator_config(v) and radar == v.radar_config().to_dict():
             return v
     raise VersionError(
         f"{directory}: not a registered dataset version (benchmark dataset "
