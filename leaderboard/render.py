@@ -141,6 +141,34 @@ def references(g: dict) -> dict:
     return {}
 
 
+def ranked(g: dict) -> list[tuple[int | None, dict | None, str | None, dict]]:
+    """The board's rows in order: (rank, entry, None, metrics) for each entry in the board's
+    order and (None, None, reference name, metrics) for each reference row, placed among the
+    entries by Complex MSE (a reference is ranked where it scores, marked, never numbered)."""
+    refs = sorted(
+        references(g).items(),
+        key=lambda kv: (kv[1].get("complex_mse") is None, kv[1].get("complex_mse") or 0.0),
+    )
+    rows: list = []
+    for rank, e in enumerate(g["models"], 1):
+        mse = e["metrics"]["complex_mse"]
+        while (
+            refs
+            and mse is not None
+            and refs[0][1].get("complex_mse") is not None
+            and (refs[0][1]["complex_mse"] < mse)
+        ):
+            name, r = refs.pop(0)
+            rows.append((None, None, name, r))
+        rows.append((rank, e, None, e["metrics"]))
+    return rows + [(None, None, name, r) for name, r in refs]
+
+
+def beats_mean(m: dict) -> tuple[str, bool]:
+    """The "Beats mean" cell: "yes", or "no" (flagged) for a row without skill."""
+    return ("no", True) if no_skill(m) else ("yes", False)
+
+
 def datasets(entries: list[dict]) -> list[dict]:
     """Group entries by dataset: models sorted by Complex MSE, and the simulator entry if any."""
     groups: dict[str, dict] = {}
@@ -428,7 +456,7 @@ def html_table(g: dict) -> str:
         ]
         + [
             _th("Skill", "num"),
-            _th("No skill", "text"),
+            _th("Beats mean", "text"),
             _th("Params", "num"),
             _th("ms / mesh", "num"),
             _th("Date", "text"),
@@ -436,9 +464,22 @@ def html_table(g: dict) -> str:
         + ([_th("Link", "text")] if links else [])
     )
     rows = []
-    for rank, e in enumerate(g["models"], 1):
-        m = e["metrics"]
-        flagged = no_skill(m)
+    for rank, e, ref, m in ranked(g):
+        beats, flagged = beats_mean(m)
+        flag = f'<td class="flag">{beats}</td>' if flagged else f"<td>{beats}</td>"
+        if e is None:
+            cells = (
+                [
+                    _num(None, "ref"),
+                    f'<td data-value="{_e(ref)}" title="{_e(REFERENCE_NOTES.get(ref, ""))}">'
+                    f"reference: {_e(ref)}</td>",
+                ]
+                + [_metric(m, k) for k in COLUMNS]
+                + [_num(None, "—"), flag, _num(0, "0"), _num(None, "—")]
+                + ["<td>—</td>"] * (2 if links else 1)
+            )
+            rows.append('<tr class="reference">' + "".join(cells) + "</tr>")
+            continue
         model = e.get("model", {})
         detail = " · ".join(str(model[k]) for k in ("embedding", "regime") if model.get(k))
         skill, skill_text = skill_of(e)
@@ -452,7 +493,7 @@ def html_table(g: dict) -> str:
             + [_metric(m, k) for k in COLUMNS]
             + [
                 _num(skill, skill_text),
-                '<td class="flag">yes</td>' if flagged else "<td>no</td>",
+                flag,
                 _num(e.get("params"), fmt_entry_params(e)),
                 _speed(e),
                 f'<td class="date">{_e(e["submitted"][:10])}</td>',
@@ -461,23 +502,6 @@ def html_table(g: dict) -> str:
         )
         cls = ' class="collapsed"' if flagged else ""
         rows.append(f'<tr id="entry-{_e(e["id"])}"{cls}>' + "".join(cells) + "</tr>")
-    for name, r in references(g).items():
-        cells = (
-            [
-                _num(None, "ref"),
-                f'<td data-value="{_e(name)}" title="{_e(REFERENCE_NOTES.get(name, ""))}">'
-                f"reference: {_e(name)}</td>",
-            ]
-            + [_metric(r, k) for k in COLUMNS]
-            + [
-                _num(None, "—"),
-                '<td class="flag">yes</td>' if r.get("no_skill") else "<td>no</td>",
-                _num(0, "0"),
-                _num(None, "—"),
-            ]
-            + ["<td>—</td>"] * (2 if links else 1)
-        )
-        rows.append('<tr class="reference">' + "".join(cells) + "</tr>")
     return (
         f'<div class="scroll"><table class="board sortable" id="board-{g["short"]}">\n'
         f"<thead><tr>{''.join(head)}"
@@ -501,9 +525,10 @@ def skill_note(g: dict) -> str:
     return (
         f"Skill: 1 − Complex MSE / Complex MSE of the strongest reference "
         f"({', '.join(sorted(names))}), and whether the model is better, worse or not "
-        f"distinguishable from it by the paired 95% interval of the difference. No skill: "
-        f"not better than the training-set mean by a paired 95% interval. Reference rows "
-        f"cost nothing to run and are not ranked: "
+        f"distinguishable from it by the paired 95% interval of the difference. Beats mean: "
+        f"better than the training-set mean response by a paired 95% interval (rows that are "
+        f"not are flagged and folded). Reference rows cost nothing to run; they stand where "
+        f"they score, marked ref, without a rank: "
         + "; ".join(f"{k}, {v}" for k, v in REFERENCE_NOTES.items())
         + "."
     )
@@ -609,9 +634,9 @@ def markdown(groups: list[dict]) -> str:
         "Then the self-scored track: predictions on a public test split, each verified by "
         "re-scoring it against the dataset. MSE in dB² "
         "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
-        "computed by the harness and not ranked. Models with no skill (not better than the "
-        "training-set mean by a paired 95% interval) are flagged: their low Variation MSE is "
-        "not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
+        "computed by the harness and stand where they score, marked ref, without a rank. A "
+        "model that does not beat the training-set mean by a paired 95% interval is flagged "
+        "(Beats mean: **no**): its low Variation MSE is not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
         "meshes from remeshers no training mesh comes from. Speeds and parameter counts "
         "marked (self-reported) were not measured by the harness.",
         "",
@@ -632,28 +657,26 @@ def markdown(groups: list[dict]) -> str:
         if g["models"]:
             out += [
                 "| # | Model | Simple MSE | Complex MSE | Variation MSE | OOD Complex MSE "
-                "| OOD Variation MSE | Skill | No skill | Params | ms / mesh | Hardware "
+                "| OOD Variation MSE | Skill | Beats mean | Params | ms / mesh | Hardware "
                 "| Date |",
                 "|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|---|",
             ]
-            for rank, e in enumerate(g["models"], 1):
-                m = e["metrics"]
+            for rank, e, ref, m in ranked(g):
+                beats, flagged = beats_mean(m)
+                beats = f"**{beats}**" if flagged else beats
+                cells = " | ".join(fmt_ci(m, k) for k in COLUMNS)
+                if e is None:
+                    out.append(
+                        f"| ref | reference: {_md(ref)} | {cells} | — | {beats} | 0 | — | — | — |"
+                    )
+                    continue
                 name = _md(e["name"])
                 if e.get("link"):
                     name = f"[{name}]({md_url(e['link'])})"
                 out.append(
-                    f"| {rank} | {name} | "
-                    + " | ".join(fmt_ci(m, k) for k in COLUMNS)
-                    + f" | {skill_of(e)[1]} | {'**yes**' if no_skill(m) else 'no'} | "
+                    f"| {rank} | {name} | {cells} | {skill_of(e)[1]} | {beats} | "
                     f"{fmt_entry_params(e)} | {fmt_speed(e)} | "
                     f"{_md(e['speed']['hardware'] or '—')} | {e['submitted'][:10]} |"
-                )
-            for ref, r in references(g).items():
-                out.append(
-                    f"| ref | reference: {_md(ref)} | "
-                    + " | ".join(fmt_ci(r, k) for k in COLUMNS)
-                    + f" | — | {'**yes**' if r.get('no_skill') else 'no'} "
-                    f"| 0 | — | — | — |"
                 )
             out += ["", _md(skill_note(g)), ""]
         if self_reported_note(g):

@@ -490,12 +490,18 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     rows = re.findall(r"<tr(?! class=\"reference\")[^>]*>(.*?)</tr>", body, re.S)
     refs = re.findall(r"<tr class=\"reference\">(.*?)</tr>", body, re.S)
     assert len(rows) == 2 and "Graph AE" in rows[0] and "direct" in rows[1]  # by Complex MSE
-    assert [re.search(r"reference: ([a-z-]+)", r).group(1) for r in refs] == [
+    assert {re.search(r"reference: ([a-z-]+)", r).group(1) for r in refs} == {
         "train-mean",
         "class-mean",
         "nearest-scale",
         "class-scale-nn",
+    }
+    # every row, reference or entry, stands in Complex MSE order (its cell's data-value)
+    order = [
+        float(re.findall(r'<td class="num" data-value="([^"]*)"', r)[2])  # #, Simple, Complex
+        for r in re.findall(r"<tr[^>]*>(.*?)</tr>", body, re.S)
     ]
+    assert order == sorted(order)
     # submitted entries: speed and params are claims, marked whatever the results JSON says
     assert "0.1 (self-reported)" in rows[1] and "1.25 (self-reported)" in rows[0]
     assert "1.23 M (self-reported)" in rows[0]
