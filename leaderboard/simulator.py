@@ -7,14 +7,17 @@ a model like the others, scored like them: its "predictions" are the physics on 
 benchmark's own ``Scorer`` against the object's label, per class. Simple MSE: physics on
 the simple mesh vs the label; Complex MSE: physics on complex meshes vs the label; Variation
 MSE: between the two. Test objects whose simple mesh has no physics label are left out; a
-dataset with none is refused. Its speed is measured by timing ``radar_sim.simulate`` on a
-face-count-stratified sample of test meshes, or given by hand (``--ms-per-mesh``) when
-radar_sim is elsewhere.
+dataset with none is refused. Its speed is measured the way the ranked track times an ONNX
+model (``measure_ms_per_mesh``: one thread in a child process, every scored test mesh), or
+given by hand (``--ms-per-mesh``) when radar_sim is elsewhere.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -33,7 +36,6 @@ from leaderboard.store import (
     write_entry,
 )
 
-TIMING_MESHES = 24
 MEASURED = "simulator on the representation meshes vs the object's label (its analytic primitive)"
 
 
@@ -97,26 +99,48 @@ def radar_config(data: BenchmarkData, options: bool = False) -> dict:
         return s.radar.options if options else s.radar.config
 
 
-def measure_ms_per_mesh(data: BenchmarkData, n: int = TIMING_MESHES) -> float:
-    """Mean wall time of ``radar_sim.simulate`` per mesh over ``n`` test meshes spread evenly
-    over the face-count order, the OOD meshes included: the models' ms/mesh is a mean over
-    the test split too, while one object's meshes time one size (a cube's 4 ms for a dataset
-    of spheres). Uses the dataset's own radar config and physics mode; a warm-up call
-    (imports, Embree scene set-up) is not counted."""
+def measure_ms_per_mesh(data_dir: str | os.PathLike) -> dict:
+    """Time ``radar_sim.simulate`` as ``leaderboard evaluate-model`` times an ONNX model: in a
+    child process with one thread (``evaluate_model.CHILD_ENV``), on every scored test mesh
+    (the OOD meshes included) after one untimed warm-up call, with the dataset's own radar
+    config and physics mode. Returns ``{"ms_per_mesh", "n_meshes", "warmup_ms"}``."""
+    from leaderboard.evaluate_model import CHILD_ENV
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "leaderboard.simulator", os.fspath(data_dir)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **CHILD_ENV},
+    )
+    if proc.returncode != 0:
+        lines = proc.stderr.strip().splitlines()
+        raise ValueError(f"{data_dir}: timing the simulator failed: {lines[-1] if lines else ''}")
+    return json.loads(proc.stdout)
+
+
+def _time_every_mesh(data_dir: str) -> dict:
+    """The child's work (``measure_ms_per_mesh``)."""
     from benchmark.scoring.protocol import scored_mesh_rows
     from radar_sim import RadarConfig, simulate
 
-    config = RadarConfig(**radar_config(data))
-    mode = radar_config(data, options=True).get("mode", "auto")
-    rows = scored_mesh_rows(data)
-    order = rows[np.argsort(np.asarray(data.meshes["n_faces"])[rows], kind="stable")]
-    step = max(1, len(order) // n)
-    meshes = [data.mesh(int(r)) for r in order[step // 2 :: step][:n]]
-    simulate(*meshes[0], config, mode=mode)
-    t0 = time.perf_counter()
-    for v, f in meshes:
-        simulate(v, f, config, mode=mode)
-    return 1000.0 * (time.perf_counter() - t0) / len(meshes)
+    with BenchmarkData(data_dir) as data:
+        config = RadarConfig(**radar_config(data))
+        mode = radar_config(data, options=True).get("mode", "auto")
+        rows = scored_mesh_rows(data)
+        t0 = time.perf_counter()
+        simulate(*data.mesh(int(rows[0])), config, mode=mode)
+        warmup = time.perf_counter() - t0
+        total = 0.0
+        for row in rows:
+            v, f = data.mesh(int(row))
+            t0 = time.perf_counter()
+            simulate(v, f, config, mode=mode)
+            total += time.perf_counter() - t0
+    return {
+        "ms_per_mesh": 1000.0 * total / len(rows),
+        "n_meshes": len(rows),
+        "warmup_ms": 1000.0 * warmup,
+    }
 
 
 def _track(data_dir) -> str:
@@ -142,10 +166,11 @@ def record(
         metrics, scored = mesh_physics_scores(data)
         fingerprint = data.fingerprint
         timed = ms_per_mesh is None
-        if timed:
-            ms_per_mesh = measure_ms_per_mesh(data)
         config = radar_config(data)
         dataset = dataset_record(data)  # no version field (as simulator entries always were)
+    timing = measure_ms_per_mesh(data_dir) if timed else None
+    if timed:
+        ms_per_mesh = timing["ms_per_mesh"]
     name = f"radar_sim on the representation mesh {config.get('name', '')}".strip()
     entry = {
         "entry_version": ENTRY_VERSION,
@@ -161,11 +186,16 @@ def record(
         "complex_mse_source": f"{MEASURED}, {scored} test objects",
         "speed": {
             **(
-                speed_block(ms_per_mesh)
+                speed_block(ms_per_mesh, threads=1)
                 if timed
                 else {**speed_block(ms_per_mesh, self_reported=True), "hardware": hardware_text}
             ),
-            "source": "measured by leaderboard simulator" if timed else "given by hand",
+            "source": (
+                f"measured by leaderboard simulator: one thread in a child process, every "
+                f"scored test mesh ({timing['n_meshes']}), as evaluate-model times a model"
+            )
+            if timed
+            else "given by hand",
         },
         "submitted": utc_timestamp(),
         "sample": None,
@@ -173,3 +203,7 @@ def record(
     validate_entry(entry)  # before the lock creates the folder
     with entries_lock(entries_dir):
         return write_entry(entries_dir, entry, replace=True)
+
+
+if __name__ == "__main__":  # the timing child of measure_ms_per_mesh
+    print(json.dumps(_time_every_mesh(sys.argv[1])))
