@@ -209,9 +209,9 @@ def make_task(row: str, data: BenchmarkData, seed: int, old: bool) -> tuple[Regr
 
 def examples_of(row: str, data: BenchmarkData, cache: FeatureCache):
     embedding, regime = row.split("-")
-    probes = REGISTRY[embedding].probes
-    examples, groups = benchmark_examples(data, regime, probes, data.scale_bins, cache)
-    val, _ = benchmark_examples(data, regime, probes, data.scale_bins, cache, split="val")
+    needs = REGISTRY[embedding].needs
+    examples, groups = benchmark_examples(data, regime, needs, data.scale_bins, cache)
+    val, _ = benchmark_examples(data, regime, needs, data.scale_bins, cache, split="val")
     return examples, groups, val
 
 
@@ -267,14 +267,14 @@ def breakdown(task, opt, examples, batches) -> dict:
     return out
 
 
-def featurize_seconds(data: BenchmarkData, regime: str, probes: bool, n: int = 24) -> float:
+def featurize_seconds(data: BenchmarkData, regime: str, needs: tuple, n: int = 24) -> float:
     """Seconds per mesh of ``featurize`` over a sample of the split's training meshes."""
     rows = data.mesh_rows("train", "all" if regime == "ideal" else "simple")
     sample = rows[np.linspace(0, len(rows) - 1, min(n, len(rows))).astype(int)]
     batch = data.batch(sample)
     t = time.perf_counter()
     for v, f in zip(batch["vertices"], batch["faces"]):
-        featurize(v, f, probes=probes)
+        featurize(v, f, needs)
     return (time.perf_counter() - t) / len(sample)
 
 
@@ -288,7 +288,7 @@ def measure_row(
         "train_objects": len(groups),
         "train_meshes": len(examples),
         "val_objects": len(val),
-        "featurize_s_per_mesh": featurize_seconds(data, regime, REGISTRY[embedding].probes),
+        "featurize_s_per_mesh": featurize_seconds(data, regime, REGISTRY[embedding].needs),
     }
     batches = epoch_batches(examples, groups, 16, 0, 0)[: steps + 2]
     for path, old in (("old", True), ("new", False)):

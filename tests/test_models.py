@@ -9,8 +9,16 @@ import pytest
 import torch
 import trimesh
 
-from benchmark.training.models import EMBEDDINGS, FACE_EMBEDDINGS, build_model, collate, featurize
-from benchmark.training.models.features import N_BINS, face_adjacency, face_geometry
+from benchmark.scoring.mesh_features import N_POINTS
+from benchmark.training.models import (
+    EMBEDDINGS,
+    FACE_EMBEDDINGS,
+    REGISTRY,
+    build_model,
+    collate,
+    featurize,
+)
+from benchmark.training.models.features import N_BINS, OPTIONAL, face_adjacency, face_geometry
 from benchmark.training.models.probes import N_RAYS, ray_probes
 from radar_sim.geometry import fibonacci_directions
 
@@ -116,16 +124,20 @@ def test_discretized_tokens_of_a_known_triangle():
 @pytest.mark.parametrize("name", EMBEDDINGS)
 def test_ragged_batch_shapes_masks_and_padding_independence(name):
     meshes = ragged_meshes()
-    feats = [featurize(v, f, probes=name == "invariant") for v, f in meshes]
+    feats = [featurize(v, f, REGISTRY[name].needs) for v, f in meshes]
     bins = np.array([[1, 2, 3], [4, 5, 6], [7, 0, 1]])
-    batch = collate(feats, scale_bin=bins)
+    scale = np.array([[1.0, 0.5, 0.3], [0.8, 0.8, 0.8], [0.8, 0.8, 1.0]])
+    batch = collate(feats, scale_bin=bins, scale_m=scale)
     n_faces = [len(f) for _, f in meshes]
     assert batch.mask.sum(1).tolist() == n_faces and batch.direct.shape[1] == max(n_faces)
     m = model(name)
     with torch.no_grad():
         pred, _ = m(batch)
         emb, mask, _ = m.embed_faces(batch)
-        alone = [m(collate([x], scale_bin=bins[i : i + 1]))[0][0] for i, x in enumerate(feats)]
+        alone = [
+            m(collate([x], scale_bin=bins[i : i + 1], scale_m=scale[i : i + 1]))[0][0]
+            for i, x in enumerate(feats)
+        ]
     assert pred.shape == (3, N_OUT) and torch.isfinite(pred).all()
     if name in FACE_EMBEDDINGS:
         assert emb.shape == (3, max(n_faces), 32) and torch.equal(mask, batch.mask)
@@ -257,7 +269,7 @@ def test_invariant_model_same_prediction_for_two_meshings_of_a_box():
     inv, graph = model("invariant"), model("graph")
     with torch.no_grad():
         a, b, c = (
-            inv(collate([featurize(v, f, probes=True)]))[0][0]
+            inv(collate([featurize(v, f, ("probes",))]))[0][0]
             for v, f in [(v1, f1), (v2, f2), (other.vertices, other.faces)]
         )
         ga, gb = (graph(collate([featurize(v, f)]))[0][0] for v, f in [(v1, f1), (v2, f2)])
@@ -269,14 +281,22 @@ def test_invariant_model_same_prediction_for_two_meshings_of_a_box():
 def test_every_registered_embedding_keeps_the_one_forward_contract():
     """(emb (B, L, dim), mask (B, L), scalar aux) from every registry entry; padding masked."""
     meshes = ragged_meshes()
-    batch = collate([featurize(v, f, probes=True) for v, f in meshes])
+    batch = collate(
+        [featurize(v, f, tuple(OPTIONAL)) for v, f in meshes],
+        scale_m=np.ones((3, 3)),
+    )
     n_faces = [len(f) for _, f in meshes]
     for name in EMBEDDINGS:
         torch.manual_seed(0)
         model = build_model(name, N_OUT, 8, dim=16, embed_layers=1, agg_layers=1, n_heads=2)
         emb, mask, aux = model.embedding(batch)
         assert emb.shape[:2] == mask.shape and emb.shape[2] == 16 and aux.ndim == 0, name
-        expected = {"invariant": [N_RAYS] * 3, "blind": [1] * 3}.get(name, n_faces)
+        expected = {
+            "invariant": [N_RAYS] * 3,
+            "blind": [1] * 3,
+            "pointcloud": [N_POINTS] * 3,
+            "regressor": [1] * 3,
+        }.get(name, n_faces)
         assert mask.sum(1).tolist() == expected, name
 
 

@@ -39,7 +39,7 @@ from benchmark.cli import main as benchmark_main
 from benchmark.scoring import heldout
 from benchmark.scoring.data import BenchmarkData
 from benchmark.scoring.evaluate import evaluate
-from benchmark.scoring.onnx_model import OnnxModel, OnnxModelError, inspect
+from benchmark.scoring.onnx_model import INPUTS, OnnxModel, OnnxModelError, inspect
 from benchmark.scoring.protocol import scored_mesh_rows, write_predictions, write_results
 from benchmark.training.models import REGISTRY, build_model
 from benchmark.training.models.checkpoint import save_checkpoint
@@ -204,9 +204,7 @@ def test_every_embedding_exports_and_agrees_with_pytorch(exported):
         info = inspect(f)
         meta = dict(info.metadata)
         assert meta["embedding"] == f.stem.split("-")[0] and meta["regime"] == "basic"
-        assert set(info.inputs) <= {"face_direct", "face_tokens", "face_edges", "ray_probes"} | {
-            "scale_m"
-        }
+        assert set(info.inputs) <= set(INPUTS) - {"vertices", "faces", "scale_bins"}
 
 
 def test_export_report_states_the_agreement(exported, builds, tmp_path, capsys):

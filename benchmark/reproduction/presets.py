@@ -59,7 +59,9 @@ PLATEAU = dict(epochs=150, patience=10)
 cpu-v1 an epoch of all 14 rows x 3 seeds costs ~150 s of one core (perf/training_speed.py,
 scaled from 240 to 1,200 training objects); with pretraining (~9 min), evaluation (~20-50 s
 per run) and twice that for two jobs contending, the table takes at most ~7 hours on 2
-cores even if every run reaches the cap, about 3.5 without contention."""
+cores even if every run reaches the cap, about 3.5 without contention. The three rows beyond
+the paper (meshgraph, pointcloud, regressor: training steps ~2.1x, 2.7x and 0.7x direct's, on
+demo-v2's simple meshes with this model) add about 30% to an epoch of all rows."""
 
 PRESETS = {
     # For the test suite: every row on a few objects, with models too small to learn much.

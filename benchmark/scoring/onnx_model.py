@@ -7,27 +7,34 @@ tensors), no pickles, no code. The board runs it with onnxruntime, one mesh per 
 graph inputs are a subset of ``INPUTS``, by name; the board computes each one the model declares
 and nothing else:
 
-=============== ========= ========= ==========================================================
-name            dtype     shape     value
-=============== ========= ========= ==========================================================
-``vertices``    float32   [V, 3]    the mesh's vertices, normalized as
-                                    ``benchmark.scoring.data.normalize_mesh`` does (centred on
-                                    the mesh's bounding box, divided by the object's largest
-                                    extent: the longest axis spans [-0.5, 0.5])
-``faces``       int64     [F, 3]    0-based triangle indices
-``scale_m``     float64   [3]       the object's bounding-box extents in metres
-``scale_bins``  int64     [3]       the dataset's per-axis scale bins (``ScaleBins.index``)
-``face_direct`` float32   [F, 15]   ``mesh_features.face_features`` (centre, corner vectors in
-                                    the canonical corner order, unit normal)
-``face_tokens`` int64     [F, 16]   ``mesh_features.face_features`` (discretized coordinates,
-                                    angles, log area, normal; 0..127)
-``face_edges``  int64     [2, E]    ``mesh_features.face_adjacency`` (faces sharing an edge,
-                                    both directions, sorted)
-``ray_probes``  float32   [256, 12] ``mesh_features.ray_probes`` (nearest and farthest hit
-                                    along 256 fixed rays from the bounding-box centre)
-=============== ========= ========= ==========================================================
+====================== ========= ========= =========================================================
+name                   dtype     shape     value
+====================== ========= ========= =========================================================
+``vertices``           float32   [V, 3]    the mesh's vertices, normalized as
+                                           ``benchmark.scoring.data.normalize_mesh`` does (centred
+                                           on the mesh's bounding box, divided by the object's
+                                           largest extent: the longest axis spans [-0.5, 0.5])
+``faces``              int64     [F, 3]    0-based triangle indices
+``scale_m``            float64   [3]       the object's bounding-box extents in metres
+``scale_bins``         int64     [3]       the dataset's per-axis scale bins (``ScaleBins.index``)
+``face_direct``        float32   [F, 15]   ``mesh_features.face_features`` (centre, corner
+                                           vectors in the canonical corner order, unit normal)
+``face_tokens``        int64     [F, 16]   ``mesh_features.face_features`` (discretized
+                                           coordinates, angles, log area, normal; 0..127)
+``face_edges``         int64     [2, E]    ``mesh_features.face_adjacency`` (faces sharing an
+                                           edge, both directions, sorted)
+``ray_probes``         float32   [256, 12] ``mesh_features.ray_probes`` (nearest and farthest
+                                           hit along 256 fixed rays from the bounding-box centre)
+``surface_points``     float32   [512, 6]  ``mesh_features.surface_points`` (points uniform by
+                                           area on the surface, fixed seed, with the normal of
+                                           their face)
+``surface_neighbours`` int64     [512, 16] ``mesh_features.point_neighbours`` (each surface
+                                           point's 16 nearest, itself first)
+``normal_descriptor``  float32   [22]      ``mesh_features.normal_descriptor`` (area-weighted
+                                           face-normal statistics that name the primitive)
+====================== ========= ========= =========================================================
 
-The last four are deterministic numpy functions of ``vertices`` and ``faces``
+The last seven are deterministic numpy functions of ``vertices`` and ``faces``
 (``benchmark.scoring.mesh_features``); a model may compute its own from ``vertices`` and
 ``faces`` instead. The one output (any name) is the predicted label grid in dB,
 float32 [n_aspect, n_roll, n_range] on the dataset's radar grid (``BenchmarkData.target_shape``):
@@ -66,6 +73,9 @@ INPUTS: dict[str, tuple[str, int]] = {
     "face_tokens": ("int64", 2),
     "face_edges": ("int64", 2),
     "ray_probes": ("float32", 2),
+    "surface_points": ("float32", 2),
+    "surface_neighbours": ("int64", 2),
+    "normal_descriptor": ("float32", 1),
 }
 STANDARD_DOMAINS = ("", "ai.onnx")  # the ONNX standard operators; no ai.onnx.ml, no contrib
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -289,6 +299,12 @@ def mesh_inputs(
         out["face_edges"] = mf.face_adjacency(f)
     if "ray_probes" in names:
         out["ray_probes"] = mf.ray_probes(v, f)
+    if names & {"surface_points", "surface_neighbours"}:
+        out["surface_points"] = mf.surface_points(v, f)
+    if "surface_neighbours" in names:
+        out["surface_neighbours"] = mf.point_neighbours(out["surface_points"])
+    if "normal_descriptor" in names:
+        out["normal_descriptor"] = mf.normal_descriptor(v, f).astype(np.float32)
     return {k: out[k] for k in names}
 
 

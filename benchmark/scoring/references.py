@@ -26,79 +26,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from basic_shapes.meshcheck import area_normals
 from basic_shapes.shards import ood_remesher
 from benchmark.scoring.data import BenchmarkData
+from benchmark.scoring.mesh_features import normal_descriptor
 from benchmark.scoring.metrics import METRIC_NAMES, Scorer, metric_block, per_remesher, skill_test
 from benchmark.scoring.schema import REFERENCE_NAMES
 from benchmark.scoring.uncertainty import paired, verdict
 
 REFERENCES = REFERENCE_NAMES  # the names' owner is the schema (the rows results may carry)
 K_NEAREST = 3
-HIST_BINS = 6
-AZIMUTH_BINS = 24
-AXIS_TOL = 1e-3  # |n_k| > 1 - tol: facing along axis k; |n_k| < tol: across it
-
-
-def _conditional_spread(n: np.ndarray, w: np.ndarray, k: int) -> float:
-    """Area-weighted std of n_k within bins of the azimuth around axis k: 0 when n_k is a
-    function of the azimuth (the side of a cylinder or of an elliptic cone), large when
-    the normals cover an area of the sphere (ellipsoid, torus)."""
-    u, v = n[:, (k + 1) % 3], n[:, (k + 2) % 3]
-    b = np.minimum(
-        ((np.arctan2(v, u) + np.pi) / (2 * np.pi) * AZIMUTH_BINS).astype(int), AZIMUTH_BINS - 1
-    )
-    wsum = np.bincount(b, w, AZIMUTH_BINS)
-    m1 = np.bincount(b, w * n[:, k], AZIMUTH_BINS)
-    m2 = np.bincount(b, w * n[:, k] ** 2, AZIMUTH_BINS)
-    ok = wsum > 0
-    return float(np.sqrt(max((m2[ok] - m1[ok] ** 2 / wsum[ok]).sum() / wsum.sum(), 0.0)))
-
-
-def normal_descriptor(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted statistics of face normals in the object's axes (primitives are scaled
-    per axis, never rotated) that tell the primitive's *kind* apart whatever its proportions
-    and however its surface is meshed:
-
-    * the area facing exactly along an axis (all of a box; a cylinder's or cone's caps);
-    * the area facing exactly across an axis but not along one (a cylinder's side);
-    * the normals' spread around a curve (``_conditional_spread``, least over the axes,
-      saturated at 0.5): ~0 for ruled sides (cylinder, cone), large for ellipsoid and torus;
-    * the area whose normal points towards the bounding-box centre, x3 (zero for any convex
-      body; the torus's inner side);
-    * per axis, a histogram of |n_k| at weight 0.1 (proportions: breaks ties only).
-
-    On real generated meshes (5 primitives, every variant) a 1-NN on this descriptor names
-    the class of held-out objects without error (tests/test_references.py).
-    """
-    v = np.asarray(vertices, np.float64)
-    tri = v[np.asarray(faces, np.int64)]
-    n = area_normals(tri)
-    area = np.linalg.norm(n, axis=1)
-    ok = area > 0
-    if not ok.any():
-        raise ValueError("mesh has no face of non-zero area")
-    n, w, tri = n[ok] / area[ok, None], area[ok] / area[ok].sum(), tri[ok]
-    centre = (v.min(axis=0) + v.max(axis=0)) / 2
-    inward = w[np.einsum("ij,ij->i", n, tri.mean(axis=1) - centre) < 0].sum()
-    an = np.abs(n)
-    along = an.max(axis=1) > 1 - AXIS_TOL
-    across = ~along & (an.min(axis=1) < AXIS_TOL)
-    rest = ~along
-    spread = min(_conditional_spread(n[rest], w[rest], k) for k in range(3)) if rest.any() else 0.0
-    hist = [
-        np.histogram(an[:, k], bins=HIST_BINS, range=(0, 1 + 1e-9), weights=w)[0] for k in range(3)
-    ]
-    return np.concatenate(
-        [
-            [w[along].sum(), w[across].sum(), min(4 * spread, 0.5), 3 * inward],
-            0.1 * np.concatenate(hist),
-        ]
-    )
 
 
 class MeshClassifier:
-    """1-nearest-neighbour (L1) on ``normal_descriptor`` of the training objects' simple meshes."""
+    """1-nearest-neighbour (L1) on ``normal_descriptor`` (``benchmark.scoring.mesh_features``)
+    of the training objects' simple meshes."""
 
     def __init__(self, descriptors: np.ndarray, classes: np.ndarray):
         self.descriptors, self.classes = np.asarray(descriptors), np.asarray(classes)

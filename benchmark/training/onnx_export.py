@@ -10,6 +10,8 @@ for one mesh:
 - SAGEConv's mean over neighbours is a scatter-add over ``face_edges`` divided by the degree;
 - the token embedding's residual VQ is the nearest codebook vector per quantizer (eval mode:
   codebooks fixed), summed;
+- the meshgraph, pointcloud and regressor embeddings run their own code on one mesh
+  (``packed``, ``encode``, ``embed``: scatter-add, dense EdgeConv, an MLP);
 - the aggregator's attention is written out (one mesh: no padding mask);
 - the object's scale bins are computed in the graph from ``scale_m`` and the checkpoint's own
   bin edges (float64), as ``CheckpointModel`` recomputes them.
@@ -53,6 +55,9 @@ INPUT_NAMES = {
     "token": ("face_tokens", "face_edges"),
     "invariant": ("ray_probes",),
     "blind": (),
+    "meshgraph": ("face_direct", "face_edges"),
+    "pointcloud": ("surface_points", "surface_neighbours"),
+    "regressor": ("normal_descriptor",),
 }
 DYNAMIC = {"face_direct": {0: "F"}, "face_tokens": {0: "F"}, "face_edges": {1: "E"}}
 
@@ -121,6 +126,12 @@ class OnnxSimulator(nn.Module):
             return self._quantize(emb, x)
         if self.kind == "invariant":
             return emb.mlp(inputs["ray_probes"])
+        if self.kind == "meshgraph":
+            return emb.packed(inputs["face_direct"], inputs["face_edges"])
+        if self.kind == "pointcloud":
+            return emb.encode(inputs["surface_points"][None], inputs["surface_neighbours"][None])[0]
+        if self.kind == "regressor":
+            return emb.embed(inputs["normal_descriptor"][None], inputs["scale_m"][None])
         return emb.token[0]  # blind: (1, dim)
 
     # --- aggregator, one mesh ----------------------------------------------------------------

@@ -163,6 +163,7 @@ class Example:
     scale_bin: np.ndarray  # (3,) int64
     target: np.ndarray | None = None  # (n_outputs,) float32 dB
     label: int | None = None  # pretraining class
+    scale_m: np.ndarray | None = None  # (3,) float64, the object's extents in metres
 
 
 class FeatureCache:
@@ -180,15 +181,16 @@ class FeatureCache:
 def benchmark_examples(
     data: BenchmarkData,
     regime: str,
-    probes: bool,
+    needs: tuple[str, ...],
     scale_bins: ScaleBins,
     cache: FeatureCache | None = None,
     progress: bool = False,
     split: str = "train",
 ) -> tuple[list[Example], list[np.ndarray]]:
-    """Examples of a split for a regime, read through ``BasicShapes`` (the one data path),
-    and their grouping by object (one group per object; Ideal groups hold all of an
-    object's meshes, the others only the simple one). Validation uses simple meshes."""
+    """Examples of a split for a regime, read through ``BasicShapes`` (the one data path), with
+    the optional features ``needs`` (``Embedding.needs``), and their grouping by object (one
+    group per object; Ideal groups hold all of an object's meshes, the others only the simple
+    one). Validation uses simple meshes."""
     cache = cache or FeatureCache()
     variants = "all" if regime == "ideal" and split == "train" else "simple"
     ds = BasicShapes(data, split, variants, scale_bins)
@@ -200,14 +202,15 @@ def benchmark_examples(
             lambda: item["target"].numpy().reshape(-1),
         )
         return Example(
-            featurize(item["vertices"].numpy(), item["faces"].numpy(), probes=probes),
+            featurize(item["vertices"].numpy(), item["faces"].numpy(), needs),
             item["scale_bins"].numpy(),
             target,
+            scale_m=np.asarray(data.objects["scale"][ds.object_of(i)], np.float64),
         )
 
     examples = [
         cache.get(
-            ("mesh", data.directory, int(ds.rows[i]), probes, scale_bins), lambda i=i: example(i)
+            ("mesh", data.directory, int(ds.rows[i]), needs, scale_bins), lambda i=i: example(i)
         )
         for i in tqdm(range(len(ds)), desc=f"features ({split})", unit="mesh", disable=not progress)
     ]
@@ -292,11 +295,13 @@ def make_batch(examples: list[Example], idx: list[int]):
     items = [examples[i] for i in idx]
     target = None if items[0].target is None else np.stack([it.target for it in items])
     label = None if items[0].label is None else [it.label for it in items]
+    scale_m = None if items[0].scale_m is None else np.stack([it.scale_m for it in items])
     return collate(
         [it.features for it in items],
         scale_bin=np.stack([it.scale_bin for it in items]),
         target=target,
         label=label,
+        scale_m=scale_m,
     )
 
 
@@ -574,10 +579,10 @@ def train(
             log=log,
         )
     examples, groups = benchmark_examples(
-        data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins, cache, progress
+        data, cfg.regime, REGISTRY[cfg.embedding].needs, scale_bins, cache, progress
     )
     val, _ = benchmark_examples(
-        data, cfg.regime, REGISTRY[cfg.embedding].probes, scale_bins, cache, progress, split="val"
+        data, cfg.regime, REGISTRY[cfg.embedding].needs, scale_bins, cache, progress, split="val"
     )
     model.decoder.set_output_statistics(
         torch.from_numpy(np.stack([examples[g[0]].target for g in groups]))

@@ -1,5 +1,6 @@
-"""The paper's neural simulators g = d(a(f(V, F))), one topology-invariant model and one blind
-to the mesh (the learned scale reference).
+"""The paper's neural simulators g = d(a(f(V, F))), one topology-invariant model, one blind
+to the mesh (the learned scale reference), and three beyond the paper: a mesh graph network,
+a surface point-cloud model and a class-and-scale regressor (the learned class reference).
 
 ``build_model(name, ...)`` makes any of them from a JSON-able config; ``MeshSimulator``
 is the full model, ``ClassificationHead`` / ``ReconstructionHead`` are the pretraining heads.
@@ -21,6 +22,9 @@ from benchmark.training.models.direct import DirectEmbedding
 from benchmark.training.models.features import N_BINS, MeshBatch, collate, featurize
 from benchmark.training.models.graph import GraphEmbedding
 from benchmark.training.models.invariant import ProbeEmbedding
+from benchmark.training.models.meshgraph import MeshGraphEmbedding
+from benchmark.training.models.pointcloud import PointCloudEmbedding
+from benchmark.training.models.regressor import RegressorEmbedding
 from benchmark.training.models.token import TokenEmbedding
 
 
@@ -29,15 +33,17 @@ class Embedding:
     """One entry of the registry: how to build the embedding and how the table shows it.
 
     Forward contract of every embedding: ``module(batch) -> (emb (B, L, dim), mask (B, L)
-    bool, aux loss scalar)``. ``face``: one token per face (the paper's encoders), so it can be
-    pretrained on a corpus and has an Ideal row; ``probes``: needs ``featurize(probes=True)``;
-    ``cost``: relative training time (reproduce schedules the longest runs first).
+    bool, aux loss scalar)``. ``face``: one of the paper's face encoders (one token per face),
+    so it is pretrained on a corpus and has an Ideal row (the rows beyond the paper, meshgraph
+    included, have a basic row only); ``needs``: the optional mesh features it reads
+    (``featurize(v, f, needs)``, names of ``features.OPTIONAL``); ``cost``: relative training
+    time (reproduce schedules the longest runs first).
     """
 
     build: Callable[..., nn.Module]
     face: bool
     colour: str
-    probes: bool = False
+    needs: tuple[str, ...] = ()
     cost: float = 1.0
 
 
@@ -56,10 +62,34 @@ REGISTRY: dict[str, Embedding] = {
         colour="tab:green",
     ),
     "invariant": Embedding(
-        lambda dim, **_: ProbeEmbedding(dim), face=False, colour="tab:red", probes=True, cost=0.5
+        lambda dim, **_: ProbeEmbedding(dim),
+        face=False,
+        colour="tab:red",
+        needs=("probes",),
+        cost=0.5,
     ),
     "blind": Embedding(
         lambda dim, **_: BlindEmbedding(dim), face=False, colour="tab:gray", cost=0.3
+    ),
+    "meshgraph": Embedding(
+        lambda dim, embed_layers, **_: MeshGraphEmbedding(dim, embed_layers),
+        face=False,
+        colour="tab:purple",
+        cost=2.0,  # a training step ~2.1x direct's (cpu preset model, demo meshes)
+    ),
+    "pointcloud": Embedding(
+        lambda dim, embed_layers, **_: PointCloudEmbedding(dim, embed_layers),
+        face=False,
+        colour="tab:brown",
+        needs=("points", "neighbours"),
+        cost=2.5,  # ~2.7x direct's: 512 tokens per mesh
+    ),
+    "regressor": Embedding(
+        lambda dim, embed_layers, **_: RegressorEmbedding(dim, embed_layers),
+        face=False,
+        colour="tab:olive",
+        needs=("descriptor",),
+        cost=0.3,  # one token, as blind (~0.7x direct's step)
     ),
 }
 """Adding an embedding is one entry here: the CLI choices, the table's rows and the plot's

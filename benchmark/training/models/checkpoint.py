@@ -106,7 +106,7 @@ class CheckpointModel:
         self.model.to(self.device)
         self.scale_bins = ScaleBins(**self.config["scale_bins"])
         self.target_shape = tuple(self.config["target_shape"])
-        self.probes = REGISTRY[self.config["model"]["name"]].probes
+        self.needs = REGISTRY[self.config["model"]["name"]].needs
         self.name = self.config.get("name", self.config["model"]["name"])
         self.embedding = self.config.get("embedding", self.config["model"]["name"])
         self.regime = self.config.get("regime")
@@ -129,14 +129,12 @@ class CheckpointModel:
     @torch.no_grad()
     def predict(self, batch: dict) -> np.ndarray:
         """(B, n_aspect, n_roll, n_range) float32 predicted dB target."""
-        bins = self.scale_bins.index(np.asarray(batch["scale_m"], np.float64)).reshape(-1, 3)
-        items = [
-            featurize(v, f, probes=self.probes) for v, f in zip(batch["vertices"], batch["faces"])
-        ]
+        scale = np.asarray(batch["scale_m"], np.float64).reshape(-1, 3)
+        bins = self.scale_bins.index(scale)
+        items = [featurize(v, f, self.needs) for v, f in zip(batch["vertices"], batch["faces"])]
         out = np.empty((len(items), int(np.prod(self.target_shape))), np.float32)
         for chunk in self._chunks([it.n_faces for it in items]):
-            pred, _ = self.model(
-                collate([items[i] for i in chunk], scale_bin=bins[chunk]).to(self.device)
-            )
+            sub = collate([items[i] for i in chunk], scale_bin=bins[chunk], scale_m=scale[chunk])
+            pred, _ = self.model(sub.to(self.device))
             out[chunk] = pred.float().cpu().numpy()
         return out.reshape(-1, *self.target_shape)

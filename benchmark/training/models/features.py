@@ -9,6 +9,7 @@ covers ``[-COORD_RANGE, COORD_RANGE]`` and clips anything outside.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -25,8 +26,20 @@ from benchmark.scoring.mesh_features import (  # noqa: F401  (re-exported: the m
     face_adjacency,
     face_features,
     face_geometry,
+    normal_descriptor,
+    point_neighbours,
     ray_probes,
+    surface_points,
 )
+
+OPTIONAL = {
+    "probes": ray_probes,
+    "points": surface_points,
+    "neighbours": lambda v, f: point_neighbours(surface_points(v, f)),
+    "descriptor": lambda v, f: normal_descriptor(v, f).astype(np.float32),
+}
+"""The per-mesh inputs only some embeddings read (``Embedding.needs``): computed only when asked
+for, as the board computes only the ONNX inputs a model declares."""
 
 
 @dataclass
@@ -38,22 +51,28 @@ class MeshFeatures:
     area: np.ndarray  # (F,) float32
     edge_index: np.ndarray  # (2, E) int64, local face indices
     probes: np.ndarray | None = None  # (N_RAYS, PROBE_DIM) float32, invariant model only
+    points: np.ndarray | None = None  # (N_POINTS, POINT_DIM) float32, point-cloud model only
+    neighbours: np.ndarray | None = None  # (N_POINTS, K_NEIGHBOURS) int64, the points' kNN
+    descriptor: np.ndarray | None = None  # (DESCRIPTOR_DIM,) float32, regressor only
 
     @property
     def n_faces(self) -> int:
         return len(self.direct)
 
 
-def featurize(vertices: np.ndarray, faces: np.ndarray, probes: bool = False) -> MeshFeatures:
-    """Direct (Kohler et al.) and discretized MeshGPT-style features of one normalized mesh;
-    with ``probes``, also the ray probes of the invariant model."""
+def featurize(vertices: np.ndarray, faces: np.ndarray, needs: Iterable[str] = ()) -> MeshFeatures:
+    """Direct (Kohler et al.) and discretized MeshGPT-style features of one normalized mesh,
+    and the ``OPTIONAL`` ones named in ``needs``."""
+    unknown = set(needs) - set(OPTIONAL)
+    if unknown:
+        raise ValueError(f"unknown mesh features {sorted(unknown)}; choose from {list(OPTIONAL)}")
     direct, tokens, area = face_features(vertices, faces)
     return MeshFeatures(
         direct=direct,
         tokens=tokens,
         area=area,
         edge_index=face_adjacency(faces),
-        probes=ray_probes(vertices, faces) if probes else None,
+        **{name: OPTIONAL[name](vertices, faces) for name in needs},
     )
 
 
@@ -74,6 +93,10 @@ class MeshBatch:
     target: torch.Tensor | None = None  # (B, T) float, dB
     label: torch.Tensor | None = None  # (B,) long, pretraining class
     probes: torch.Tensor | None = None  # (B, N_RAYS, PROBE_DIM) float, invariant model
+    points: torch.Tensor | None = None  # (B, N_POINTS, POINT_DIM) float, point-cloud model
+    neighbours: torch.Tensor | None = None  # (B, N_POINTS, K_NEIGHBOURS) long, per mesh
+    descriptor: torch.Tensor | None = None  # (B, DESCRIPTOR_DIM) float, regressor
+    scale_m: torch.Tensor | None = None  # (B, 3) float64, the objects' extents in metres
 
     def to(self, device) -> MeshBatch:
         return MeshBatch(
@@ -88,8 +111,11 @@ class MeshBatch:
         return len(self.mask)
 
 
-def collate(items: list[MeshFeatures], scale_bin=None, target=None, label=None) -> MeshBatch:
-    """Pad a list of per-mesh features into one ``MeshBatch``."""
+def collate(
+    items: list[MeshFeatures], scale_bin=None, target=None, label=None, scale_m=None
+) -> MeshBatch:
+    """Pad a list of per-mesh features into one ``MeshBatch``; an ``OPTIONAL`` feature is
+    batched when every item has it."""
     n = [it.n_faces for it in items]
     if min(n) == 0:
         raise ValueError("cannot batch a mesh with no faces")
@@ -119,7 +145,13 @@ def collate(items: list[MeshFeatures], scale_bin=None, target=None, label=None) 
         scale_bin=torch.from_numpy(scale_bin),
         target=None if target is None else torch.as_tensor(np.asarray(target, np.float32)),
         label=None if label is None else torch.as_tensor(np.asarray(label, np.int64)),
-        probes=None
-        if any(it.probes is None for it in items)
-        else torch.from_numpy(np.stack([it.probes for it in items])),
+        scale_m=None
+        if scale_m is None
+        else torch.from_numpy(np.asarray(scale_m, np.float64).reshape(b, 3)),
+        **{
+            name: None
+            if any(getattr(it, name) is None for it in items)
+            else torch.from_numpy(np.stack([getattr(it, name) for it in items]))
+            for name in OPTIONAL
+        },
     )
