@@ -1,13 +1,16 @@
 """Is an object's label converged? The simulation-mesh rule against twice its resolution.
 
-    python perf/label_convergence.py [--grid full|coarse] [--classes cube,sphere,...]
-                                           [--independent] [--faces-sample N]
+    python perf/label_convergence.py [--grid full|coarse] [--physics xband-v1|xband-v2]
+                                     [--classes cube,sphere,...] [--independent]
+                                     [--faces-sample N] [--out JSON]
 
 For the largest objects of each class (2 x 2 x 2 m and the flattened / elongated 0.2 x 2 x 2,
 2 x 2 x 0.2), the label is simulated on basic_shapes.analytic.simulation_mesh and on the same
 rule with every edge-length limit halved (refinement 2). The error is the benchmark metric:
 MSE over the whole response of T = 20 log10(max(|range profile|, 1e-4)), in dB^2. The rule
 is converged when that MSE is <= 0.1 dB^2 on the full default grid ("xband-v1").
+``--physics xband-v2`` labels as the v2 versions do (PO plus edge diffraction, HH, VV and HV)
+and reports the MSE of each channel (VV is the task's target).
 ``--independent`` also compares the label with an independent fine mesh of the same primitive
 (trimesh icosphere / cylinder / cone, scaled per axis); the issue's bound is 1 dB^2.
 ``--faces-sample N`` reports mean / max faces over N log-uniform scales (0.2 - 2 m per axis).
@@ -36,10 +39,7 @@ from basic_shapes.infra import atomic_path, hardware  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 FLOOR = 1e-4
 SCALES = [(2.0, 2.0, 2.0), (0.2, 2.0, 2.0), (2.0, 2.0, 0.2)]
-GRIDS = {
-    "full": radar_sim.RadarConfig.named("xband-v1"),
-    "coarse": radar_sim.RadarConfig(name="coarse", n_aspect=16, n_roll=5),
-}
+GRIDS = {"full": {}, "coarse": {"n_aspect": 16, "n_roll": 5}}  # changes to the named physics
 
 
 def target(profiles: np.ndarray) -> np.ndarray:
@@ -48,11 +48,15 @@ def target(profiles: np.ndarray) -> np.ndarray:
 
 
 def label(vertices, faces, config, kind):
-    """Range profiles of a mesh and the seconds they took."""
+    """Range profiles of a mesh by channel ({"VV": ...}, or every channel of a polarimetric
+    config) and the seconds they took."""
     mode = "shadowed" if kind == "torus" else "convex"  # the torus sees itself (first bounce)
     start = time.perf_counter()
     result = radar_sim.simulate(vertices, faces, config, mode=mode)
-    return result.range_profiles, time.perf_counter() - start
+    seconds = time.perf_counter() - start
+    if result.channel_profiles is None:
+        return {"VV": result.range_profiles}, seconds
+    return dict(zip(config.channel_list, result.channel_profiles)), seconds
 
 
 def independent_mesh(kind: str, scale) -> tuple[np.ndarray, np.ndarray] | None:
@@ -71,8 +75,14 @@ def independent_mesh(kind: str, scale) -> tuple[np.ndarray, np.ndarray] | None:
     return v, np.asarray(m.faces, np.int32)
 
 
-def mse(a, b) -> float:
-    return float(np.mean((target(a) - target(b)) ** 2))
+def mse(a: dict, b: dict) -> dict:
+    """The metric per channel."""
+    return {c: float(np.mean((target(a[c]) - target(b[c])) ** 2)) for c in a}
+
+
+def _suffix(channel: str) -> str:
+    """Row keys: VV keeps the v1 names (``mse_vs_2x_db2``), other channels add theirs."""
+    return "" if channel == "VV" else f"_{channel}"
 
 
 def faces_sample(kind: str, n: int, seed: int = 0) -> dict:
@@ -83,12 +93,13 @@ def faces_sample(kind: str, n: int, seed: int = 0) -> dict:
     return {"n": n, "mean_faces": float(np.mean(counts)), "max_faces": int(np.max(counts))}
 
 
-F_MAX = GRIDS["full"].f_stop_hz
+F_MAX = radar_sim.RadarConfig.named("xband-v1").f_stop_hz  # every named physics: 8-12 GHz
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--grid", choices=sorted(GRIDS), default="full")
+    parser.add_argument("--physics", choices=("xband-v1", "xband-v2"), default="xband-v1")
     parser.add_argument("--classes", default=",".join(analytic.KINDS))
     parser.add_argument(
         "--scales",
@@ -99,7 +110,7 @@ def main(argv=None) -> None:
     parser.add_argument("--faces-sample", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS / "label_convergence.json")
     args = parser.parse_args(argv)
-    config = GRIDS[args.grid]
+    config = radar_sim.RadarConfig.named(args.physics).with_grid(**GRIDS[args.grid])
     scales = (
         [tuple(float(x) for x in s.split(",")) for s in args.scales.split(";")]
         if args.scales
@@ -127,19 +138,21 @@ def main(argv=None) -> None:
                 "extents_m": list(scale),
                 "faces": len(f1),
                 "faces_2x": len(f2),
-                "mse_vs_2x_db2": mse(p1, p2),
+                **{f"mse_vs_2x_db2{_suffix(c)}": v for c, v in mse(p1, p2).items()},
                 "seconds": seconds,
             }
             ref = independent_mesh(kind, scale) if args.independent else None
             if ref is not None:
                 row["independent_faces"] = len(ref[1])
-                row["mse_vs_independent_db2"] = mse(p1, label(*ref, config, kind)[0])
+                for c, v in mse(p1, label(*ref, config, kind)[0]).items():
+                    row[f"mse_vs_independent_db2{_suffix(c)}"] = v
             rows.append(row)
             ind = row.get("mse_vs_independent_db2")
             print(
                 f"{kind:9} {'x'.join(f'{x:g}' for x in scale):15} {len(f1):8d} {len(f2):8d} "
                 f"{row['mse_vs_2x_db2']:9.4f} {'' if ind is None else f'{ind:9.4f}':>9} "
-                f"{seconds:7.1f}",
+                f"{seconds:7.1f}"
+                + (f"  HH {row['mse_vs_2x_db2_HH']:.4f}" if "mse_vs_2x_db2_HH" in row else ""),
                 flush=True,
             )
     sample = (
