@@ -89,7 +89,8 @@ def _object_meshes(spec, class_name, scale, seed, n_variants, solid) -> list[Mes
     """object_meshes after validation, under the lock (``solid``: None for a registry-only
     primitive, which has no analytic shape yet)."""
     blender = _state()
-    blender.shape = solid.params if solid is not None else {}
+    has_shape = solid is not None and spec.shape is not None
+    blender.shape = spec.shape(solid.params, solid.scale) if has_shape else {}
     start = time.process_time()
     simple_params = {
         "resolution": spec.default_resolution(),
@@ -234,7 +235,7 @@ class _Blender:
         self.triangulate = self.obj.modifiers.new("triangulate", "TRIANGULATE")
         self.triangulate.min_vertices = 4
         self._primitives: dict[tuple, tuple[object, list[int]]] = {}
-        self.shape: dict = {}  # hidden shape parameters of the object being built
+        self.shape: dict = {}  # keywords set by the hidden shape of the object being built
         self._frames: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     # --- primitives ---------------------------------------------------------------------
@@ -245,7 +246,7 @@ class _Blender:
     def _cached(self, class_name: str, resolution: dict[str, int]) -> tuple[object, list[int]]:
         """(BMesh, indices of its n-gons), built on first use."""
         spec = primitives.PRIMITIVES[class_name]
-        options = spec.shape(self.shape) if spec.shape and self.shape else {}
+        options = self.shape if spec.shape else {}
         key = (class_name, tuple(sorted(resolution.items())), tuple(sorted(options.items())))
         if key not in self._primitives:
             if options:  # one object's shape at a time: drop the previous object's
@@ -271,6 +272,34 @@ class _Blender:
         return self._frames[class_name]
 
     def _build_primitive(self, spec: primitives.Primitive, resolution: dict[str, int]):
+        if spec.construct is not None:
+            co, rings = spec.construct(**resolution)
+            co = np.asarray(co, np.float32)
+        else:
+            co, rings = self._operator_mesh(spec, resolution)
+        extents = co.max(axis=0) - co.min(axis=0)
+        if not np.allclose(extents, spec.extents, rtol=1e-5) or not np.allclose(
+            co.max(axis=0) + co.min(axis=0), 0, atol=1e-5
+        ):
+            raise RuntimeError(
+                f"{spec.operator or 'construct'}{resolution}: bbox extents {extents} are not "
+                f"the registered {spec.extents} around the origin"
+            )
+        # The UV sphere operator merges duplicate vertices in a way that leaves its faces in a
+        # different order (and rotation) in every process: put them in a canonical order.
+        polygons = []
+        for ring in rings:
+            first = ring.index(min(ring))
+            polygons.append(ring[first:] + ring[:first])
+        polygons.sort()
+        bm = self.bmesh.new()  # geometry only: UVs, seams and sharp flags would steer decimation
+        verts = [bm.verts.new(p) for p in co.tolist()]
+        for ring in polygons:
+            bm.faces.new([verts[i] for i in ring])
+        return bm
+
+    def _operator_mesh(self, spec: primitives.Primitive, resolution: dict[str, int]):
+        """(vertices float32 (V, 3), polygons as vertex lists) of Blender's operator."""
         bpy = self.bpy
         getattr(bpy.ops.mesh, spec.operator)(**spec.options, **resolution)
         obj = bpy.context.active_object
@@ -278,29 +307,9 @@ class _Blender:
         bpy.data.objects.remove(obj)
         co = np.empty(len(mesh.vertices) * 3, np.float32)
         mesh.vertices.foreach_get("co", co)
-        co = co.reshape(-1, 3)
-        extents = co.max(axis=0) - co.min(axis=0)
-        if not np.allclose(extents, spec.extents, rtol=1e-5) or not np.allclose(
-            co.max(axis=0) + co.min(axis=0), 0, atol=1e-5
-        ):
-            raise RuntimeError(
-                f"{spec.operator}{resolution}: bbox extents {extents} are not "
-                f"the registered {spec.extents} around the origin"
-            )
-        # The UV sphere operator merges duplicate vertices in a way that leaves its faces in a
-        # different order (and rotation) in every process: put them in a canonical order.
-        polygons = []
-        for poly in mesh.polygons:
-            ring = list(poly.vertices)
-            first = ring.index(min(ring))
-            polygons.append(ring[first:] + ring[:first])
-        polygons.sort()
+        rings = [list(poly.vertices) for poly in mesh.polygons]
         bpy.data.meshes.remove(mesh)
-        bm = self.bmesh.new()  # geometry only: UVs, seams and sharp flags would steer decimation
-        verts = [bm.verts.new(p) for p in co.tolist()]
-        for ring in polygons:
-            bm.faces.new([verts[i] for i in ring])
-        return bm
+        return co.reshape(-1, 3), rings
 
     # --- one mesh -------------------------------------------------------------------------
     def build(

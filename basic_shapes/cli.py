@@ -103,6 +103,12 @@ def build_parser() -> ArgumentParser:
         "(default: %(default)s; 0 = none)",
     )
     g.add_argument(
+        "--hidden-ood",
+        action="store_true",
+        help="give test objects of hidden-parameter classes (frustum, roundbox) OOD meshes too "
+        "(off in hidden-cpu-v1 and -v2, which predate them)",
+    )
+    g.add_argument(
         "--seed",
         type=number(int, minimum=0, maximum=2**63 - 1),
         default=0,
@@ -182,6 +188,7 @@ def _main(argv: list[str]) -> int:
             variants=args.variants,
             seed=args.seed,
             ood_variants_per_remesher=args.ood_variants,
+            hidden_ood=args.hidden_ood,
             objects_per_shard=args.objects_per_shard,
             scale_range=tuple(args.scale_range),
             min_scale_distance=args.min_scale_distance,

@@ -42,6 +42,12 @@ PACKING = 0.3
 MESHES_PER_SECOND_PER_WORKER = 83.0  # 1 / CPU s per mesh (12.1 ms), perf/generate_throughput.py
 
 
+LATER_FIELDS = {"hidden_ood": False}
+"""GenerateConfig fields added after the first recorded versions, and their defaults.
+``hidden_ood``: test objects of hidden-parameter classes get OOD meshes too (hidden-cpu-v1 and
+-v2 predate the remeshers that represent them and were built without)."""
+
+
 @dataclass(frozen=True)
 class GenerateConfig:
     classes: tuple[str, ...] = ("cube", "cylinder", "sphere")
@@ -54,6 +60,7 @@ class GenerateConfig:
     test_fraction: float = TEST_FRACTION
     val_fraction: float = VAL_FRACTION
     ood_variants_per_remesher: int = 3
+    hidden_ood: bool = False
     toolkit_version: str = field(default=__version__)
 
     def validate(self) -> None:
@@ -108,9 +115,14 @@ class GenerateConfig:
             )
 
     def to_dict(self) -> dict:
+        """Fields added after the first recorded versions appear only where set, so those
+        versions keep their config (and with it their mesh fingerprints)."""
         d = asdict(self)
         d["classes"] = list(self.classes)
         d["scale_range"] = list(self.scale_range)
+        for name, default in LATER_FIELDS.items():
+            if d[name] == default:
+                del d[name]
         return d
 
 
@@ -210,17 +222,35 @@ def build_shard(path: str, plans: list[ObjectPlan], cfg_json: dict) -> dict:
 def _with_ood(p: ObjectPlan, meshes: list, cfg_json: dict) -> list:
     """A test object's meshes followed by its out-of-distribution ones (basic_shapes/remesh.py,
     variants OOD_FIRST..999): other remeshers than the training variants', test split only."""
-    from basic_shapes.remesh import ood_meshes, supports
+    from basic_shapes.remesh import ood_meshes
 
     per = cfg_json.get("ood_variants_per_remesher", 0)
-    if p.split != "test" or not per or not any(supports(r, p.class_name) for r in OOD_REMESHERS):
+    if p.split != "test" or not per or not _ood_remeshers(p.class_name, cfg_json):
         return meshes
     from basic_shapes.meshcheck import topology_key
 
     seen = {topology_key(m.faces, len(m.vertices)) for m in meshes}
     return meshes + ood_meshes(
-        p.class_name, np.array(p.scale), p.seed, meshes[0].vertices, meshes[0].faces, per, seen
+        p.class_name,
+        np.array(p.scale),
+        p.seed,
+        meshes[0].vertices,
+        meshes[0].faces,
+        per,
+        seen,
+        p.params,
     )
+
+
+def _ood_remeshers(class_name: str, cfg_json: dict) -> int:
+    """How many remeshers make OOD meshes of this class's test objects: none for a class with
+    hidden shape parameters unless the config asks for them (``hidden_ood``)."""
+    from basic_shapes.primitives import get
+    from basic_shapes.remesh import supports
+
+    if get(class_name).shape is not None and not cfg_json.get("hidden_ood", False):
+        return 0
+    return sum(supports(r, class_name) for r in OOD_REMESHERS)
 
 
 def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
@@ -331,10 +361,8 @@ def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -
 def _run(todo, cfg_json, workers, scheduler, progress):
     from tqdm import tqdm
 
-    from basic_shapes.remesh import supports
-
     ood = {
-        c: cfg_json.get("ood_variants_per_remesher", 0) * sum(supports(r, c) for r in OOD_REMESHERS)
+        c: cfg_json.get("ood_variants_per_remesher", 0) * _ood_remeshers(c, cfg_json)
         for c in cfg_json["classes"]
     }
     total = sum(

@@ -43,6 +43,7 @@ def _elementwise(fn):
 exp = _elementwise(math.exp)
 log = _elementwise(math.log)
 tan = _elementwise(math.tan)
+cos = _elementwise(math.cos)
 
 
 def norm(x) -> float:

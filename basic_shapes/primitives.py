@@ -1,7 +1,8 @@
 """Registry of the primitives the generator can build (no bpy here: verify.py reads it too).
 
 A primitive is one of Blender's ``bpy.ops.mesh.primitive_*_add`` operators at its default
-size (centred at the origin). Curved primitives name the operator keywords that set their
+size (centred at the origin), or a unit-space mesh built per object (``construct``: the
+rounded box, whose radius is in metres). Curved primitives name the operator keywords that set their
 tessellation, the values a complex variant may use, and an analytic bound on how far a
 tessellation lies from the smooth surface; verify.tolerance turns that into the Hausdorff
 bound a variant must meet (derivation in docs/GENERATOR.md, "Mesh generation").
@@ -50,7 +51,8 @@ COLLAPSE_OR_NONE = {"collapse": 0.8, "none": 0.2}
 class Primitive:
     """How to build one primitive and how far its complex variants may depart from it.
 
-    operator:   name in ``bpy.ops.mesh`` (called once per process and resolution).
+    operator:   name in ``bpy.ops.mesh`` (called once per process and resolution), or "" for a
+                primitive that ``construct`` builds.
     planar:     the shape is a polytope (every face flat): variants must match to ~1e-6.
     extents:    bounding-box extents of the operator's default mesh; ``scale`` divides
                 by these per axis, so a mesh's bbox extents equal the requested scale.
@@ -63,8 +65,13 @@ class Primitive:
     euler:      V - E + F of the closed surface (2 for a sphere-like shape, 0 for a torus).
     decimation: relative frequency of each Decimate mode applied after the loop cuts
                 ("collapse", "unsubdiv", or "none"), only those that keep this shape.
-    shape:      operator keywords set by an object's hidden shape parameters
-                (``analytic.HIDDEN``); None for a primitive without any.
+    shape:      f(hidden shape parameters (``analytic.HIDDEN``), scale) -> the operator's (or
+                ``construct``'s) keywords for one object; None for a primitive without any.
+    construct:  f(**tessellation and shape keywords) -> (unit-space vertices, polygons): the
+                mesh built here rather than by a Blender operator.
+    metric:     the tessellation is built in metres, not a unit shape scaled per axis: ``gap``
+                is already its bound relative to the bbox diagonal, worst case over scales and
+                hidden parameters.
     """
 
     operator: str
@@ -76,7 +83,9 @@ class Primitive:
     euler: int = 2
     decimation: dict[str, float] = field(default_factory=lambda: dict(COLLAPSE_OR_NONE))
     options: dict = field(default_factory=dict)
-    shape: Callable[[dict], dict] | None = None
+    shape: Callable[[dict, tuple], dict] | None = None
+    construct: Callable[..., tuple] | None = None
+    metric: bool = False
 
     def default_resolution(self) -> dict[str, int]:
         return {k: r.default for k, r in self.resolution.items()}
@@ -109,6 +118,25 @@ def _torus_gap(res: dict[str, int], major: float = 1.0, minor: float = 0.25) -> 
     return minor * _polygon_gap(res["minor_segments"]) + (major + minor) * _polygon_gap(
         res["major_segments"]
     )
+
+
+ROUND_RATIO_MAX = 0.45
+"""The largest rounded-box radius over its smallest extent (``analytic.HIDDEN``)."""
+
+
+def _unit_radii(round_ratio: float, scale) -> tuple[float, float, float]:
+    """The rounded box's radius (round_ratio x the smallest extent, metres) along each axis of
+    the unit box (extents 2), which the object's scale stretches back to a sphere."""
+    radius = round_ratio * min(scale)
+    return tuple(radius / (s / 2) for s in scale)
+
+
+def _roundbox(segments: int, radii) -> tuple:
+    """Unit-space vertices and polygons (quads, then the corners' pole fans)."""
+    from basic_shapes.analytic import roundbox_polygons  # numba: only where meshes are built
+
+    v, quads, tris = roundbox_polygons((1.0, 1.0, 1.0), radii, segments)
+    return v, quads.tolist() + tris.tolist()
 
 
 PRIMITIVES: dict[str, Primitive] = {
@@ -160,7 +188,29 @@ PRIMITIVES: dict[str, Primitive] = {
         extents=(2.0, 2.0, 2.0),
         resolution={"vertices": Resolution(default=32, lo=24, hi=48, step=4)},
         gap=lambda r: _polygon_gap(r["vertices"]),
-        shape=lambda params: {"radius2": params["top_ratio"]},
+        shape=lambda params, scale: {"radius2": params["top_ratio"]},
+    ),
+    # The hidden-parameter track: a box whose edges and corners are rounded with the radius
+    # round_ratio x its smallest extent, in metres (a sphere stays a sphere whatever the scale),
+    # so the mesh is built for each object (``construct``), in unit space, by the same function
+    # as its simulation mesh. Corners are UV-sphere octants (planar trapezoids) and edges
+    # rectangles, so the gap is the UV sphere's at 4 x segments around, times the radius, at
+    # most ROUND_RATIO_MAX / sqrt(3) of the diagonal (the radius is at most that ratio times
+    # the smallest extent, and the diagonal at least sqrt(3) times it).
+    "roundbox": Primitive(
+        operator="",
+        planar=False,
+        extents=(2.0, 2.0, 2.0),
+        # the default turns by 11.25 degrees per segment, as the cylinder's and UV sphere's do
+        resolution={"segments": Resolution(default=8, lo=4, hi=12, step=1)},
+        gap=lambda r: (
+            ROUND_RATIO_MAX
+            / math.sqrt(3)
+            * _uv_sphere_gap({"segments": 4 * r["segments"], "ring_count": 2 * r["segments"]})
+        ),
+        shape=lambda params, scale: {"radii": _unit_radii(params["round_ratio"], scale)},
+        construct=_roundbox,
+        metric=True,
     ),
 }
 

@@ -10,10 +10,12 @@ way (docs/GENERATOR.md, "Out-of-distribution meshes"):
 * ``delaunay``: random points on the surface, convex hull, planar faces re-triangulated by 2D
   Delaunay.
 
-Each remesher serves the classes in SUPPORTED (all three for the default classes).
+Each remesher serves the classes in SUPPORTED (all three for the default classes and the
+rounded box, ``delaunay`` for the frustum).
 
-After remeshing, every vertex is moved onto the analytic primitive (in unit space, then scaled
-per axis), so each mesh is inscribed in the object like Blender's tessellations; it is then
+After remeshing, every vertex is moved onto the analytic primitive with the object's hidden
+shape parameters (in unit space, then scaled per axis; the rounded box's closest point, in
+metres), so each mesh is inscribed in the object like Blender's tessellations; it is then
 checked like every variant (closed, oriented, manifold, distinct topology, within
 ``verify.tolerance`` of the simple mesh) and against the smooth primitive (``analytic``,
 within the same bound). All randomness comes from ``(seed, variant, attempt)``; MeshLab's
@@ -47,6 +49,8 @@ FACE_RANGE = {
     "sphere": (900, 4000),
     "cone": (300, 4000),
     "torus": (1200, 4000),
+    "frustum": (300, 4000),
+    "roundbox": (300, 4000),
 }
 """Target triangle counts per class, drawn log-uniformly: the range of the training variants,
 less the coarse end where a remesher's triangles would stray beyond the class tolerance. The
@@ -65,14 +69,17 @@ ON_PLANE = 1e-6
 (the simple mesh is float32: about 6e-8)."""
 
 SUPPORTED = {
-    "isotropic": ("cube", "cylinder", "sphere", "torus"),
-    "qem": ("cube", "cylinder", "sphere", "torus"),
-    "delaunay": ("cube", "cylinder", "sphere", "cone"),
+    "isotropic": ("cube", "cylinder", "sphere", "torus", "roundbox"),
+    "qem": ("cube", "cylinder", "sphere", "torus", "roundbox"),
+    "delaunay": ("cube", "cylinder", "sphere", "cone", "frustum", "roundbox"),
 }
-"""Classes each remesher represents within tolerance. The MeshLab remeshers miss the cone:
-near its apex the side's circles shrink, and their near-isotropic triangles span too wide an
-angle there (measured 0.0043 vs the bound 0.0043 on a 6000-triangle remesh); the hull needs a
-convex solid (no torus)."""
+"""Classes each remesher represents within tolerance, for every value of their hidden
+parameters (measured across each range, perf/ood_remeshers.py). The MeshLab remeshers miss the
+cone: near its apex the side's circles shrink, and their near-isotropic triangles span too wide
+an angle there (measured 0.0043 vs the bound 0.0043 on a 6000-triangle remesh); so they miss
+frustums whose top rim is that small (qem: 3 of 4 objects with top_ratio 0.0005-0.001 failed
+all 32 tries; isotropic at 0.001: 23 tries for one mesh). The hull needs a convex solid (no
+torus)."""
 
 TRIES: dict[tuple[str, str], int] = defaultdict(int)
 """Tries per (remesher, outcome) in this process: "accepted" or the rejection reason
@@ -94,36 +101,34 @@ def ood_meshes(
     simple_faces: np.ndarray,
     per_remesher: int,
     seen: set | None = None,
+    shape: dict | None = None,
 ) -> list[MeshRecord]:
     """``per_remesher`` verified meshes of one object from each remesher that supports its class.
 
     ``simple_*`` is the object's simple mesh (variant 0), the Hausdorff reference; ``seen``
     holds the topology keys of the object's other meshes (``meshcheck.topology_key``), which the
-    OOD meshes must all differ from.
+    OOD meshes must all differ from; ``shape`` its hidden shape parameters (``analytic.HIDDEN``),
+    which the projection onto the primitive and the distance to it use.
     """
     spec = primitives.get(class_name)
-    scale = np.asarray(scale, np.float64)
     reference = verify.Reference(simple_vertices, simple_faces)
     seen = set(seen or ()) | {meshcheck.topology_key(simple_faces, len(simple_vertices))}
     tol = verify.tolerance(class_name, {})
-    solid = analytic.solid_for(class_name, scale)
+    solid = analytic.solid_for(class_name, scale, shape)
     source = {"isotropic": (simple_vertices, simple_faces)}
     with MeshLabChild() as child:  # one per object: its calls come in a fixed order
-        return _ood_meshes(
-            class_name, scale, seed, per_remesher, spec, reference, seen, tol, solid, source, child
-        )
+        return _ood_meshes(solid, seed, per_remesher, spec, reference, seen, tol, source, child)
 
 
-def _ood_meshes(
-    class_name, scale, seed, per_remesher, spec, reference, seen, tol, solid, source, child
-) -> list[MeshRecord]:
+def _ood_meshes(solid, seed, per_remesher, spec, reference, seen, tol, source, child):
+    class_name = solid.kind
     out = []
     for name in OOD_REMESHERS:
         if not supports(name, class_name):
             continue
         if name == "qem" and per_remesher:
             start = time.process_time()
-            source["qem"] = _dense(class_name, scale, *source["isotropic"], child)
+            source["qem"] = _dense(solid, *source["isotropic"], child)
             SECONDS[name] += time.process_time() - start
         for k in range(per_remesher):
             start = time.process_time()
@@ -139,7 +144,7 @@ def _ood_meshes(
                     "tolerance": tol,
                     "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi)))),
                 }
-                v, f = REMESHERS[name](class_name, scale, source.get(name), params, rng, child)
+                v, f = REMESHERS[name](solid, source.get(name), params, rng, child)
                 v, f = v.astype(np.float32), f.astype(np.int32)
                 key = meshcheck.topology_key(f, len(v))
                 reason = "duplicate topology" if key in seen else meshcheck.defect(v, f, spec.euler)
@@ -204,52 +209,74 @@ def primitive_distance(solid: analytic.Solid, vertices: np.ndarray, faces: np.nd
 
 
 # --- projection onto the primitive ------------------------------------------------------------
-def _to_unit(class_name: str, scale: np.ndarray) -> np.ndarray:
-    """Per-axis factor from metres to the primitive's unit space."""
-    return np.asarray(primitives.get(class_name).extents) / scale
+def _to_unit(solid: analytic.Solid) -> np.ndarray:
+    """Per-axis factor from metres to the primitive's unit space (the rounded box has none: its
+    radius is in metres, so it is handled in metres)."""
+    if solid.kind == "roundbox":
+        return np.ones(3)
+    return np.asarray(primitives.get(solid.kind).extents) / np.asarray(solid.scale)
 
 
-def project(
-    class_name: str, scale: np.ndarray, vertices: np.ndarray, faces: np.ndarray
-) -> np.ndarray:
-    """Vertices moved onto the scaled primitive's surface (float64), keeping flat faces flat.
+def _top_ratio(solid: analytic.Solid) -> float:
+    """Top over base radius of the cylinder (1), the cone (0) or a frustum (its parameter)."""
+    return solid.params.get("top_ratio", 1.0 if solid.kind == "cylinder" else 0.0)
 
-    Works in unit space, where the primitive is Blender's default one, and scales back, so every
-    returned point lies on the object exactly (to rounding). A vertex lies on a flat face when
-    it is within ON_PLANE of its plane; on the cylinder and cone it is a rim vertex when it also
-    belongs to a triangle off that plane (found from the faces, not from its radius).
+
+def project(solid: analytic.Solid, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Vertices moved onto the object's surface (float64), keeping flat faces flat.
+
+    Works in unit space, where the primitive is Blender's default one (its hidden parameters
+    applied), and scales back, so every returned point lies on the object exactly (to
+    rounding); the rounded box, in metres, takes each vertex's closest point. A vertex lies on
+    a flat face when it is within ON_PLANE of its plane; on the cylinder, cone and frustum it is
+    a rim vertex when it also belongs to a triangle off that plane (found from the faces, not
+    from its radius).
     """
-    k = _to_unit(class_name, scale)
+    if solid.kind == "roundbox":
+        return analytic.roundbox_closest(solid, vertices)
+    k = _to_unit(solid)
     u = np.asarray(vertices, np.float64) * k
-    if class_name == "cube":
+    if solid.kind == "cube":
         u = np.where(np.abs(np.abs(u) - 1) < ON_PLANE, np.sign(u), u)
-    elif class_name == "sphere":
+    elif solid.kind == "sphere":
         u /= np.linalg.norm(u, axis=1, keepdims=True)
-    elif class_name in ("cylinder", "cone"):
-        caps = (1.0, -1.0) if class_name == "cylinder" else (-1.0,)
-        on_cap = np.zeros(len(u), bool)
-        for z in caps:
-            on_cap |= np.abs(u[:, 2] - z) < ON_PLANE
-        cap_face = on_cap[faces].all(axis=1) & (np.ptp(u[faces, 2], axis=1) < ON_PLANE)
-        side = np.zeros(len(u), bool)
-        side[faces[~cap_face].ravel()] = True
-        u[on_cap, 2] = np.round(u[on_cap, 2])
-        u[:, 2] = np.clip(u[:, 2], -1.0, 1.0)
-        if class_name == "cone":
-            apex = np.argmax(u[:, 2])
-            u[apex] = (0.0, 0.0, 1.0)
-            side[apex] = False
-        radius = 1.0 if class_name == "cylinder" else (1.0 - u[side, 2]) / 2
-        u[side, :2] *= (radius / np.linalg.norm(u[side, :2], axis=1))[:, None]
-    elif class_name == "torus":
+    elif solid.kind in ("cylinder", "cone", "frustum"):
+        _project_revolved(u, faces, _top_ratio(solid))
+    elif solid.kind == "torus":
         ring = u.copy()
         ring[:, 2] = 0
         ring /= np.linalg.norm(ring, axis=1, keepdims=True)
         d = u - ring
         u = ring + 0.25 * d / np.linalg.norm(d, axis=1, keepdims=True)
     else:
-        raise ValueError(f"no projection onto {class_name!r}")
+        raise ValueError(f"no projection onto {solid.kind!r}")
     return u / k
+
+
+def _project_revolved(u: np.ndarray, faces: np.ndarray, ratio: float) -> None:
+    """In place, onto the unit cylinder (top ratio 1), cone (0) or frustum: cap vertices onto
+    their plane, side and rim vertices radially onto the side's circle at their height."""
+    caps = (1.0, -1.0) if ratio > 0 else (-1.0,)
+    on_cap = np.zeros(len(u), bool)
+    for z in caps:
+        on_cap |= np.abs(u[:, 2] - z) < ON_PLANE
+    cap_face = on_cap[faces].all(axis=1) & (np.ptp(u[faces, 2], axis=1) < ON_PLANE)
+    side = np.zeros(len(u), bool)
+    side[faces[~cap_face].ravel()] = True
+    u[on_cap, 2] = np.round(u[on_cap, 2])
+    u[:, 2] = np.clip(u[:, 2], -1.0, 1.0)
+    if ratio == 0:
+        apex = np.argmax(u[:, 2])
+        u[apex] = (0.0, 0.0, 1.0)
+        side[apex] = False
+    z = u[side, 2]
+    if ratio == 1:
+        radius = 1.0
+    elif ratio == 0:
+        radius = (1.0 - z) / 2
+    else:
+        radius = ((1.0 - z) + (1.0 + z) * ratio) / 2
+    u[side, :2] *= (radius / np.linalg.norm(u[side, :2], axis=1))[:, None]
 
 
 # --- MeshLab remeshers ------------------------------------------------------------------------
@@ -287,7 +314,7 @@ def _edge_for(area: float, n_faces: float) -> float:
     return math.sqrt(4 * area / (math.sqrt(3) * n_faces))
 
 
-def _remesh(class_name, scale, vertices, faces, edge, iterations, flips, child):
+def _remesh(solid, vertices, faces, edge, iterations, flips, child):
     """MeshLab's isotropic remeshing (split, collapse, flip, reprojection) in ``child``
     (basic_shapes/meshlab_child.py: its result depends on the process's memory layout), then
     projection onto the primitive. Neither its curvature-adaptive mode nor its tangential
@@ -308,10 +335,10 @@ def _remesh(class_name, scale, vertices, faces, edge, iterations, flips, child):
         reprojectflag=True,
         checksurfdist=True,
     )
-    return project(class_name, scale, v, f), f
+    return project(solid, v, f), f
 
 
-def _isotropic(class_name, scale, source, params, rng, child):
+def _isotropic(solid, source, params, rng, child):
     """Isotropic explicit remeshing (split, collapse, flip, tangential smoothing, reprojection
     onto the simple mesh), then projection onto the primitive."""
     vertices, faces = source
@@ -320,8 +347,7 @@ def _isotropic(class_name, scale, source, params, rng, child):
     params["edge_flips"] = bool(rng.uniform() < 0.75)
     params["feature_deg"] = FEATURE_DEG
     return _remesh(
-        class_name,
-        scale,
+        solid,
         vertices,
         faces,
         params["edge_length"],
@@ -331,11 +357,10 @@ def _isotropic(class_name, scale, source, params, rng, child):
     )
 
 
-def _dense(class_name, scale, vertices, faces, child):
+def _dense(solid, vertices, faces, child):
     """The dense isotropic remesh ``qem`` decimates (one per object)."""
     return _remesh(
-        class_name,
-        scale,
+        solid,
         vertices,
         faces,
         _edge_for(_area(vertices, faces), DENSE_FACES),
@@ -345,7 +370,7 @@ def _dense(class_name, scale, vertices, faces, child):
     )
 
 
-def _qem(class_name, scale, dense, params, rng, child):
+def _qem(solid, dense, params, rng, child):
     """Quadric edge-collapse decimation (Garland-Heckbert) of the dense remesh to the target
     count, normals and topology preserved, then projection onto the primitive."""
     params["dense_faces"] = DENSE_FACES
@@ -364,17 +389,31 @@ def _qem(class_name, scale, dense, params, rng, child):
         planarquadric=params["planar_quadric"],
         autoclean=True,
     )
-    return project(class_name, scale, v, f), f
+    return project(solid, v, f), f
 
 
 # --- random points, hull and planar Delaunay --------------------------------------------------
-FLAT_FACES = {
-    "cube": [(a, c) for a in range(3) for c in (-1.0, 1.0)],
-    "cylinder": [(2, -1.0), (2, 1.0)],
-    "sphere": [],
-    "cone": [(2, -1.0)],
-}
-"""The primitive's flat faces in unit space, as (axis, coordinate) planes."""
+def _flat_faces(solid: analytic.Solid) -> list[tuple[int, float]]:
+    """The primitive's flat faces in unit space (the rounded box's: in metres), as (axis,
+    coordinate) planes."""
+    if solid.kind in ("cube", "roundbox"):
+        half = solid.half if solid.kind == "roundbox" else np.ones(3)
+        return [(a, c * float(half[a])) for a in range(3) for c in (-1.0, 1.0)]
+    if solid.kind == "sphere":
+        return []
+    return [(2, -1.0), (2, 1.0)] if _top_ratio(solid) > 0 else [(2, -1.0)]
+
+
+def _surface_area(solid: analytic.Solid) -> float:
+    """The surface area in unit space (the rounded box's: in square metres)."""
+    if solid.kind == "roundbox":
+        inner, r = analytic.roundbox_parts(solid)
+        return analytic.roundbox_area(2 * inner, r)
+    if solid.kind == "frustum":
+        ratio = _top_ratio(solid)
+        return _revolved_areas(ratio)[0] + math.pi * (1 + ratio**2)
+    return UNIT_AREA[solid.kind]
+
 
 UNIT_AREA = {
     "cube": 24.0,
@@ -388,21 +427,22 @@ BULGE = 0.125
 spacing, so that collinear edge points become hull vertices of the face (no zero-area ears)."""
 
 
-def _delaunay(class_name, scale, _source, params, rng, _child):
+def _delaunay(solid, _source, params, rng, _child):
     """Random points on the surface (features first, then thinned to a minimum spacing), their
     convex hull for the curved part, and a 2D Delaunay triangulation of each flat face."""
     from scipy.spatial import ConvexHull, Delaunay
 
     n_points = params["target_faces"] // 2 + 2  # a closed genus-0 triangle mesh: F = 2V - 4
-    spacing = 0.8 * math.sqrt(UNIT_AREA[class_name] / n_points)
+    spacing = 0.8 * math.sqrt(_surface_area(solid) / n_points)
     params["spacing_unit"] = round(spacing, 6)
-    u = _thin(_candidates(class_name, n_points, spacing, rng), spacing)
-    k = _to_unit(class_name, scale)
+    u = _thin(*_candidates(solid, n_points, spacing, rng), spacing)
+    k = _to_unit(solid)
     metric = u / k
     tris = []
-    planes = FLAT_FACES[class_name]
+    planes = _flat_faces(solid)
     on = [u[:, a] == c for a, c in planes]
-    if class_name != "cube":
+    cube = solid.kind == "cube"
+    if not cube:
         hull = ConvexHull(u).simplices
         flat = np.zeros(len(hull), bool)
         for mask in on:
@@ -412,7 +452,7 @@ def _delaunay(class_name, scale, _source, params, rng, _child):
         idx = np.flatnonzero(mask)
         b, c = [i for i in range(3) if i != a]
         uv = metric[idx][:, [b, c]]
-        if class_name == "cube":  # bulge each edge's points out along a parabola
+        if cube:  # bulge each edge's points out along a parabola
             ub, uc = u[idx, b], u[idx, c]
             uv[:, 0] += np.where(np.abs(ub) == 1, ub * BULGE * spacing * (1 - uc**2), 0) / k[b]
             uv[:, 1] += np.where(np.abs(uc) == 1, uc * BULGE * spacing * (1 - ub**2), 0) / k[c]
@@ -426,12 +466,13 @@ def _delaunay(class_name, scale, _source, params, rng, _child):
     return metric, f
 
 
-def _candidates(class_name: str, n: int, spacing: float, rng) -> np.ndarray:
-    """Candidate points on the unit primitive, features first: corners and the bbox extremes,
-    then points on edges and rims, then the rest (flat-face points kept spacing/2 inside)."""
+def _candidates(solid: analytic.Solid, n: int, spacing: float, rng) -> tuple[np.ndarray, int]:
+    """Candidate points on the unit primitive and how many lead them that thinning keeps
+    whatever their spacing (corners, bbox extremes, apex, small rims), then points on edges and
+    rims, then the rest (flat-face points kept spacing/2 inside)."""
     m = 4 * n
     inset = 1 - spacing / 2
-    if class_name == "cube":
+    if solid.kind == "cube":
         corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
         edges = []
         for a in range(3):
@@ -446,46 +487,117 @@ def _candidates(class_name: str, n: int, spacing: float, rng) -> np.ndarray:
         axis = rng.integers(3, size=m)
         faces[np.arange(m), axis] = rng.choice([-1.0, 1.0], size=m)
         edge_pts = np.concatenate(edges)
-        return np.concatenate([corners, edge_pts[rng.permutation(len(edge_pts))], faces])
-    if class_name == "sphere":
+        return np.concatenate([corners, edge_pts[rng.permutation(len(edge_pts))], faces]), 8
+    if solid.kind == "sphere":
         extremes = np.concatenate([np.eye(3), -np.eye(3)])
         g = rng.normal(size=(m, 3))
-        return np.concatenate([extremes, g / np.linalg.norm(g, axis=1, keepdims=True)])
-    rims = (-1.0, 1.0) if class_name == "cylinder" else (-1.0,)
+        return np.concatenate([extremes, g / np.linalg.norm(g, axis=1, keepdims=True)]), 6
+    if solid.kind == "roundbox":
+        return _roundbox_candidates(solid, m, rng)
+    return _revolved_candidates(_top_ratio(solid), m, inset, rng)
+
+
+def _revolved_areas(ratio: float) -> tuple[float, tuple[float, ...]]:
+    """Weights of the side and of each cap (base first) in the candidates of the unit cylinder
+    (top ratio 1), cone (0) or frustum: the frustum's true areas."""
+    if ratio == 1:
+        return 4 * np.pi, (2 * np.pi, 2 * np.pi)
+    if ratio == 0:
+        return np.pi * math.sqrt(5), (np.pi,)
+    return np.pi * (1 + ratio) * math.hypot(1 - ratio, 2), (np.pi, np.pi * ratio**2)
+
+
+def _revolved_candidates(ratio: float, m: int, inset: float, rng) -> tuple[np.ndarray, int]:
+    """Candidates on the unit cylinder (top ratio 1), cone (0) or frustum, the fixed ones first:
+    the base rim's quarter points (bbox extremes), then the top rim's, the cone's apex or an
+    octagon on the frustum's top rim; then points on the rims, then side and caps."""
+    rims = ((-1.0, 1.0), (1.0, ratio)) if ratio > 0 else ((-1.0, 1.0),)  # (z, radius)
     quarter = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], float)
-    first = [np.column_stack([quarter, np.full(4, z)]) for z in rims]
-    if class_name == "cone":
+    first = [np.column_stack([quarter, np.full(4, -1.0)])]
+    if ratio == 0:
         first.append(np.array([[0.0, 0.0, 1.0]]))
+    elif ratio == 1:
+        first.append(np.column_stack([quarter, np.full(4, 1.0)]))
+    else:  # an octagon: a top rim too small for the spacing still bounds its sagitta
+        t = np.arange(8) * (np.pi / 4)
+        first.append(np.column_stack([ratio * np.cos(t), ratio * np.sin(t), np.full(8, 1.0)]))
     rim = []
-    for z in rims:
+    for z, radius in rims:
         th = rng.uniform(0, 2 * np.pi, m // 4)
-        rim.append(np.column_stack([np.cos(th), np.sin(th), np.full(len(th), z)]))
+        rim.append(np.column_stack([radius * np.cos(th), radius * np.sin(th), np.full(len(th), z)]))
     th = rng.uniform(0, 2 * np.pi, m)
-    if class_name == "cylinder":
+    if ratio == 1:
         z = rng.uniform(-inset, inset, m)
         side = np.column_stack([np.cos(th), np.sin(th), z])
-        side_area, cap_area = 4 * np.pi, 2 * np.pi
-    else:
-        t = np.sqrt(rng.uniform(0, 1, m))  # distance from the apex: area-uniform on the side
-        side = np.column_stack([t * np.cos(th), t * np.sin(th), 1 - 2 * t])
-        side_area, cap_area = np.pi * math.sqrt(5), np.pi
-    n_cap = round(m * cap_area / side_area)
+    else:  # the radius at a uniform fraction of the side's area from the top rim (or apex)
+        t = np.sqrt(ratio**2 + rng.uniform(0, 1, m) * (1 - ratio**2))
+        side = np.column_stack([t * np.cos(th), t * np.sin(th), (1 + ratio - 2 * t) / (1 - ratio)])
+    side_area, cap_areas = _revolved_areas(ratio)
     caps = []
-    for z in rims:
-        rho = inset * np.sqrt(rng.uniform(0, 1, n_cap))
+    for (z, radius), cap_area in zip(rims, cap_areas):
+        n_cap = round(m * cap_area / side_area)
+        rho = radius * inset * np.sqrt(rng.uniform(0, 1, n_cap))
         phi = rng.uniform(0, 2 * np.pi, n_cap)
         caps.append(np.column_stack([rho * np.cos(phi), rho * np.sin(phi), np.full(n_cap, z)]))
     rest = np.concatenate([side, *caps])
-    return np.concatenate([*first, *rim, rest[rng.permutation(len(rest))]])
+    fixed = np.concatenate(first)
+    return np.concatenate([fixed, *rim, rest[rng.permutation(len(rest))]]), len(fixed)
 
 
-def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
+def _roundbox_candidates(solid: analytic.Solid, m: int, rng) -> tuple[np.ndarray, int]:
+    """Candidates on the rounded box, in metres. First, kept whatever the spacing: the corners
+    of the flat faces (which then span their faces), each edge's quarter circles halved at both
+    ends of the edge, and each corner octant's centre, so that a radius small for the spacing
+    is still cut into pieces within the tolerance (at round_ratio 0.05: 0.29 r under a whole
+    quarter circle, 0.42 r under a corner's triangle, 0.31 r with its centre). Then about m
+    points spread by area over the flat faces (as close to the edges as the spacing lets them:
+    one kept spacing/2 inside cuts deeper under the edge), the edges' quarter cylinders and the
+    corners' sphere octants."""
+    inner, r = analytic.roundbox_parts(solid)
+    area = analytic.roundbox_area(2 * inner, r)
+    fixed, rest = [analytic.OCTANTS * (inner + r / math.sqrt(3))], []
+    for a in range(3):
+        o = [i for i in range(3) if i != a]
+        for c in (-1.0, 1.0):
+            face = np.zeros((4, 3))
+            face[:, a] = c * solid.half[a]
+            face[:, o] = [[x * inner[o[0]], y * inner[o[1]]] for x in (-1, 1) for y in (-1, 1)]
+            fixed.append(face)
+            count = round(m * 4 * inner[o[0]] * inner[o[1]] / area)
+            p = np.zeros((count, 3))
+            p[:, a] = c * solid.half[a]
+            p[:, o] = rng.uniform(-1, 1, (count, 2)) * inner[o]
+            rest.append(p)
+        count = round(m * np.pi * r * inner[a] / area)
+        for s1 in (-1.0, 1.0):
+            for s2 in (-1.0, 1.0):
+                fixed.append(np.zeros((2, 3)))
+                fixed[-1][:, a] = (-inner[a], inner[a])
+                fixed[-1][:, o] = (
+                    s1 * (inner[o[0]] + r / math.sqrt(2)),
+                    s2 * (inner[o[1]] + r / math.sqrt(2)),
+                )
+                phi = rng.uniform(0, np.pi / 2, count)
+                p = np.zeros((count, 3))
+                p[:, a] = rng.uniform(-inner[a], inner[a], count)
+                p[:, o[0]] = s1 * (inner[o[0]] + r * np.cos(phi))
+                p[:, o[1]] = s2 * (inner[o[1]] + r * np.sin(phi))
+                rest.append(p)
+    g = rng.normal(size=(round(m * 4 * np.pi * r * r / area), 3))
+    rest.append(np.sign(g) * inner + r * g / np.linalg.norm(g, axis=1, keepdims=True))
+    rest = np.concatenate(rest)
+    fixed = np.concatenate(fixed)
+    return np.concatenate([fixed, rest[rng.permutation(len(rest))]]), len(fixed)
+
+
+def _thin(points: np.ndarray, fixed: int, spacing: float) -> np.ndarray:
     """Greedy dart throwing in the given order: keep a point unless an earlier kept point lies
-    within ``spacing`` (so features, listed first, always survive)."""
+    within ``spacing``; the first ``fixed`` points (features) are always kept."""
     from scipy.spatial import cKDTree
 
     pairs = cKDTree(points).query_pairs(spacing, output_type="ndarray")
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    pairs = pairs[pairs[:, 1] >= fixed]
     starts = np.searchsorted(pairs[:, 0], np.arange(len(points) + 1))
     keep = np.ones(len(points), bool)
     for i in range(len(points)):
@@ -495,5 +607,4 @@ def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
 
 
 REMESHERS = {"isotropic": _isotropic, "qem": _qem, "delaunay": _delaunay}
-"""name -> f(class_name, scale, source mesh, params (filled in), rng, MeshLabChild)
--> (vertices, faces)."""
+"""name -> f(solid, source mesh, params (filled in), rng, MeshLabChild) -> (vertices, faces)."""

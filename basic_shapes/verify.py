@@ -223,9 +223,16 @@ def tolerance(class_name: str, params: dict) -> float:
     coarse = spec.gap(spec.coarsest_resolution())
     default = spec.gap(spec.default_resolution())
     unit_bound = max(coarse, default) if spec.convex else coarse + default
-    # A per-axis scale s maps unit-space displacements d to |diag(s / e0) d| <= max(s / e0)|d|;
-    # relative to the diagonal |s| that is at most |d| / min(e0), reached as s approaches an axis.
-    return unit_bound / min(spec.extents) + PLANAR_TOLERANCE
+    return _relative(spec, unit_bound) + PLANAR_TOLERANCE
+
+
+def _relative(spec: primitives.Primitive, gap: float) -> float:
+    """A gap relative to the bbox diagonal, worst case over all scales.
+
+    A per-axis scale s maps unit-space displacements d to |diag(s / e0) d| <= max(s / e0)|d|;
+    relative to the diagonal |s| that is at most |d| / min(e0), reached as s approaches an axis.
+    A primitive built in metres states its relative gap itself (``Primitive.metric``)."""
+    return gap if spec.metric else gap / min(spec.extents)
 
 
 def primitive_tolerance(class_name: str, params: dict) -> float:
@@ -243,5 +250,5 @@ def primitive_tolerance(class_name: str, params: dict) -> float:
         return bound
     resolution = (params or {}).get("resolution") or spec.default_resolution()
     if (params or {}).get("decimate", {}).get("kind", "none") == "none":
-        return spec.gap(resolution) / min(spec.extents) + PLANAR_TOLERANCE
-    return bound + spec.gap(spec.default_resolution()) / min(spec.extents)
+        return _relative(spec, spec.gap(resolution)) + PLANAR_TOLERANCE
+    return bound + _relative(spec, spec.gap(spec.default_resolution()))

@@ -2,16 +2,18 @@
 
     python perf/hidden_references.py DATA_DIR [--out perf/results/hidden_references.json]
 
-DATA_DIR is a labelled dataset (for example ``benchmark dataset hidden-cpu-v1``). Prints the
+DATA_DIR is a labelled dataset (for example ``benchmark dataset hidden-cpu-v3``). Prints the
 four reference rows of benchmark.scoring.references (what ``benchmark evaluate`` shows) and the
 ``oracle`` (benchmark.scoring.references.oracle_row, also in ``benchmark report``'s table: nearest
 training objects in log scale and the hidden shape parameters), each with Simple / Complex
 MSE and 95% intervals over the test objects, and the paired oracle - class-scale-nn
-difference. ``--floor N`` (frustum datasets)
-adds the error floor of any predictor blind to the ratio: each test object's label against
-the mean target over N ratios spread over [0, 0.9], simulated at the object's exact scale
-with the dataset's radar config (the best a class + scale model can do, up to the choice of
-mean). Writes a JSON beside the table.
+difference. ``--floor N`` adds the error floor of any predictor blind to the hidden
+parameters, per class and overall: each test object's label against the mean target over N
+values of its class's parameter spread over its interval (``analytic.HIDDEN``: the frustum's
+top ratio, the rounded box's edge radius), simulated at the object's exact scale with the
+dataset's own radar config. Under the metric (MSE in dB) and the uniform draw, that mean is
+the best prediction knowing class and scale but not the parameter (to the quadrature's
+accuracy). Writes a JSON beside the table.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data")
     parser.add_argument("--out", type=Path, default=RESULTS / "hidden_references.json")
-    parser.add_argument("--floor", type=int, default=0, help="ratios per test object")
+    parser.add_argument("--floor", type=int, default=0, help="parameter values per test object")
     args = parser.parse_args(argv)
     with BenchmarkData(args.data) as data:
         scorers = References(data).score()
@@ -41,7 +43,7 @@ def main(argv=None) -> None:
         rows["oracle"] = oracle_row(data, scorers)
         paired = rows["oracle"].pop("vs_class_scale_nn")
         hidden = rows["oracle"].pop("hidden")
-        floor = ratio_blind_floor(data, args.floor) if args.floor else None
+        floor = blind_floor(data, args.floor) if args.floor else None
         print(data.describe())
     print(f"hidden parameters: {', '.join(hidden)}")
     print(f"{'reference':15} {'Simple MSE':>24} {'Complex MSE':>24} {'objects':>8}")
@@ -59,10 +61,11 @@ def main(argv=None) -> None:
             f"{p['ci'][1]:+.2f}] ({p['verdict']})"
         )
     if floor:
+        per_class = ", ".join(f"{c} {m:.2f}" for c, m in floor["per_class_mse"].items())
         print(
-            f"ratio-blind floor ({args.floor} ratios at the exact scale): "
-            f"{floor['mse']:.2f} dB^2 over {floor['n_objects']} test objects "
-            f"(relabel at the true ratio: {floor['relabel_mse']:.2g})"
+            f"parameter-blind floor ({args.floor} values at the exact scale): "
+            f"{floor['mse']:.2f} dB^2 over {floor['n_objects']} test objects ({per_class}; "
+            f"relabel at the true value: {floor['relabel_mse']:.2g})"
         )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(args.out) as tmp:
@@ -73,7 +76,7 @@ def main(argv=None) -> None:
                     "hidden": hidden,
                     "rows": rows,
                     "oracle_vs_class_scale_nn": paired,
-                    "ratio_blind_floor": floor,
+                    "parameter_blind_floor": floor,
                 },
                 indent=1,
             )
@@ -81,35 +84,42 @@ def main(argv=None) -> None:
         )
 
 
-def ratio_blind_floor(data: BenchmarkData, n: int) -> dict:
-    """Mean over test objects of MSE(mean target over n ratios at its scale, its target)."""
+def blind_floor(data: BenchmarkData, n: int) -> dict:
+    """Mean over test objects (and per class) of MSE(mean target over n values of the class's
+    hidden parameter at the object's scale, its target)."""
     import radar_sim
-    from basic_shapes.analytic import simulation_mesh, solid_for
-    from benchmark.scoring.versions import get
+    from basic_shapes.analytic import HIDDEN, simulation_mesh, solid_for
+    from basic_shapes.shards import Shard
 
-    config = get("hidden-cpu-v1").radar_config()
-    ratios = (np.arange(n) + 0.5) / n * 0.9
+    with Shard(data.paths[0]) as s:
+        config = radar_sim.RadarConfig(**s.radar.config)
 
-    def label(scale, ratio):
-        v, f = simulation_mesh(
-            solid_for("frustum", scale, {"top_ratio": float(ratio)}), config.f_stop_hz
-        )
+    def label(kind, scale, params):
+        v, f = simulation_mesh(solid_for(kind, scale, params), config.f_stop_hz)
         return db_target(radar_sim.simulate(v, f, config).range_profiles).astype(np.float64)
 
-    errors, relabel = [], []
+    params = data.object_params()
+    errors, relabel, classes = [], [], []
     for obj in data.test_objects():
+        kind = data.class_names[int(data.objects["class_index"][obj])]
+        ((key, (lo, hi)),) = HIDDEN[kind].items()
         scale = data.objects["scale"][obj].astype(np.float64)
         target = data.target(int(obj)).astype(np.float64)
-        shard = data._shard(int(data.objects["shard"][obj]))
-        true = json.loads(shard.file["objects/params"][int(data.objects["row"][obj])])
-        relabel.append(float(np.mean((label(scale, true["top_ratio"]) - target) ** 2)))
-        blind = np.mean([label(scale, r) for r in ratios], axis=0)
+        relabel.append(float(np.mean((label(kind, scale, params[obj]) - target) ** 2)))
+        values = lo + (np.arange(n) + 0.5) / n * (hi - lo)
+        blind = np.mean([label(kind, scale, {key: float(x)}) for x in values], axis=0)
         errors.append(float(np.mean((blind - target) ** 2)))
+        classes.append(kind)
     return {
         "mse": float(np.mean(errors)),
+        "per_class_mse": {
+            c: float(np.mean([e for e, k in zip(errors, classes) if k == c]))
+            for c in sorted(set(classes))
+        },
         "per_object": errors,
+        "classes": classes,
         "n_objects": len(errors),
-        "ratios": ratios.tolist(),
+        "values_per_object": n,
         "relabel_mse": float(np.max(relabel)),
     }
 

@@ -1,13 +1,14 @@
 """Out-of-distribution remeshers (basic_shapes.remesh): face counts, distances, cost, one process.
 
-For N objects per class (per-axis scales log-uniform in the generator's range, as generated)
-it makes each object's simple mesh with Blender, then ``--per-remesher`` OOD meshes from every
-remesher, and reports per remesher and class: triangle counts (min / median / max), the
-two-sided distance to the smooth primitive and to the simple mesh (relative to the bbox
-diagonal; max and median, and the max as a fraction of the class tolerance), CPU
-milliseconds per accepted mesh (rejected tries and verification included) and tries per
-mesh. Writes JSON and prints a table; ``--figure`` draws one object's simple mesh, a training
-variant and its OOD meshes (docs/img/ood.png).
+For N objects per class (per-axis scales log-uniform in the generator's range, as generated;
+a hidden-parameter class's parameter spread evenly over its whole interval, so that every
+part of the range is tried) it makes each object's simple mesh with Blender, then
+``--per-remesher`` OOD meshes from every remesher, and reports per remesher and class:
+triangle counts (min / median / max), the two-sided distance to the smooth primitive and to
+the simple mesh (relative to the bbox diagonal; max and median, and the max as a fraction of
+the class tolerance), CPU milliseconds per accepted mesh (rejected tries and verification
+included) and tries per mesh. Writes JSON and prints a table; ``--figure`` draws one
+object's simple mesh, a training variant and its OOD meshes (docs/img/ood.png).
 
     .venv/bin/python perf/ood_remeshers.py --objects 10 --per-remesher 3 \\
         --figure docs/img/ood.png
@@ -28,7 +29,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from basic_shapes import blender, primitives, remesh, verify
+from basic_shapes import analytic, blender, primitives, remesh, verify
 from basic_shapes.infra import atomic_path, hardware
 from basic_shapes.render import draw_mesh
 from basic_shapes.scales import SCALE_RANGE
@@ -40,6 +41,14 @@ def _stats(x) -> dict:
     return {"min": float(x.min()), "median": float(np.median(x)), "max": float(x.max())}
 
 
+def spread(class_name: str, i: int, n: int) -> dict:
+    """Object i of n's hidden parameters: the middles of n equal parts of each interval."""
+    return {
+        k: lo + (i + 0.5) / n * (hi - lo)
+        for k, (lo, hi) in analytic.HIDDEN.get(class_name, {}).items()
+    }
+
+
 def measure(class_name: str, n_objects: int, per: int, seed: int) -> list[dict]:
     rng = np.random.default_rng(seed)
     remesh.TRIES.clear()
@@ -48,8 +57,11 @@ def measure(class_name: str, n_objects: int, per: int, seed: int) -> list[dict]:
     meshes = []
     for i in tqdm(range(n_objects), desc=class_name, leave=False):
         scale = np.exp(rng.uniform(lo, hi, 3))
-        simple = blender.object_meshes(class_name, scale, seed + i, 0)[0]
-        meshes += remesh.ood_meshes(class_name, scale, seed + i, simple.vertices, simple.faces, per)
+        shape = spread(class_name, i, n_objects)
+        simple = blender.object_meshes(class_name, scale, seed + i, 0, shape)[0]
+        meshes += remesh.ood_meshes(
+            class_name, scale, seed + i, simple.vertices, simple.faces, per, shape=shape
+        )
     tol = verify.tolerance(class_name, {})
     rows = []
     for name in OOD_REMESHERS:
@@ -70,6 +82,7 @@ def measure(class_name: str, n_objects: int, per: int, seed: int) -> list[dict]:
                 "max_over_tolerance": max(max(prim), max(m.hausdorff for m in mine)) / tol,
                 "cpu_ms_per_mesh": 1e3 * remesh.SECONDS[name] / len(mine),
                 "tries_per_mesh": tries / len(mine),
+                "accepted_fraction_of_tries": len(mine) / tries,
                 "outcomes": {r: n for (m, r), n in remesh.TRIES.items() if m == name},
             }
         )

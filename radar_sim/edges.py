@@ -198,7 +198,9 @@ def sharp_edges(mesh, min_dihedral_deg: float = MIN_DIHEDRAL_DEG) -> Wedges:
     of the simulation meshes (at most 6° on the convex primitives: ``SIMULATION_RULE`` turns by
     <= 0.1 rad; 11.5° on an eccentric torus) and below the sharp rims of the primitives (box
     and cylinder 90°, cone base 93°-169°, frustum top rims down to 12° only for nearly flat
-    frusta with a top ratio under 0.1, whose fringe is small: f¹, g¹ vanish like N − 1).
+    frusta with a top ratio under 0.1, whose fringe is small: f¹, g¹ vanish like N − 1). The
+    rounded box has none: its seams are tangent-continuous and its simulation mesh turns by
+    about 0.05 rad at most between facets (tests/test_roundbox.py).
     Collinear consecutive segments stay separate (each is straight); the order is that of
     the (lower, higher) vertex index pairs, so it depends only on the mesh.
     """

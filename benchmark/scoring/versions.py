@@ -56,6 +56,7 @@ class DatasetVersion:
     radar: dict = field(default_factory=dict)  # grid changes to the named RadarConfig
     mesh_labels: str = "none"  # radar-sim label --mesh-labels
     physics: str = "xband-v1"  # the named RadarConfig: "xband-v2" adds channels and edges
+    hidden_ood: bool = False  # OOD test meshes for hidden-parameter classes too (GenerateConfig)
 
     @property
     def manifest_path(self) -> Path:
@@ -70,6 +71,18 @@ class DatasetVersion:
     def fingerprints(self) -> dict:
         """{"mesh": sha256, "label": sha256} recorded in the manifest ({} if none)."""
         return dict(self.manifest["fingerprints"]) if self.manifest else {}
+
+    def generator(self, seed: int | None = None):
+        """The version's GenerateConfig, with ``seed`` instead of its own for a held-out build."""
+        from basic_shapes.generate import GenerateConfig
+
+        return GenerateConfig(
+            classes=tuple(self.classes),
+            objects_per_class=self.objects_per_class,
+            variants=self.variants,
+            seed=self.seed if seed is None else seed,
+            hidden_ood=self.hidden_ood,
+        )
 
     def radar_config(self):
         """The version's RadarConfig (``physics``), renamed when a grid axis is coarsened."""
@@ -162,6 +175,23 @@ VERSIONS.update(
         for v in list(VERSIONS.values())
     }
 )
+# The hidden-parameter track's second round: a second family whose hidden parameter moves the
+# label strongly (the rounded box's edge radius), 150 test objects, and OOD test meshes from
+# the remeshers that represent each hidden class (basic_shapes.remesh.SUPPORTED).
+VERSIONS["hidden-cpu-v3"] = DatasetVersion(
+    "hidden-cpu-v3",
+    "the hidden-parameter track, second round: 750 frustums (hidden top-to-base radius ratio) "
+    "and 750 rounded boxes (hidden edge radius over the smallest extent), 150 test objects "
+    "with OOD meshes, 10 meshes each, 31 x 7 grid; polarimetric labels with edge diffraction "
+    "(xband-v2)",
+    objects_per_class=750,
+    variants=9,
+    classes=("frustum", "roundbox"),
+    radar={"n_aspect": 31, "n_roll": 7},
+    mesh_labels="sample:1",
+    physics="xband-v2",
+    hidden_ood=True,
+)
 
 
 def get(name: str) -> DatasetVersion:
@@ -203,19 +233,18 @@ def make(
 ) -> dict:
     """Generate and label ``version``'s recipe into ``directory`` (both resume), with its own
     seed or ``seed`` (a held-out build, ``benchmark.scoring.heldout``); return the timings."""
-    from basic_shapes.generate import GenerateConfig, generate
+    from basic_shapes.generate import generate
     from radar_sim.label import LabelRequest, label_directory
 
     directory = Path(directory)
-    cfg = GenerateConfig(
-        classes=tuple(version.classes),
-        objects_per_class=version.objects_per_class,
-        variants=version.variants,
-        seed=version.seed if seed is None else seed,
-    )
     t0 = time.perf_counter()
     generate(
-        directory, cfg, workers=workers, scheduler=scheduler, progress=not quiet, shards=shards
+        directory,
+        version.generator(seed),
+        workers=workers,
+        scheduler=scheduler,
+        progress=not quiet,
+        shards=shards,
     )
     t1 = time.perf_counter()
     label_directory(
@@ -282,14 +311,7 @@ def stack() -> dict:
 
 def _generator_config(version: DatasetVersion) -> dict:
     """The generator config ``build`` asks for (toolkit version aside)."""
-    from basic_shapes.generate import GenerateConfig
-
-    cfg = GenerateConfig(
-        classes=tuple(version.classes),
-        objects_per_class=version.objects_per_class,
-        variants=version.variants,
-        seed=version.seed,
-    ).to_dict()
+    cfg = version.generator().to_dict()
     cfg.pop("toolkit_version")
     return cfg
 
