@@ -219,7 +219,7 @@ def test_labels_depend_on_the_hidden_ratio_by_a_margin():
 def test_oracle_picks_neighbours_by_scale_and_hidden_parameter(tmp_path):
     """OracleReference by hand on the benchmark fixture with a made-up hidden parameter written
     into /objects/params: nearest same-class training objects in (log scale, parameter), each
-    feature divided by its spread over the training objects."""
+    feature divided by its spread over the training objects of the class."""
     import h5py
 
     from benchmark.scoring.data import BenchmarkData
@@ -245,8 +245,9 @@ def test_oracle_picks_neighbours_by_scale_and_hidden_parameter(tmp_path):
         )
         x = np.column_stack([np.log(data.objects["scale"]), ratio])
         train = data.object_rows("train")
-        x = x / x[train].std(axis=0)
         cls = data.objects["class_index"]
+        for c in np.unique(cls):
+            x[cls == c] /= x[train[cls[train] == c]].std(axis=0)
         scorer = oracle.score()
         for k, obj in enumerate(data.test_objects()):
             same = train[cls[train] == cls[obj]]

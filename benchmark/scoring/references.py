@@ -207,7 +207,8 @@ def hidden_parameters(data: BenchmarkData) -> tuple[list[str], np.ndarray]:
 class OracleReference:
     """The hidden-parameter track's upper bar: the mean target of the ``K_NEAREST`` training
     objects of the same class nearest in (log scale, hidden shape parameters), each feature
-    divided by its spread over the training objects. It knows what the mesh must reveal, so
+    divided by its spread over the training objects of that class (a family's parameter is
+    not diluted by the zeros of another family's objects). It knows what the mesh must reveal, so
     the gap between it and ``class-scale-nn`` is what reading the mesh can win; on Basic Shapes
     (no hidden parameters) it is ``class-scale-nn`` with the true class."""
 
@@ -215,9 +216,11 @@ class OracleReference:
         self.refs, objects = refs, refs.data.objects
         keys, hidden = hidden_parameters(refs.data)
         features = np.concatenate([np.log(objects["scale"].astype(np.float64)), hidden], axis=1)
-        spread = features[refs.train].std(axis=0)
-        self.features = features / np.where(spread > 0, spread, 1.0)
-        self.keys = keys
+        for c in np.unique(objects["class_index"]):
+            spread = features[refs.train[refs.train_class == c]].std(axis=0)
+            rows = objects["class_index"] == c
+            features[rows] /= np.where(spread > 0, spread, 1.0)
+        self.features, self.keys = features, keys
 
     def nearest(self, obj: int) -> np.ndarray:
         train = self.refs.train
