@@ -24,7 +24,9 @@ EPILOG = """examples:
   benchmark dataset --list
   benchmark dataset cpu-v1 --data data/cpu-v1
   benchmark dataset cpu-v1 --data heldout/cpu-v1 --secret-seed-file ~/secret
-  benchmark export-onnx out/tiny/checkpoints/graph-basic/seed-0 --out graph-basic.onnx"""
+  benchmark export-onnx out/tiny/checkpoints/graph-basic/seed-0 --out graph-basic.onnx
+  benchmark weights --out out/tiny --pack tiny-weights.tar
+  benchmark weights --out rescore --from URL --manifest docs/results/cpu-v2/weights.json"""
 
 DELEGATED = {
     "train": (
@@ -42,6 +44,10 @@ DELEGATED = {
     "dataset": (
         "benchmark.scoring.versions",
         "build a named dataset version (generate + label) and check its fingerprints",
+    ),
+    "weights": (
+        "benchmark.reproduction.weights",
+        "pack a reproduce folder's trained weights as a release archive, or fetch and verify one",
     ),
     "export-onnx": (
         "benchmark.training.onnx_export",

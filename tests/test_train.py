@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -324,6 +325,66 @@ def _committed(out, to, configs: bool):
         dst.parent.mkdir(parents=True)
         dst.write_bytes(path.read_bytes())
     return to
+
+
+def test_released_weights_rescore_the_table(tiny, tmp_path):
+    """`benchmark weights --pack` then `--from` (a file:// URL) gives a folder from which
+    `benchmark reproduce` trains nothing and rebuilds every row's numbers; a corrupted or
+    unverifiable archive leaves nothing behind."""
+    out = tiny
+    table = json.loads((out / "table.json").read_text())
+    archive, committed = tmp_path / "weights.tar", tmp_path / "weights.json"
+    benchmark_main(["weights", "--out", str(out), "--pack", str(archive), "--quiet"])
+    shutil.copy(out / "weights.json", committed)  # what a maintainer commits
+    assert len(json.loads(committed.read_text())["files"]) == 2 * len(table["rows"])
+    bad = bytearray(archive.read_bytes())
+    bad[len(bad) // 2] ^= 0xFF
+    (tmp_path / "bad.tar").write_bytes(bytes(bad))
+    with pytest.raises(SystemExit, match="does not match the sha256|not a readable tar"):
+        benchmark_main(
+            [
+                "weights",
+                "--out",
+                str(tmp_path / "x"),
+                "--from",
+                str(tmp_path / "bad.tar"),
+                "--manifest",
+                str(committed),
+                "--quiet",
+            ]
+        )
+    assert not (tmp_path / "x").exists()
+    rescore = tmp_path / "rescore"
+    benchmark_main(
+        [
+            "weights",
+            "--out",
+            str(rescore),
+            "--from",
+            archive.as_uri(),
+            "--manifest",
+            str(committed),
+            "--quiet",
+        ]
+    )
+    benchmark_main(
+        [
+            "reproduce",
+            "--preset",
+            "tiny",
+            "--data",
+            str(out / "data"),
+            "--out",
+            str(rescore),
+            "--quiet",
+        ]
+    )
+    again = json.loads((rescore / "table.json").read_text())
+    assert not (rescore / "corpus.h5").exists()  # nothing was trained again
+    assert [r["name"] for r in again["rows"]] == [r["name"] for r in table["rows"]]
+    for a, b in zip(table["rows"], again["rows"]):
+        for key in ("simple_mse", "complex_mse", "variation_mse", "params", "train_seconds"):
+            assert b[key] == pytest.approx(a[key], rel=1e-9), (a["name"], key)
 
 
 def test_report_rebuilds_the_table_from_results_alone(tiny, tmp_path, capsys):

@@ -116,8 +116,13 @@ def run(args: argparse.Namespace) -> None:
         ref_scorers, ref_rows, oracle = report.reference_rows(data)
     fingerprint = dataset["fingerprint"]
     cfgs = [runner.row_config(preset, e, r, s, args.shapenet) for e, r in rows for s in seeds]
+    if args.overwrite:  # retrain: a run whose checkpoint config is gone trains again
+        for cfg in cfgs:
+            (runner.checkpoint_dir(out, cfg.name, cfg.seed) / "config.json").unlink(missing_ok=True)
     t0 = time.perf_counter()
-    corpus = runner.pretraining_corpus(cfgs, out, preset, args.shapenet, not args.quiet)
+    corpus = runner.pretraining_corpus(
+        cfgs, out, preset, args.shapenet, not args.quiet, fingerprint
+    )
     if corpus[0]:
         timing["corpus_s"] = time.perf_counter() - t0
     todo, records = runner.resume(cfgs, out, fingerprint, args.overwrite)

@@ -132,13 +132,18 @@ def resume(cfgs: list, out: Path, fingerprint: str, overwrite: bool) -> tuple[li
 
 # --- one run ----------------------------------------------------------------------------------
 def pretraining_corpus(
-    cfgs: list, out: Path, preset: Preset, shapenet: str | None, progress: bool
+    cfgs: list, out: Path, preset: Preset, shapenet: str | None, progress: bool, fingerprint: str
 ) -> tuple[str | None, object]:
-    """What the pretrained rows pretrain on, built once for all of them: (the procedural
-    corpus file written in ``out``, None), or (None, the config that names ShapeNet)."""
+    """What the pretrained rows still to train pretrain on, built once for all of them: (the
+    procedural corpus file written in ``out``, None), or (None, the config that names
+    ShapeNet); nothing where every one was trained (released weights: evaluation only)."""
     from benchmark.training import corpus as corpus_mod
 
-    pretrained = [c for c in cfgs if c.regime in ("classification", "autoencoder")]
+    pretrained = [
+        c
+        for c in cfgs
+        if c.regime in ("classification", "autoencoder") and _trained(out, c, fingerprint) is None
+    ]
     if not pretrained:
         return None, None
     if shapenet:
