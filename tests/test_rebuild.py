@@ -225,3 +225,33 @@ def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
     assert json.loads(proc.stdout)["matches_recorded"] is True
     proc = dataset_cli("tiny-v2", "--data", str(tmp_path / "x"), "--shards", "7", "--quiet")
     assert proc.returncode == 1 and "shard 7 does not exist" in proc.stderr
+
+
+@pytest.mark.slow  # two shards of real Blender, remeshing and labelling: CI's slow set
+def test_hidden_v3_slice_with_both_families_rebuilds(tmp_path):
+    """Shards 56 (test frustums) and 187 (test rounded boxes), with their OOD meshes and
+    labels, rebuild under the emulated foreign CPU to the recorded hidden-cpu-v3 manifest."""
+    data = tmp_path / "v3"
+    proc = dataset_cli(
+        "hidden-cpu-v3",
+        "--data",
+        str(data),
+        "--shards",
+        "56,187",
+        "--workers",
+        "1",
+        "--quiet",
+        env=FOREIGN_CPU,
+    )
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["matches_recorded"] is True, report["differences"]
+    expected = versions.get("hidden-cpu-v3").manifest["shards"]
+    ood = {
+        m["variant"] // 25
+        for i in (56, 187)
+        for o in expected[i]["objects"]
+        for m in o["meshes"]
+        if m["variant"] >= 900
+    }
+    assert ood == {36, 37, 38}  # isotropic, qem (rounded boxes) and delaunay (both)
