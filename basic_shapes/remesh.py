@@ -32,6 +32,7 @@ import functools
 import math
 import time
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -117,61 +118,97 @@ def ood_meshes(
     solid = analytic.solid_for(class_name, scale, shape)
     source = {"isotropic": (simple_vertices, simple_faces)}
     with MeshLabChild() as child:  # one per object: its calls come in a fixed order
-        return _ood_meshes(solid, seed, per_remesher, spec, reference, seen, tol, source, child)
+        obj = _Object(solid, seed, spec, reference, seen, tol, source, child)
+        return _ood_meshes(obj, per_remesher)
 
 
-def _ood_meshes(solid, seed, per_remesher, spec, reference, seen, tol, source, child):
-    class_name = solid.kind
+@dataclass
+class _Object:
+    """What every try of one object's OOD meshes needs: the primitive, the object seed, the
+    class spec, the simple mesh as the Hausdorff reference, the topologies already used, the
+    tolerance, each remesher's source mesh and the object's MeshLab child."""
+
+    solid: analytic.Solid
+    seed: int
+    spec: object
+    reference: verify.Reference
+    seen: set
+    tol: float
+    source: dict
+    child: MeshLabChild
+
+
+def _ood_meshes(obj: _Object, per_remesher: int) -> list[MeshRecord]:
+    solid, source, child = obj.solid, obj.source, obj.child
     out = []
     for name in OOD_REMESHERS:
-        if not supports(name, class_name):
+        if not supports(name, solid.kind):
             continue
+        dense_source = None  # qem's: the simple mesh's dense remesh, unless replaced below
         if name == "qem" and per_remesher:
             start = time.process_time()
             source["qem"] = _dense(solid, *source["isotropic"], child)
             SECONDS[name] += time.process_time() - start
         for k in range(per_remesher):
             start = time.process_time()
-            variant = ood_variant(name, k)
-            rejected = {}
-            for attempt in range(MAX_ATTEMPTS):
-                rng = np.random.default_rng([seed, variant, attempt])
-                lo, hi = FACE_RANGE[class_name]
-                lo = min(hi, lo * 1.5**attempt)  # a rejected try was most likely too coarse
-                params = {
-                    "remesher": name,
-                    "attempt": attempt,
-                    "tolerance": tol,
-                    "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi)))),
-                }
-                v, f = REMESHERS[name](solid, source.get(name), params, rng, child)
-                v, f = v.astype(np.float32), f.astype(np.int32)
-                key = meshcheck.topology_key(f, len(v))
-                reason = "duplicate topology" if key in seen else meshcheck.defect(v, f, spec.euler)
-                if reason is None and len(f) > FACE_RANGE[class_name][1]:
-                    reason = "too many triangles"
-                if reason is None:
-                    distance = reference.distance(v, f)
-                    params["primitive_distance"] = primitive_distance(solid, v, f)
-                    if max(distance, params["primitive_distance"]) <= tol:
-                        seen.add(key)
-                        TRIES[name, "accepted"] += 1
-                        out.append(
-                            MeshRecord(
-                                variant, v, f, distance, params, params["primitive_distance"]
-                            )
-                        )
-                        SECONDS[name] += time.process_time() - start
-                        break
-                    reason = "Hausdorff above tolerance"
-                rejected[reason] = rejected.get(reason, 0) + 1
-                TRIES[name, reason.split(" (")[0]] += 1
-            else:
+            variant, rejected = ood_variant(name, k), {}
+            mesh = _first_accepted(obj, name, variant, range(MAX_ATTEMPTS), rejected)
+            iso = [m for m in out if m.params["remesher"] == "isotropic"]
+            if mesh is None and name == "qem" and iso:
+                # The dense remesh keeps the simple mesh's rims as features; on a few
+                # strongly elliptic cylinders their chords sit beyond the tolerance, and no
+                # decimation of it can pass. Only then: decimate a dense remesh of the
+                # object's first isotropic OOD mesh (within tolerance) instead.
+                source["qem"] = _dense(solid, iso[0].vertices, iso[0].faces, child)
+                dense_source = f"isotropic OOD mesh {iso[0].variant}"
+                tries = range(MAX_ATTEMPTS, 2 * MAX_ATTEMPTS)
+                mesh = _first_accepted(obj, name, variant, tries, rejected)
+            if mesh is not None and dense_source is not None:
+                mesh.params["dense_source"] = dense_source  # this and every later qem mesh
+            if mesh is None:
                 raise RuntimeError(
-                    f"{class_name} seed {seed}: {name} mesh {k} failed "
-                    f"{MAX_ATTEMPTS} attempts ({rejected})"
+                    f"{solid.kind} seed {obj.seed}: {name} mesh {k} failed "
+                    f"{sum(rejected.values())} attempts ({rejected})"
                 )
+            out.append(mesh)
+            SECONDS[name] += time.process_time() - start
     return out
+
+
+def _first_accepted(
+    obj: _Object, name: str, variant: int, attempts: range, rejected: dict
+) -> MeshRecord | None:
+    """The first of ``attempts`` whose mesh passes every check (None if none does); each try
+    draws its parameters from ``(seed, variant, attempt)``, rejections counted in
+    ``rejected``."""
+    class_name = obj.solid.kind
+    for attempt in attempts:
+        rng = np.random.default_rng([obj.seed, variant, attempt])
+        lo, hi = FACE_RANGE[class_name]
+        lo = min(hi, lo * 1.5**attempt)  # a rejected try was most likely too coarse
+        params = {
+            "remesher": name,
+            "attempt": attempt,
+            "tolerance": obj.tol,
+            "target_faces": round(math.exp(rng.uniform(math.log(lo), math.log(hi)))),
+        }
+        v, f = REMESHERS[name](obj.solid, obj.source.get(name), params, rng, obj.child)
+        v, f = v.astype(np.float32), f.astype(np.int32)
+        key = meshcheck.topology_key(f, len(v))
+        reason = "duplicate topology" if key in obj.seen else meshcheck.defect(v, f, obj.spec.euler)
+        if reason is None and len(f) > FACE_RANGE[class_name][1]:
+            reason = "too many triangles"
+        if reason is None:
+            distance = obj.reference.distance(v, f)
+            params["primitive_distance"] = primitive_distance(obj.solid, v, f)
+            if max(distance, params["primitive_distance"]) <= obj.tol:
+                obj.seen.add(key)
+                TRIES[name, "accepted"] += 1
+                return MeshRecord(variant, v, f, distance, params, params["primitive_distance"])
+            reason = "Hausdorff above tolerance"
+        rejected[reason] = rejected.get(reason, 0) + 1
+        TRIES[name, reason.split(" (")[0]] += 1
+    return None
 
 
 PRIMITIVE_SPACING = 1.0 / 64

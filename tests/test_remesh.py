@@ -242,3 +242,22 @@ def test_isotropic_remesh_independent_of_memory_layout(tmp_path):
         assert r.returncode == 0, r.stderr
         found.add(r.stdout.strip().splitlines()[-1])
     assert len(found) == 1, f"{len(found)} different remeshes in 8 processes"
+
+
+@pytest.mark.slow  # a real Blender mesh and ~70 MeshLab tries: CI's slow set
+def test_qem_falls_back_where_the_simple_rims_are_out_of_tolerance():
+    """A strongly elliptic test cylinder (drawn by a held-out build's seed): the dense remesh of
+    its simple mesh keeps rim chords beyond the tolerance, so all 32 decimations of it fail;
+    the qem meshes then come from a dense remesh of its first isotropic OOD mesh, each within
+    tolerance of the simple mesh and of the primitive, and say so."""
+    from basic_shapes.blender import object_meshes
+
+    scale = np.array((0.47209543314523894, 1.571673309099449, 0.922708272430353))
+    seed = 1193056782728972654
+    simple = object_meshes("cylinder", scale, seed, 0)[0]
+    out = remesh.ood_meshes("cylinder", scale, seed, simple.vertices, simple.faces, 3)
+    qem = [m for m in out if m.params["remesher"] == "qem"]
+    tol = verify.tolerance("cylinder", {})
+    assert len(qem) == 3 and qem[0].params["attempt"] >= remesh.MAX_ATTEMPTS
+    assert all(m.params["dense_source"] == "isotropic OOD mesh 900" for m in qem)
+    assert all(max(m.hausdorff, m.primitive_distance) <= tol for m in qem)
