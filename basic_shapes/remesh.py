@@ -163,6 +163,11 @@ def _ood_meshes(obj: _Object, per_remesher: int) -> list[MeshRecord]:
                 dense_source = f"isotropic OOD mesh {iso[0].variant}"
                 tries = range(MAX_ATTEMPTS, 2 * MAX_ATTEMPTS)
                 mesh = _first_accepted(obj, name, variant, tries, rejected)
+            if mesh is None:
+                # A window of target counts narrower than the escalation's steps (fine enough
+                # for the tolerance, coarse enough for FACE_RANGE): draw over the whole range.
+                tries = range(2 * MAX_ATTEMPTS, 3 * MAX_ATTEMPTS)
+                mesh = _first_accepted(obj, name, variant, tries, rejected, escalate=False)
             if mesh is not None and dense_source is not None:
                 mesh.params["dense_source"] = dense_source  # this and every later qem mesh
             if mesh is None:
@@ -176,16 +181,17 @@ def _ood_meshes(obj: _Object, per_remesher: int) -> list[MeshRecord]:
 
 
 def _first_accepted(
-    obj: _Object, name: str, variant: int, attempts: range, rejected: dict
+    obj: _Object, name: str, variant: int, attempts: range, rejected: dict, escalate: bool = True
 ) -> MeshRecord | None:
     """The first of ``attempts`` whose mesh passes every check (None if none does); each try
     draws its parameters from ``(seed, variant, attempt)``, rejections counted in
-    ``rejected``."""
+    ``rejected``; with ``escalate`` the lowest target count grows by 1.5x per try."""
     class_name = obj.solid.kind
     for attempt in attempts:
         rng = np.random.default_rng([obj.seed, variant, attempt])
         lo, hi = FACE_RANGE[class_name]
-        lo = min(hi, lo * 1.5**attempt)  # a rejected try was most likely too coarse
+        if escalate:
+            lo = min(hi, lo * 1.5**attempt)  # a rejected try was most likely too coarse
         params = {
             "remesher": name,
             "attempt": attempt,
