@@ -636,8 +636,9 @@ def markdown(groups: list[dict]) -> str:
         "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
         "computed by the harness and stand where they score, marked ref, without a rank. A "
         "model that does not beat the training-set mean by a paired 95% interval is flagged "
-        "(Beats mean: **no**): its low Variation MSE is not an achievement. OOD Complex / OOD Variation: Complex / Variation MSE on test "
-        "meshes from remeshers no training mesh comes from. Speeds and parameter counts "
+        "(Beats mean: **no**): its low Variation MSE is not an achievement. OOD Complex / "
+        "OOD Variation: Complex / Variation MSE on test meshes from remeshers no training mesh "
+        "comes from. Speeds and parameter counts "
         "marked (self-reported) were not measured by the harness.",
         "",
     ]

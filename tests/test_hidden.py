@@ -21,6 +21,24 @@ from basic_shapes.shards import Shard, content_fingerprint, list_shards
 from benchmark.scoring.data import db_target
 
 
+def stored_simple_meshes(directory):
+    """(object id, stored hidden parameters, extents, simple-mesh vertices (float64)) of every
+    object of a generated dataset, read from the raw shard arrays."""
+    for path in list_shards(directory):
+        with Shard(path) as s:
+            f = s.file
+            for k, oid in enumerate(f["objects/id"][()]):
+                row = np.flatnonzero(
+                    (f["meshes/object_index"][()] == k) & (f["meshes/variant"][()] == 0)
+                )[0]
+                yield (
+                    int(oid),
+                    json.loads(f["objects/params"][k]),
+                    f["objects/scale"][k].astype(np.float64),
+                    s.mesh(int(row))[0].astype(np.float64),
+                )
+
+
 def frustum(scale, ratio):
     return analytic.solid_for("frustum", scale, {"top_ratio": ratio})
 
@@ -164,21 +182,12 @@ def test_generated_objects_store_their_drawn_ratio(generated):
         )
     }
     seen = 0
-    for path in list_shards(generated):
-        with Shard(path) as s:
-            f = s.file
-            for k, oid in enumerate(f["objects/id"][()]):
-                params = json.loads(f["objects/params"][k])
-                assert params == plans[int(oid)].params
-                scale = f["objects/scale"][k].astype(np.float64)
-                row = np.flatnonzero(
-                    (f["meshes/object_index"][()] == k) & (f["meshes/variant"][()] == 0)
-                )[0]
-                v = s.mesh(int(row))[0].astype(np.float64)
-                top = v[np.isclose(v[:, 2], scale[2] / 2, atol=1e-6)]
-                rim = 2 * np.max(np.hypot(top[:, 0] / scale[0], top[:, 1] / scale[1]))
-                assert abs(rim - params["top_ratio"]) < 1e-5
-                seen += 1
+    for oid, params, scale, v in stored_simple_meshes(generated):
+        assert params == plans[oid].params
+        top = v[np.isclose(v[:, 2], scale[2] / 2, atol=1e-6)]
+        rim = 2 * np.max(np.hypot(top[:, 0] / scale[0], top[:, 1] / scale[1]))
+        assert abs(rim - params["top_ratio"]) < 1e-5
+        seen += 1
     assert seen == 3
 
 
@@ -198,21 +207,25 @@ def test_blender_meshes_lie_on_their_frustum_not_another():
         assert profile_distance(v, 0.3, 0.25, 0.4).max() > 2 * bound
 
 
-def test_labels_depend_on_the_hidden_ratio_by_a_margin():
-    """Two frustums of the same extents, ratios 0.1 and 0.8: their labels differ by far more
-    than the label's own discretisation error (the rule against twice its resolution)."""
+@pytest.mark.parametrize(
+    "kind, key, values",
+    [("frustum", "top_ratio", (0.1, 0.8)), ("roundbox", "round_ratio", (0.1, 0.4))],
+)
+def test_labels_depend_on_the_hidden_parameter_by_a_margin(kind, key, values):
+    """Two objects of one hidden family with the same extents and two values of its hidden
+    parameter: their labels differ by far more than either label's own discretisation error
+    (the rule against twice its resolution)."""
     config = radar_sim.RadarConfig(name="test-hidden", n_aspect=7, n_roll=3)
     scale = (0.5, 0.4, 0.6)
 
-    def label(ratio, refinement=1.0):
-        v, f = analytic.simulation_mesh(
-            frustum(scale, ratio), config.f_stop_hz, refinement=refinement
-        )
+    def label(value, refinement=1.0):
+        solid = analytic.solid_for(kind, scale, {key: value})
+        v, f = analytic.simulation_mesh(solid, config.f_stop_hz, refinement=refinement)
         return db_target(radar_sim.simulate(v, f, config).range_profiles).astype(np.float64)
 
-    low, high = label(0.1), label(0.8)
+    low, high = label(values[0]), label(values[1])
     between = float(np.mean((low - high) ** 2))
-    own = float(np.mean((low - label(0.1, 2.0)) ** 2))
+    own = max(float(np.mean((x - label(r, 2.0)) ** 2)) for x, r in zip((low, high), values))
     assert between > 20.0 and between > 50 * own
 
 

@@ -244,20 +244,24 @@ def test_isotropic_remesh_independent_of_memory_layout(tmp_path):
     assert len(found) == 1, f"{len(found)} different remeshes in 8 processes"
 
 
+def _ood_of(kind: str, scale, seed: int, remesher: str):
+    """(the three OOD meshes of ``remesher`` of one object built from its real simple mesh,
+    the class tolerance)."""
+    from basic_shapes.blender import object_meshes
+
+    simple = object_meshes(kind, np.array(scale), seed, 0)[0]
+    out = remesh.ood_meshes(kind, np.array(scale), seed, simple.vertices, simple.faces, 3)
+    return [m for m in out if m.params["remesher"] == remesher], verify.tolerance(kind, {})
+
+
 @pytest.mark.slow  # a real Blender mesh and ~70 MeshLab tries: CI's slow set
 def test_qem_falls_back_where_the_simple_rims_are_out_of_tolerance():
     """A strongly elliptic test cylinder (drawn by a held-out build's seed): the dense remesh of
     its simple mesh keeps rim chords beyond the tolerance, so all 32 decimations of it fail;
     the qem meshes then come from a dense remesh of its first isotropic OOD mesh, each within
     tolerance of the simple mesh and of the primitive, and say so."""
-    from basic_shapes.blender import object_meshes
-
-    scale = np.array((0.47209543314523894, 1.571673309099449, 0.922708272430353))
-    seed = 1193056782728972654
-    simple = object_meshes("cylinder", scale, seed, 0)[0]
-    out = remesh.ood_meshes("cylinder", scale, seed, simple.vertices, simple.faces, 3)
-    qem = [m for m in out if m.params["remesher"] == "qem"]
-    tol = verify.tolerance("cylinder", {})
+    qem, tol = _ood_of("cylinder", (0.47209543314523894, 1.571673309099449, 0.922708272430353),
+                       1193056782728972654, "qem")  # fmt: skip
     assert len(qem) == 3 and qem[0].params["attempt"] >= remesh.MAX_ATTEMPTS
     assert all(m.params["dense_source"] == "isotropic OOD mesh 900" for m in qem)
     assert all(max(m.hausdorff, m.primitive_distance) <= tol for m in qem)
@@ -268,14 +272,8 @@ def test_isotropic_finds_a_narrow_window_of_target_counts():
     """A flat test ellipsoid (drawn by a held-out build's seed): coarse isotropic remeshes miss
     the tolerance and every target the escalation reaches gives more than FACE_RANGE's 4000
     triangles; a third round draws over the whole range and finds the window between."""
-    from basic_shapes.blender import object_meshes
-
-    scale = np.array((0.22478326584610367, 1.4782667247562598, 1.553516380850952))
-    seed = 1889879285252566717
-    simple = object_meshes("sphere", scale, seed, 0)[0]
-    out = remesh.ood_meshes("sphere", scale, seed, simple.vertices, simple.faces, 3)
-    iso = [m for m in out if m.params["remesher"] == "isotropic"]
-    tol = verify.tolerance("sphere", {})
+    iso, tol = _ood_of("sphere", (0.22478326584610367, 1.4782667247562598, 1.553516380850952),
+                       1889879285252566717, "isotropic")  # fmt: skip
     assert len(iso) == 3 and iso[2].params["attempt"] >= 2 * remesh.MAX_ATTEMPTS
     assert all(len(m.faces) <= remesh.FACE_RANGE["sphere"][1] for m in iso)
     assert all(max(m.hausdorff, m.primitive_distance) <= tol for m in iso)
