@@ -38,7 +38,7 @@ demo: install
 	$(BIN)/leaderboard seed --from $(OUT)/benchmark/results --data $(OUT)/data --entries $(OUT)/entries
 	$(BIN)/leaderboard simulator --data $(OUT)/data --entries $(OUT)/entries
 	$(BIN)/leaderboard render --out $(OUT)/site --entries $(OUT)/entries
-	@echo "demo outputs in $(OUT)/: shapes.png, radar.png, benchmark/table.md, site/index.html"
+	@echo "demo outputs in $(OUT)/: info.png, shapes.png, radar.png, benchmark/table.md, site/index.html"
 	@echo "preview the leaderboard: $(BIN)/leaderboard serve $(OUT)/site"
 
 test: install browser
