@@ -516,6 +516,22 @@ def test_findings_are_decided_by_paired_intervals():
     assert embed["verdict"] == "inconclusive"
     partial = findings(rows[9:])  # only the Ideal rows: nothing to compare
     assert [x["verdict"] for x in partial] == [None] * 4
+    # a table still running: the token rows missing leave a claim whose present pairs all
+    # hold undecided, while a reversal among the present pairs decides it
+    running = [r for r in _paper_shaped_rows() if r["embedding"] != "token"]
+    embed = findings(running)[0]
+    assert (embed["verdict"], embed["holds"], embed["of"], embed["pairs_missing"]) == (
+        None,
+        9,
+        9,
+        3,
+    )
+    by = {r["name"]: r for r in running}
+    by["graph-basic"]["per_object"] = {
+        k: [3 * x for x in v] if k != "class_index" else v
+        for k, v in by["direct-basic"]["per_object"].items()
+    }
+    assert findings(running)[0]["verdict"] == "reversed"
 
 
 def test_rows_average_seeds_per_object_with_std_and_interval():

@@ -297,12 +297,15 @@ def _per_seed(row: dict) -> dict:
 
 def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
     """Paired comparisons "a has lower error than b" on each metric, and the claim's verdict:
-    holds when every comparison holds, reversed when any is reversed, else inconclusive."""
+    reversed when any is reversed; otherwise, with every pair's rows present, holds when every
+    comparison holds, else inconclusive; None (undecided) while rows are missing."""
     from benchmark.scoring.uncertainty import paired_seeds, verdict
 
     comps = []
+    missing = 0
     for a, b in pairs:
         if a not in by or b not in by:
+            missing += 1
             continue
         pa, pb = _per_seed(by[a]), _per_seed(by[b])
         for m in metrics:
@@ -323,18 +326,19 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
     counts = {
         v: sum(c["verdict"] == v for c in comps) for v in ("holds", "reversed", "inconclusive")
     }
-    if not comps:
+    if counts["reversed"]:
+        overall = "reversed"
+    elif not comps or missing:
         overall = None
     elif counts["holds"] == len(comps):
         overall = "holds"
-    elif counts["reversed"]:
-        overall = "reversed"
     else:
         overall = "inconclusive"
     return {
         "verdict": overall,
         **counts,
         "of": len(comps),
+        "pairs_missing": missing,
         "comparisons": comps,
         "max_half_width": max((c["half_width"] for c in comps), default=None),
     }
@@ -617,12 +621,14 @@ def render_markdown(table: dict) -> str:
     if not table["findings"]:
         lines.append(table.get("no_findings", NO_FINDINGS))
     for f in table["findings"]:
-        mark = f["verdict"] or "not tested (rows missing)"
+        mark = f["verdict"] or ("not decided" if f["of"] else "not tested") + " (rows missing)"
         hw = (
             ""
             if f["max_half_width"] is None
             else f"; largest paired 95% half-width {f['max_half_width']:.2f} dB²"
         )
+        if f.get("pairs_missing"):
+            hw += f"; {f['pairs_missing']} pair(s) of rows not yet run"
         lines.append(
             f"- {f['claim']}: **{mark}** ({f['holds']} hold, {f['reversed']} reversed, "
             f"{f['inconclusive']} inconclusive of {f['of']}{hw})"
