@@ -516,6 +516,36 @@ def _torus_starts(p, s, n_u=256, n_v=128, m=9, tries=4):
         yield x[np.arange(len(p)), np.argmin(((x - p[:, None, :]) ** 2).sum(-1), axis=1)]
 
 
+def uv_sphere(segments: int, rings: int, axes=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Blender's UV-sphere layout (two poles, rings - 1 rings of ``segments`` vertices) scaled
+    per axis: vertices (V, 3), outward triangles (F, 3) with F = 2 segments (rings - 1). The
+    layout the generator's simple spheres have, and a hard case for the simulator: poles and
+    rings give exactly equal phases at axis-aligned views, small facets near the poles."""
+    theta = np.pi * np.arange(1, rings) / rings  # polar angles of the rings between the poles
+    phi = 2 * np.pi * np.arange(segments) / segments
+    ring = np.stack(
+        [
+            np.sin(theta)[:, None] * np.cos(phi),
+            np.sin(theta)[:, None] * np.sin(phi),
+            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
+        ],
+        -1,
+    )
+    v = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * np.asarray(axes)
+    idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
+    nxt = np.roll(idx, -1, axis=1)
+    south = len(v) - 1
+    f = np.concatenate(
+        [
+            np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
+            np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
+            np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
+            np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1),
+        ]
+    )
+    return v, f
+
+
 def _cube_sphere(n):
     """Unit-sphere vertices and outward triangles of an equal-angle cube-sphere with n[i]
     cells along cube axis i (per-axis counts, so an elongated ellipsoid is not over-refined

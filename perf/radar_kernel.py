@@ -40,6 +40,7 @@ from pathlib import Path  # noqa: E402 - thread limits are set before numpy load
 import numpy as np  # noqa: E402 - thread limits are set before numpy loads
 
 import radar_sim  # noqa: E402 - thread limits are set before numpy loads
+from basic_shapes.analytic import uv_sphere  # noqa: E402 - thread limits are set before numpy loads
 from basic_shapes.infra import hardware  # noqa: E402 - thread limits are set before numpy loads
 from radar_sim import facet, field, geometry  # noqa: E402 - thread limits are set before numpy loads
 
@@ -53,29 +54,7 @@ REFERENCE_DIRECTIONS = 16
 
 def ellipsoid(segments: int, rings: int):
     """UV sphere (Blender's layout: poles plus rings x segments) scaled to AXES."""
-    theta = np.pi * np.arange(1, rings) / rings
-    phi = 2 * np.pi * np.arange(segments) / segments
-    ring = np.stack(
-        [
-            np.sin(theta)[:, None] * np.cos(phi),
-            np.sin(theta)[:, None] * np.sin(phi),
-            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
-        ],
-        -1,
-    )
-    v = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * AXES
-    idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
-    nxt = np.roll(idx, -1, axis=1)
-    south = len(v) - 1
-    f = np.concatenate(
-        [
-            np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
-            np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
-            np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
-            np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1),
-        ]
-    )
-    return v, f
+    return uv_sphere(segments, rings, AXES)
 
 
 def mesh_for(faces: int):

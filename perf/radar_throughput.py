@@ -36,6 +36,7 @@ import trimesh  # noqa: E402
 from radar_accuracy import best_time  # noqa: E402
 
 import radar_sim  # noqa: E402
+from basic_shapes.analytic import uv_sphere  # noqa: E402
 from basic_shapes.infra import hardware  # noqa: E402
 from basic_shapes.shards import (  # noqa: E402
     MeshRecord,
@@ -57,27 +58,8 @@ PAPER_COMPLEX_FACES = 2000
 
 def blender_uv_sphere(segments: int = 32, rings: int = 16, radius: float = 0.5) -> trimesh.Trimesh:
     """Blender's default UV sphere: 32 segments x 16 rings, 482 vertices, 960 triangles."""
-    theta = np.pi * np.arange(1, rings) / rings  # polar angles of the rings between the poles
-    phi = 2 * np.pi * np.arange(segments) / segments
-    ring = np.stack(
-        [
-            np.sin(theta)[:, None] * np.cos(phi),
-            np.sin(theta)[:, None] * np.sin(phi),
-            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
-        ],
-        -1,
-    )
-    vertices = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * radius
-    idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
-    nxt = np.roll(idx, -1, axis=1)
-    south = len(vertices) - 1
-    faces = [
-        np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
-        np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
-        np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
-        np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1),
-    ]
-    mesh = trimesh.Trimesh(vertices, np.concatenate(faces), process=False)
+    vertices, faces = uv_sphere(segments, rings, (radius,) * 3)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
     mesh.fix_normals()
     return mesh
 

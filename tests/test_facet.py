@@ -11,6 +11,7 @@ import mpmath
 import numpy as np
 import pytest
 
+from basic_shapes.analytic import uv_sphere
 from radar_sim import UnitsWarning, facet, monostatic_field
 from radar_sim.field import C0
 
@@ -251,40 +252,12 @@ def test_grazing_facet_in_general_orientation(angle):
         assert abs(g - ref) <= 1e-12 * spec, (k, g, ref, abs(g - ref) / spec)
 
 
-def uv_ellipsoid(segments, rings, axes):
-    """A closed UV-sphere mesh scaled per axis: poles and rings give exactly equal phases
-    (near-pair facets) at axis-aligned views, and small facets near the poles."""
-    theta = np.pi * np.arange(1, rings) / rings
-    phi = 2 * np.pi * np.arange(segments) / segments
-    ring = np.stack(
-        [
-            np.sin(theta)[:, None] * np.cos(phi),
-            np.sin(theta)[:, None] * np.sin(phi),
-            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
-        ],
-        -1,
-    )
-    v = np.concatenate([[[0, 0, 1]], ring.reshape(-1, 3), [[0, 0, -1]]]) * axes
-    idx = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
-    nxt = np.roll(idx, -1, axis=1)
-    south = len(v) - 1
-    f = np.concatenate(
-        [
-            np.stack([np.zeros(segments, int), idx[0], nxt[0]], -1),
-            np.stack([idx[:-1], idx[1:], nxt[1:]], -1).reshape(-1, 3),
-            np.stack([idx[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3),
-            np.stack([idx[-1], np.full(segments, south), nxt[-1]], -1),
-        ]
-    )
-    return v, f
-
-
 @pytest.mark.parametrize("grid", ["uniform", "irregular"])
 def test_fast_path_matches_stable_sum_on_a_uv_ellipsoid(grid):
     """The same on a fine UV ellipsoid with exactly axis-aligned views (whole rings of
     equal-phase pairs), near-specular facets and general views, on a uniform frequency grid
     (phasor recurrences of the special facets) and an irregular one."""
-    v, f = uv_ellipsoid(48, 40, np.array([0.5, 0.7, 0.9]))
+    v, f = uv_sphere(48, 40, (0.5, 0.7, 0.9))
     rng = np.random.default_rng(4)
     dirs = np.concatenate(
         [np.eye(3), -np.eye(3), [unit(1, 1, 0), unit(0, 1, 1)], rng.normal(size=(8, 3))]
