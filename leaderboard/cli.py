@@ -215,18 +215,7 @@ def run(args) -> None:
             unregistered=args.unregistered,
             progress=not args.quiet,
         )
-        if not args.quiet:
-            for path in accepted:
-                print(f"accepted: {path}")
-            for msg in skipped:
-                print(f"skipped: {msg}")
-        for msg in refused:
-            print(f"refused: {msg}", file=sys.stderr)
-        if refused:
-            raise SystemExit(
-                f"{len(accepted)} accepted, {len(skipped)} skipped, "
-                f"{len(refused)} refused (first: {refused[0]})"
-            )
+        _outcome(accepted, skipped, refused)
     elif args.command == "evaluate-model":
         from leaderboard.evaluate_model import evaluate_models
 
@@ -242,19 +231,7 @@ def run(args) -> None:
             memory_mib=args.memory_limit,
             progress=not args.quiet,
         )
-        for path in accepted:
-            print(f"accepted: {path}")
-        for msg in skipped:
-            print(f"skipped: {msg}")
-        if len(args.models) == 1 and refused:
-            raise SystemExit(refused[0])
-        for msg in refused:
-            print(f"refused: {msg}", file=sys.stderr)
-        if refused:
-            raise SystemExit(
-                f"{len(accepted)} accepted, {len(skipped)} skipped, "
-                f"{len(refused)} refused (first: {refused[0]})"
-            )
+        _outcome(accepted, skipped, refused, single=len(args.models) == 1)
     elif args.command == "simulator":
         from leaderboard.simulator import record
 
@@ -278,6 +255,24 @@ def run(args) -> None:
         from leaderboard.serve import serve
 
         serve(args.site, args.port, args.host)
+
+
+def _outcome(accepted: list, skipped: list, refused: list, single: bool = False) -> None:
+    """What ``seed`` and ``evaluate-model`` did, entry by entry (results: printed even with
+    --quiet); a refusal exits non-zero, with the one refusal's own line for a single input."""
+    for path in accepted:
+        print(f"accepted: {path}")
+    for msg in skipped:
+        print(f"skipped: {msg}")
+    if single and refused:
+        raise SystemExit(refused[0])
+    for msg in refused:
+        print(f"refused: {msg}", file=sys.stderr)
+    if refused:
+        raise SystemExit(
+            f"{len(accepted)} accepted, {len(skipped)} skipped, "
+            f"{len(refused)} refused (first: {refused[0]})"
+        )
 
 
 def _main(argv: list[str]) -> None:
