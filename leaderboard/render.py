@@ -20,6 +20,7 @@ from __future__ import annotations
 import ctypes
 import fnmatch
 import html
+import math
 import os
 import re
 import shutil
@@ -76,7 +77,12 @@ def fmt_params(n: int | None) -> str:
 
 
 def fmt_ms(x: float | None) -> str:
-    return "—" if x is None else f"{x:.3g}"
+    """Three significant digits, trailing zeros kept (5.70 beside 5.08), never an exponent."""
+    if x is None:
+        return "—"
+    if not x > 0:
+        return f"{x:.3g}"
+    return f"{x:.{max(0, 2 - math.floor(math.log10(x)))}f}"
 
 
 def interval(block: dict, key: str) -> str:

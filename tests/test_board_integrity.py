@@ -88,14 +88,14 @@ def test_submitted_speed_and_params_are_self_reported_whatever_the_json_says(
     run("render", "--out", site, "--entries", entries)
     html, md = (site / "index.html").read_text(), (site / "LEADERBOARD.md").read_text()
     (row,) = _rows(html)
-    assert "0.0001 (self-reported)" in row and ">1 (self-reported)<" in row
+    assert "0.000100 (self-reported)" in row and ">1 (self-reported)<" in row
     assert re.search(
         r'<p class="note self-reported">\(self-reported\): given by the submitter, '
         r"not measured by the harness",
         html,
     )
     (md_row,) = _md_rows(md)
-    assert "| 0.0001 (self-reported) |" in md_row and "| 1 (self-reported) |" in md_row
+    assert "| 0.000100 (self-reported) |" in md_row and "| 1 (self-reported) |" in md_row
     assert "\n(self-reported): given by the submitter, not measured by the harness" in md
 
 
@@ -124,7 +124,7 @@ def test_seed_keeps_what_the_harness_measured_unmarked(data, tmp_path):
     html = (site / "index.html").read_text()
     (measured_row,) = [r for r in _rows(html) if 'data-value="measured"' in r]
     (given_row,) = [r for r in _rows(html) if 'data-value="given"' in r]
-    assert "self-reported" not in measured_row and "7.5 (self-reported)" in given_row
+    assert "self-reported" not in measured_row and "7.50 (self-reported)" in given_row
 
 
 def test_old_entries_without_origin_read_as_submitted(tmp_path):

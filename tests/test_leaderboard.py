@@ -503,7 +503,7 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     ]
     assert order == sorted(order)
     # submitted entries: speed and params are claims, marked whatever the results JSON says
-    assert "0.1 (self-reported)" in rows[1] and "1.25 (self-reported)" in rows[0]
+    assert "0.100 (self-reported)" in rows[1] and "1.25 (self-reported)" in rows[0]
     assert "1.23 M (self-reported)" in rows[0]
     ci = json.loads(next(entries.glob("graph-ae*.json")).read_text())["metrics"]["complex_mse_ci"]
     assert (
@@ -517,7 +517,7 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     md = (site / "LEADERBOARD.md").read_text()
     table = [line for line in md.splitlines() if line.startswith("| 1 ")]
     assert table and "[Graph AE \\<b\\>](https://example.org/paper?a=1&b=2)" in table[0], md
-    assert md.count("| ref | reference: ") == 4 and "0.1 (self-reported)" in md
+    assert md.count("| ref | reference: ") == 4 and "0.100 (self-reported)" in md
     assert f"{exp['complex_mse']:.2f}" in table[0]
     assert (
         f"250 (self-reported) ms per mesh on cpu: test; Complex MSE {VARIANT_DB**2:.2f} dB²" in md
