@@ -622,16 +622,16 @@ def render_markdown(table: dict) -> str:
         lines.append(table.get("no_findings", NO_FINDINGS))
     for f in table["findings"]:
         mark = f["verdict"] or ("not decided" if f["of"] else "not tested") + " (rows missing)"
-        hw = (
-            ""
+        notes = (
+            []
             if f["max_half_width"] is None
-            else f"; largest paired 95% half-width {f['max_half_width']:.2f} dB²"
+            else [f"largest paired 95% half-width {f['max_half_width']:.2f} dB²"]
         )
         if f.get("pairs_missing"):
-            hw += f"; {f['pairs_missing']} pair(s) of rows not yet run"
+            notes.append(f"{f['pairs_missing']} pair(s) of rows not yet run")
         lines.append(
             f"- {f['claim']}: **{mark}** ({f['holds']} hold, {f['reversed']} reversed, "
-            f"{f['inconclusive']} inconclusive of {f['of']}{hw})"
+            f"{f['inconclusive']} inconclusive of {f['of']}{''.join('; ' + n for n in notes)})"
         )
         for c in f["comparisons"]:
             lines.append(
