@@ -16,6 +16,7 @@ from benchmark.reproduction.presets import ROWS
 from benchmark.reproduction.report import findings
 from benchmark.scoring.data import BenchmarkData, ScaleBins
 from benchmark.scoring.protocol import load_results, score_predictions
+from benchmark.scoring.schema import METRIC_NAMES
 from benchmark.training import corpus
 from benchmark.training.models import (
     FACE_EMBEDDINGS,
@@ -532,6 +533,28 @@ def test_findings_are_decided_by_paired_intervals():
         for k, v in by["direct-basic"]["per_object"].items()
     }
     assert findings(running)[0]["verdict"] == "reversed"
+
+
+def test_findings_plan_the_seeds_for_three_db2():
+    """With per-seed errors, each Complex MSE comparison says how many seeds per row would
+    bring its half-width to ±3 dB²; one seed per row (no seed variance known) says nothing."""
+    rows = [r for r in _paper_shaped_rows() if r["embedding"] != "token"]
+    assert findings(rows)[0]["complex_seeds_for_3"] is None
+    # every row the same per-object errors up to a per-seed offset: the test objects add no
+    # variance to a difference, the seeds all of it (variance 24 + 1 of the seed means)
+    base = rows[0]["per_object"]
+    offsets = {"direct": [4.0, 10.0, 16.0], "graph": [-1.0, 0.0, 1.0]}
+    for r in rows:
+        r["per_object"] = base
+        r["per_seed_object"] = {
+            m: [[x + o for x in base[m]] for o in offsets[r["embedding"]]] for m in METRIC_NAMES
+        }
+    embed = findings(rows)[0]
+    complex_ = [c for c in embed["comparisons"] if c["metric"] == "complex_mse"]
+    assert all(c["half_width"] > 3 for c in complex_)
+    # 1.96 * sqrt((36 + 1) / S) <= 3 from S = 16 on; the t quantile asks a little more
+    assert all(16 <= c["seeds_for_3"] <= 19 for c in complex_), complex_
+    assert embed["complex_seeds_for_3"] == max(c["seeds_for_3"] for c in complex_)
 
 
 def test_rows_average_seeds_per_object_with_std_and_interval():

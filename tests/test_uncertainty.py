@@ -13,13 +13,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.scoring.uncertainty import paired, paired_seeds, t975
+from benchmark.scoring.uncertainty import paired, paired_seeds, seeds_for, t975
 
 DELTA = 1.0
 STRATA = np.repeat([0, 1, 2], 50)
 
 
-def coverage(n_seeds: int, sigma_seed: float, trials: int = 120) -> tuple[float, float, float]:
+def coverage(
+    n_seeds: int, sigma_seed: float, trials: int = 120, noise: float = 3.0
+) -> tuple[float, float, float]:
     """(seed-aware coverage, objects-only coverage, mean seed-aware half-width)."""
     rng = np.random.default_rng(n_seeds * 100 + int(sigma_seed * 10))
     hits_seeds = hits_objects = 0
@@ -27,9 +29,9 @@ def coverage(n_seeds: int, sigma_seed: float, trials: int = 120) -> tuple[float,
     for t in range(trials):
         difficulty = rng.normal(0, 10, len(STRATA))
         a = difficulty + DELTA + rng.normal(0, sigma_seed, (n_seeds, 1))
-        a = a + rng.normal(0, 3, a.shape)
+        a = a + rng.normal(0, noise, a.shape)
         b = difficulty + rng.normal(0, sigma_seed, (n_seeds, 1))
-        b = b + rng.normal(0, 3, b.shape)
+        b = b + rng.normal(0, noise, b.shape)
         s = paired_seeds(a, b, STRATA, n_boot=300, seed=t)
         o = paired(a.mean(0), b.mean(0), STRATA, n_boot=300, seed=t)
         hits_seeds += s["ci"][0] <= DELTA <= s["ci"][1]
@@ -43,6 +45,13 @@ def test_seed_aware_interval_covers_a_known_difference(n_seeds):
     seeds_cov, objects_cov, _ = coverage(n_seeds, sigma_seed=2.0)
     assert seeds_cov >= 0.9, seeds_cov
     assert objects_cov <= 0.5, objects_cov  # what the old findings did: far too sure
+
+
+def test_per_object_seed_noise_is_counted_once():
+    """Per-object noise that differs by seed is in both the object bootstrap and the seed
+    spread; counted twice, the interval would cover the truth nearly always."""
+    seeds_cov, _, _ = coverage(3, sigma_seed=0.0, noise=30.0, trials=300)
+    assert 0.9 <= seeds_cov <= 0.985, seeds_cov  # 0.993 when counted twice
 
 
 def test_without_seed_variance_it_is_not_narrower_than_the_object_interval():
@@ -61,3 +70,28 @@ def test_one_seed_falls_back_to_objects_and_says_so():
 def test_t_quantiles():
     assert t975(2) == pytest.approx(4.303) and t975(1e9) == 1.96
     assert t975(2) > t975(2.5) > t975(3)
+
+
+def test_seeds_for_plans_the_half_width_a_simulated_benchmark_then_gets():
+    sigma = 3.0
+    n = seeds_for(0.0, [sigma**2, sigma**2], 3.0)
+    assert n is not None and n > 3  # 3 seeds cannot give ±3 dB² with a 3 dB² seed spread
+    _, _, width = coverage(n, sigma_seed=sigma, trials=60)
+    _, _, fewer = coverage(n // 2, sigma_seed=sigma, trials=60)
+    assert 2.4 <= width <= 3.3 and fewer > 3.3, (n, width, fewer)
+
+
+def test_seeds_for_is_none_when_the_test_objects_alone_are_too_wide():
+    assert seeds_for(4.0, [1.0, 1.0], 3.0) is None  # 1.96 * 2 = 3.9 > 3 with no seed variance
+    assert seeds_for(0.0, [0.0, 0.0], 3.0) == 2
+
+
+def test_seeds_for_counts_per_object_seed_noise_as_what_seeds_remove():
+    """Per-object noise that differs by seed (no seed offsets, no object-level difference):
+    averaging seeds removes it, so the plan is a seed count, not "more test objects". Each
+    model's seed means vary by 30² / 150 = 6; 1.96² x 12 / S <= 9 from S = 5.1 on, a
+    little more with the t quantile (7 at 14 df). A 12-seed pilot estimates the variances
+    well enough."""
+    rng = np.random.default_rng(7)
+    a, b = (rng.normal(20, 30, (12, len(STRATA))) for _ in range(2))
+    assert 6 <= paired_seeds(a, b, STRATA)["seeds_for"]["3.0"] <= 10

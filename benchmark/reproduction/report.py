@@ -321,6 +321,7 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
                     "ci": p["ci"],
                     "half_width": p["half_width"],
                     "verdict": verdict(p["ci"]),
+                    **({"seeds_for_3": p["seeds_for"]["3.0"]} if "seeds_for" in p else {}),
                 }
             )
     counts = {
@@ -341,7 +342,17 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
         "pairs_missing": missing,
         "comparisons": comps,
         "max_half_width": max((c["half_width"] for c in comps), default=None),
+        "complex_seeds_for_3": _seeds_for_all(comps),
     }
+
+
+def _seeds_for_all(comps: list[dict]) -> int | str | None:
+    """Seeds per row for ±3 dB² on every Complex MSE comparison of a claim: the largest
+    planning figure, "objects" when the test objects alone are wider, None without them."""
+    need = [c["seeds_for_3"] for c in comps if c["metric"] == "complex_mse" and "seeds_for_3" in c]
+    if not need:
+        return None
+    return "objects" if None in need else max(need)
 
 
 def findings(rows: list[dict]) -> list[dict]:
@@ -627,6 +638,13 @@ def render_markdown(table: dict) -> str:
             if f["max_half_width"] is None
             else [f"largest paired 95% half-width {f['max_half_width']:.2f} dB²"]
         )
+        need = f.get("complex_seeds_for_3")
+        if need is not None:
+            notes.append(
+                "±3 dB² on every Complex MSE pair needs more test objects, not seeds"
+                if need == "objects"
+                else f"±3 dB² on every Complex MSE pair would need {need} seeds per row"
+            )
         if f.get("pairs_missing"):
             notes.append(f"{f['pairs_missing']} pair(s) of rows not yet run")
         lines.append(
@@ -637,9 +655,16 @@ def render_markdown(table: dict) -> str:
             lines.append(
                 f"  - {c['better']} < {c['than']} on {c['metric']}: Δ {c['diff']:+.2f} "
                 f"[{c['ci'][0]:+.2f}, {c['ci'][1]:+.2f}] (±{c['half_width']:.2f}): "
-                f"{c['verdict']}"
+                f"{c['verdict']}{_seeds_note(c)}"
             )
     return "\n".join(lines) + "\n"
+
+
+def _seeds_note(c: dict) -> str:
+    if c["metric"] != "complex_mse" or c["half_width"] <= 3 or "seeds_for_3" not in c:
+        return ""
+    n = c["seeds_for_3"]
+    return "; ±3 needs more test objects" if n is None else f"; ±3 at {n} seeds"
 
 
 def plot(rows: list[dict], path: Path, title: str, references: dict | None = None) -> None:

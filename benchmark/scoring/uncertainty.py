@@ -137,11 +137,12 @@ def paired_seeds(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict |
     training seed's per-object errors on the same test objects. The difference of the two
     seed-mean errors has two sources of variance: which test objects were drawn (the paired
     bootstrap over objects, stratified, of the seed-averaged difference) and which seeds were
-    trained (each model's spread of per-seed mean errors, s²/S). The 95% interval is
+    trained (each model's spread of per-seed mean errors, s²/S). Per-object seed noise
+    (``_interaction``) is in both and is taken out of the first. The 95% interval is
     diff ± t·sqrt(V_objects + s_a²/S_a + s_b²/S_b), with Welch-Satterthwaite degrees of
     freedom from the seed terms: with 3 seeds a model's seed spread is known poorly, and
     the interval says so. A bootstrap over 3 seeds instead covered a known difference 76%
-    of the time; this interval 94-97% (tests/test_uncertainty.py). With one seed per model the
+    of the time; this interval 95-98% (tests/test_uncertainty.py). With one seed per model the
     seed terms are unknown: the result is ``paired``'s, and ``seeds`` says so."""
     a, b = np.atleast_2d(np.asarray(a, np.float64)), np.atleast_2d(np.asarray(b, np.float64))
     d = np.nanmean(a, axis=0) - np.nanmean(b, axis=0)
@@ -153,10 +154,11 @@ def paired_seeds(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict |
         return {**obj, "seeds": seeds}
     idx = resamples(np.asarray(strata), n_boot, seed)
     v_obj = float(np.nanvar(_nanmean_rows(d, idx), ddof=1))
-    terms = [float(np.var(np.nanmean(x, axis=1), ddof=1)) / len(x) for x in (a, b)]
-    v = v_obj + sum(terms)
-    df = v**2 / sum(t**2 / (len(x) - 1) for t, x in zip(terms, (a, b))) if sum(terms) else np.inf
-    half = t975(df) * np.sqrt(v)
+    spread = [float(np.var(np.nanmean(x, axis=1), ddof=1)) for x in (a, b)]
+    # each object's seed noise is in the seed spread and in v_obj both: count it once
+    n = int(np.sum(~np.isnan(d)))
+    v_fixed = max(v_obj - sum(_interaction(x) / (len(x) * n) for x in (a, b)), 0.0)
+    half, df = _half_width(v_fixed, [v / s for v, s in zip(spread, seeds)], seeds)
     diff = float(np.nanmean(d))
     return {
         "diff": diff,
@@ -164,7 +166,43 @@ def paired_seeds(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict |
         "half_width": float(half),
         "seeds": seeds,
         "df": float(df),
+        "seeds_for": {str(w): seeds_for(v_fixed, spread, w) for w in TARGET_HALF_WIDTHS},
     }
+
+
+TARGET_HALF_WIDTHS = (3.0,)
+MAX_SEEDS = 1000
+
+
+def _half_width(v_obj: float, terms: list[float], seeds: list[int]) -> tuple[float, float]:
+    """(half-width, Welch-Satterthwaite df) of ``paired_seeds``' interval from the object
+    variance and each model's seed term s²/S."""
+    v = v_obj + sum(terms)
+    df = v**2 / sum(t**2 / (s - 1) for t, s in zip(terms, seeds)) if sum(terms) else np.inf
+    return float(t975(df) * np.sqrt(v)), float(df)
+
+
+def _interaction(x: np.ndarray) -> float:
+    """Seed-by-object variance of (S, n) errors: what is left of each error after its seed's
+    mean and its object's mean (two-way ANOVA residual), i.e. per-object seed noise."""
+    r = x - np.nanmean(x, axis=1, keepdims=True) - np.nanmean(x, axis=0) + np.nanmean(x)
+    n = np.sum(~np.isnan(x).all(axis=0))
+    return float(np.nansum(r**2) / ((len(x) - 1) * max(n - 1, 1)))
+
+
+def seeds_for(v_fixed: float, spread: list[float], target: float) -> int | None:
+    """Training seeds per model at which ``paired_seeds``' half-width would reach ``target``
+    if the variances stayed as estimated: the planning figure for a claim's precision.
+    ``v_fixed``: the test objects' variance that no seed count removes; ``spread``: each
+    model's variance of per-seed mean errors. None when ``v_fixed`` alone is wider than the
+    target (more test objects would help, more seeds cannot) or it needs over
+    ``MAX_SEEDS``."""
+    if t975(np.inf) * np.sqrt(v_fixed) > target:
+        return None
+    for s in range(2, MAX_SEEDS + 1):
+        if _half_width(v_fixed, [x / s for x in spread], [s, s])[0] <= target:
+            return s
+    return None
 
 
 def verdict(ci: list[float] | None, claimed: str = "lower") -> str:
