@@ -56,6 +56,7 @@ from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
 from basic_shapes.cluster import TaskError, dask_client, run_tasks
 from basic_shapes.infra import warn
 from basic_shapes.shards import (
+    SHARD_FORMAT,
     Shard,
     atomic_path,
     list_shards,
@@ -90,6 +91,7 @@ class LabelRequest:
     mesh_labels: str = "none"
     mode: str = "auto"
     frequency_response: bool = False
+    shard_format: int = SHARD_FORMAT  # how /radar is written; not part of the label's identity
 
     def __post_init__(self):
         parse_mesh_labels(self.mesh_labels)
@@ -393,6 +395,7 @@ def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
             mesh_responses=mesh_rows("mesh_response") if with_meshes else None,
             channels=config.channel_list if polarimetric else None,
             channel_responses=rows("polarimetric") if polarimetric else None,
+            shard_format=request.shard_format,
         )
 
     rewrite_atomically(plan.path, edit)

@@ -22,6 +22,8 @@ import trimesh
 import radar_sim
 from basic_shapes.analytic import simulation_mesh, solid_for
 from basic_shapes.shards import (
+    RADAR_VARIABLES,
+    SHARD_FORMAT,
     MeshRecord,
     ObjectRecord,
     Shard,
@@ -213,6 +215,25 @@ def test_xarray_reads_named_dimensions(labelled):
             assert ds["object"].values.tolist() == [0]
             with Shard(labelled / shard_name(0)) as s:
                 np.testing.assert_array_equal(ds["response"].values[0], s.radar.response(0))
+            for name, (long_name, units) in RADAR_VARIABLES.items():  # CF names, format 2
+                if name in ds:
+                    assert ds[name].attrs["long_name"] == long_name
+                    assert ds[name].attrs.get("units") == units
+
+
+def test_shard_format_1_writes_the_same_labels_without_variable_attributes(dataset, tmp_path):
+    """The versions recorded before CF names were added rebuild to their recorded bytes."""
+    fingerprints, attrs = {}, {}
+    for fmt in (1, SHARD_FORMAT):
+        out = tmp_path / str(fmt)
+        shutil.copytree(dataset, out)
+        request = LabelRequest(radar_sim.RadarConfig(**LBAND), shard_format=fmt)
+        label_directory(out, request, workers=0, progress=False)
+        with Shard(out / shard_name(0)) as s:
+            fingerprints[fmt] = s.radar.fingerprint
+            attrs[fmt] = dict(s.file["radar/response"].attrs)
+    assert fingerprints[1] == fingerprints[SHARD_FORMAT]
+    assert "units" not in attrs[1] and attrs[SHARD_FORMAT]["units"] == "m"
 
 
 def test_bytes_do_not_depend_on_worker_count(dataset, labelled, lband, tmp_path):

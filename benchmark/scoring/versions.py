@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from basic_shapes.infra import atomic_path
+from basic_shapes.shards import SHARD_FORMAT
 
 MANIFESTS = Path(__file__).parents[1] / "manifests"
 # the packages whose code computes stored bytes (pinned in constraints.txt)
@@ -57,6 +58,7 @@ class DatasetVersion:
     mesh_labels: str = "none"  # radar-sim label --mesh-labels
     physics: str = "xband-v1"  # the named RadarConfig: "xband-v2" adds channels and edges
     hidden_ood: bool = False  # OOD test meshes for hidden-parameter classes too (GenerateConfig)
+    shard_format: int = SHARD_FORMAT  # how /radar is written: as when the version was recorded
 
     @property
     def manifest_path(self) -> Path:
@@ -125,6 +127,7 @@ VERSIONS: dict[str, DatasetVersion] = {
             objects_per_class=2,
             variants=2,
             radar={"n_aspect": 7, "n_roll": 3},
+            shard_format=1,
         ),
         DatasetVersion(
             "demo-v1",
@@ -133,6 +136,7 @@ VERSIONS: dict[str, DatasetVersion] = {
             variants=9,
             radar={"n_aspect": 31, "n_roll": 7},
             mesh_labels="all",
+            shard_format=1,
         ),
         DatasetVersion(
             "cpu-v1",
@@ -142,6 +146,7 @@ VERSIONS: dict[str, DatasetVersion] = {
             variants=9,
             radar={"n_aspect": 31, "n_roll": 7},
             mesh_labels="sample:1",
+            shard_format=1,
         ),
         DatasetVersion(
             "hidden-cpu-v1",
@@ -153,6 +158,7 @@ VERSIONS: dict[str, DatasetVersion] = {
             classes=("frustum",),
             radar={"n_aspect": 31, "n_roll": 7},
             mesh_labels="sample:1",
+            shard_format=1,
         ),
         DatasetVersion(
             "paper-v1",
@@ -191,6 +197,7 @@ VERSIONS["hidden-cpu-v3"] = DatasetVersion(
     mesh_labels="sample:1",
     physics="xband-v2",
     hidden_ood=True,
+    shard_format=1,
 )
 
 
@@ -249,7 +256,9 @@ def make(
     t1 = time.perf_counter()
     label_directory(
         directory,
-        LabelRequest(version.radar_config(), version.mesh_labels),
+        LabelRequest(
+            version.radar_config(), version.mesh_labels, shard_format=version.shard_format
+        ),
         workers=workers,
         scheduler=scheduler,
         progress=not quiet,
