@@ -158,13 +158,17 @@ class ShardPlan:
     path: Path
     fingerprint: str
     objects: list[ObjectPlan]
-    n_objects: int
+    object_ids: np.ndarray  # /objects/id, the /radar/object coordinate
     done: set = field(default_factory=set)  # object indices with a sidecar file
     stale: list = field(default_factory=list)  # sidecar files of another request or shard
 
     @property
     def sidecar(self) -> Path:
         return self.path.parent / SIDECAR / self.path.stem
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.object_ids)
 
     def object_file(self, k: int) -> Path:
         return self.sidecar / f"object-{k:05d}.h5"
@@ -252,7 +256,7 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
             )
             for k in range(s.n_objects)
         ]
-        plan = ShardPlan(path, s.fingerprint, plans, s.n_objects)
+        plan = ShardPlan(path, s.fingerprint, plans, objs["id"])
     stamp = _stamp(request, plan.fingerprint)
     for k in range(plan.n_objects):
         p = plan.object_file(k)
@@ -386,7 +390,7 @@ def merge_shard(plan: ShardPlan, request: LabelRequest) -> None:
             coordinates={
                 n: getattr(config, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")
             },
-            object_ids=f["objects/id"][()],
+            object_ids=plan.object_ids,
             modes=modes,
             responses=rows("response"),
             frequency_responses=rows("frequency_response") if request.frequency_response else None,

@@ -114,7 +114,7 @@ def test_only_shards_py_reads_a_shards_hdf5_paths():
     ``Shard`` and ``RadarGroup`` accessors (basic_shapes/shards.py)."""
     import re
 
-    leak = re.compile(r"""\.file\[["'](objects|meshes|radar)|\b(shard|s)\.file\b""")
+    leak = re.compile(r"""\[["']/?(objects|meshes|radar)/|\b(shard|s)\.file\b""")
     bad = [
         f"{path.relative_to(ROOT)}:{n}"
         for _, path in _sources()
