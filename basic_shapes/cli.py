@@ -174,6 +174,7 @@ def build_parser() -> ArgumentParser:
     e.add_argument(
         "--object", type=number(int, minimum=0), default=None, help="only this object id"
     )
+    add_quiet_flag(e)
     return p
 
 
@@ -219,7 +220,7 @@ def _main(argv: list[str]) -> int:
         from basic_shapes.export import export
 
         separate_outputs({"--out": args.out}, {"--data": args.data})
-        n = export(args.data, args.out, args.format, args.object)
+        n = export(args.data, args.out, args.format, args.object, progress=not args.quiet)
         kind = "NetCDF (g2s)" if args.format == "g2s" else args.format.upper()
         print(f"wrote {n} {kind} files to {args.out}")
     return 0

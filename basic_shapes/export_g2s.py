@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from basic_shapes import __version__
 from basic_shapes.infra import atomic_path
@@ -85,7 +86,7 @@ class Layout:
     config: dict  # the radar config every shard was labelled with
 
 
-def plan(paths: list[Path]) -> tuple[Layout, list[int]]:
+def plan(paths: list[Path], progress: bool = False) -> tuple[Layout, list[int]]:
     """The export's shared layout and each file's first sample number. Checks every shard
     (labels present, content matching its fingerprints, one radar config) before anything is
     written; reads the mesh table, not the geometry."""
@@ -93,7 +94,7 @@ def plan(paths: list[Path]) -> tuple[Layout, list[int]]:
     n_v = n_f = 0
     config = None
     first, total = [], 0
-    for p in paths:
+    for p in tqdm(paths, desc="g2s check", unit="shard", disable=not progress):
         with Shard(p) as s:
             if not s.has_labels:
                 raise ShardError(f"{p}: has no radar labels; run `radar-sim label` first")
@@ -280,7 +281,7 @@ def _write(ds, path: Path) -> None:
         ds.to_netcdf(tmp, engine="h5netcdf", encoding=encoding)
 
 
-def export_g2s(directory: str | Path, out: str | Path) -> int:
+def export_g2s(directory: str | Path, out: str | Path, progress: bool = False) -> int:
     """Write ``out/shard-NNNNN.nc`` for every ``shard-NNNNN.h5``; return the file count.
 
     Every shard is checked (labels present, one radar config) before anything is written;
@@ -288,7 +289,7 @@ def export_g2s(directory: str | Path, out: str | Path) -> int:
     ``out`` is an error.
     """
     paths = list_shards(directory)
-    layout, first = plan(paths)
+    layout, first = plan(paths, progress)
     out = Path(out)
     targets = [out / (p.stem + ".nc") for p in paths]
     if out.is_dir():
@@ -299,7 +300,10 @@ def export_g2s(directory: str | Path, out: str | Path) -> int:
             )
     out.mkdir(parents=True, exist_ok=True)
     fingerprint = dataset_fingerprint(directory)
-    for p, target, start in zip(paths, targets, first, strict=True):
+    jobs = zip(paths, targets, first, strict=True)
+    for p, target, start in tqdm(
+        jobs, desc="g2s write", unit="shard", total=len(paths), disable=not progress
+    ):
         with Shard(p) as s:
             ds = shard_dataset(s, layout, start, fingerprint)
         _write(ds, target)

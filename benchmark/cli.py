@@ -207,9 +207,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def parser_for(argv: list[str]) -> argparse.ArgumentParser:
+    """The parser ``argv`` is read with (the docs' commands are checked against it)."""
+    return build_parser(next((a for a in argv if not a.startswith("-")), None))
+
+
 def _main(argv: list[str]) -> int:
-    command = next((a for a in argv if not a.startswith("-")), None)
-    args = build_parser(command).parse_args(argv)
+    args = parser_for(argv).parse_args(argv)
     if args.command == "evaluate":
         return evaluate_command(args)
     return _delegate(args.command).run(args) or 0

@@ -18,11 +18,12 @@ from leaderboard.store import DEFAULT_ENTRIES
 
 EPILOG = """examples:
   leaderboard submit out/results.json --predictions out/predictions.h5 --data data/bs \\
+      --entries leaderboard/entries --name "my-model" --link https://example.org/paper
+  leaderboard seed --from out/reproduce/results --data out/reproduce/data \\
+      --entries leaderboard/entries
+  leaderboard evaluate-model model.onnx --data heldout/tiny-v1 --entries leaderboard/entries \\
       --name "my-model" --link https://example.org/paper
-  leaderboard seed --from out/reproduce/results --data out/reproduce/data
-  leaderboard evaluate-model model.onnx --data heldout/tiny-v1 --entries leaderboard/entries \
-      --name "my-model" --link https://example.org/paper
-  leaderboard simulator --data data/bs
+  leaderboard simulator --data data/bs --entries leaderboard/entries
   leaderboard render --out site/
   leaderboard serve site/ --port 8000
 
@@ -152,6 +153,7 @@ def build_parser() -> ArgumentParser:
         help="record this speed instead of timing radar_sim",
     )
     m.add_argument("--hardware", help="hardware description (default: this machine's CPU)")
+    add_quiet_flag(m)
 
     r = sub.add_parser(
         "render",
@@ -164,6 +166,7 @@ def build_parser() -> ArgumentParser:
         "--out", type=Path, default=Path("site"), help="output folder (default: %(default)s)"
     )
     r.add_argument("--entries", **entries)
+    add_quiet_flag(r)
 
     v = sub.add_parser("serve", help="preview the rendered site locally (http.server)")
     v.add_argument(
@@ -237,7 +240,9 @@ def run(args) -> None:
 
         separate_outputs({"--entries": args.entries}, {"--data": args.data})
         try:
-            path = record(args.data, args.entries, args.ms_per_mesh, args.hardware)
+            path = record(
+                args.data, args.entries, args.ms_per_mesh, args.hardware, progress=not args.quiet
+            )
         except ImportError as exc:
             raise ValueError(f"cannot time radar_sim ({exc}); pass --ms-per-mesh") from None
         print(f"recorded: {path}")
@@ -249,6 +254,7 @@ def run(args) -> None:
             args.out,
             args.entries,
             warn=lambda msg: print(f"leaderboard render: warning: {msg}", file=sys.stderr),
+            progress=not args.quiet,
         )
         print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
     elif args.command == "serve":

@@ -29,6 +29,8 @@ from importlib import resources
 from pathlib import Path
 from string import Template
 
+from tqdm import tqdm
+
 from basic_shapes.infra import fsync_dir
 from benchmark.scoring.schema import OOD_METRIC_NAMES, PEAK_METRIC_NAMES
 from leaderboard import figures
@@ -740,20 +742,23 @@ def _png_size(data: bytes) -> tuple[int, int]:
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
 
 
-def build(entries: list[dict]) -> dict[str, bytes]:
-    """Every file of the site, by name."""
+def build(entries: list[dict], progress: bool = False) -> dict[str, bytes]:
+    """Every file of the site, by name. The figures are most of the time (a bar with
+    ``progress``)."""
     groups = datasets(entries)
-    files: dict[str, bytes] = {}
+    drawings = {}
     for g in groups:
-        files[f"speed-vs-error-{g['short']}.png"] = figures.speed_vs_error(
+        drawings[f"speed-vs-error-{g['short']}.png"] = lambda g=g: figures.speed_vs_error(
             g["models"], g["simulator"], references(g), front=g["track"] == "heldout"
         )
         if g["models"]:
-            files[f"per-class-{g['short']}.png"] = figures.per_class(
+            drawings[f"per-class-{g['short']}.png"] = lambda g=g: figures.per_class(
                 g["models"], f"{g['dataset'].get('version') or g['short']}: per class"
             )
         if g["example"]:
-            files[f"example-{g['short']}.png"] = figures.example(g["example"])
+            drawings[f"example-{g['short']}.png"] = lambda g=g: figures.example(g["example"])
+    bar = tqdm(drawings.items(), desc="render", unit="figure", disable=not progress)
+    files: dict[str, bytes] = {name: draw() for name, draw in bar}
     sizes = {name: _png_size(data) for name, data in files.items()}
     body = (
         "\n".join(html_section(g, sizes) for g in groups)
@@ -783,7 +788,10 @@ def asset(folder: str, name: str) -> bytes:
 
 
 def render(
-    out_dir: str | os.PathLike, entries_dir: str | os.PathLike = DEFAULT_ENTRIES, warn=None
+    out_dir: str | os.PathLike,
+    entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
+    warn=None,
+    progress: bool = False,
 ) -> dict[str, bytes]:
     """Validate every entry, build the site in memory, then publish it as a whole.
 
@@ -794,7 +802,8 @@ def render(
     """
     warn = warn or (lambda msg: None)
     check_out(Path(out_dir))
-    files = build(load_entries(entries_dir, on_error=lambda msg: warn(f"{msg}; entry skipped")))
+    entries = load_entries(entries_dir, on_error=lambda msg: warn(f"{msg}; entry skipped"))
+    files = build(entries, progress)
     publish(Path(out_dir), files, warn)
     return files
 

@@ -18,9 +18,11 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
+from tqdm import tqdm
 
 from basic_shapes.infra import utc_timestamp
 from basic_shapes.shards import Shard, is_ood_variant
@@ -39,7 +41,7 @@ from leaderboard.store import (
 MEASURED = "simulator on the representation meshes vs the object's label (its analytic primitive)"
 
 
-def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
+def mesh_physics_scores(data: BenchmarkData, progress: bool = False) -> tuple[dict, int]:
     """(metrics of the simulator on representation meshes, number of test objects scored).
 
     Every test object with a stored complex-mesh physics (``--mesh-labels``) is scored; where
@@ -47,7 +49,8 @@ def mesh_physics_scores(data: BenchmarkData) -> tuple[dict, int]:
     simulated here with the labels' config and mode, as ``radar-sim label`` would have."""
     scorer = Scorer(data.class_names)
     test = set(data.object_rows("test").tolist())
-    for k, path in enumerate(data.paths):
+    shards = tqdm(data.paths, desc="simulator: score", unit="shard", disable=not progress)
+    for k, path in enumerate(shards):
         with Shard(path) as shard:
             radar = shard.radar
             in_shard = np.flatnonzero(data.meshes["shard"] == k)
@@ -99,27 +102,53 @@ def radar_config(data: BenchmarkData, options: bool = False) -> dict:
         return s.radar.options if options else s.radar.config
 
 
-def measure_ms_per_mesh(data_dir: str | os.PathLike) -> dict:
+def measure_ms_per_mesh(data_dir: str | os.PathLike, progress: bool = False) -> dict:
     """Time ``radar_sim.simulate`` as ``leaderboard evaluate-model`` times an ONNX model: in a
     child process with one thread (``evaluate_model.CHILD_ENV``), on every scored test mesh
     (the OOD meshes included) after one untimed warm-up call, with the dataset's own radar
-    config and physics mode. Returns ``{"ms_per_mesh", "n_meshes", "warmup_ms"}``."""
+    config and physics mode. Returns ``{"ms_per_mesh", "n_meshes", "warmup_ms"}``.
+
+    The child reports each mesh on a stdout line (outside the timed calls) for the bar here;
+    its stderr goes to a file, not a pipe, so a chatty child cannot block."""
     from leaderboard.evaluate_model import CHILD_ENV
 
-    proc = subprocess.run(
-        [sys.executable, "-m", "leaderboard.simulator", os.fspath(data_dir)],
-        capture_output=True,
-        text=True,
-        env={**os.environ, **CHILD_ENV},
-    )
-    if proc.returncode != 0:
-        lines = proc.stderr.strip().splitlines()
+    result = None
+    with (
+        tempfile.TemporaryFile("w+") as err,
+        tqdm(desc="simulator: time", unit="mesh", disable=not progress) as bar,
+    ):
+        with subprocess.Popen(
+            [sys.executable, "-m", "leaderboard.simulator", os.fspath(data_dir)],
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+            env={**os.environ, **CHILD_ENV},
+        ) as proc:
+            for line in proc.stdout:
+                message = _message(line)
+                if "total" in message:
+                    bar.reset(total=message["total"])
+                elif "done" in message:
+                    bar.update()
+                elif "ms_per_mesh" in message:
+                    result = message
+        err.seek(0)
+        lines = err.read().strip().splitlines()
+    if proc.returncode != 0 or result is None:
         raise ValueError(f"{data_dir}: timing the simulator failed: {lines[-1] if lines else ''}")
-    return json.loads(proc.stdout)
+    return result
 
 
-def _time_every_mesh(data_dir: str) -> dict:
-    """The child's work (``measure_ms_per_mesh``)."""
+def _message(line: str) -> dict:
+    try:
+        message = json.loads(line)
+    except ValueError:
+        return {}  # something else printed to stdout
+    return message if isinstance(message, dict) else {}
+
+
+def _time_every_mesh(data_dir: str, report=lambda message: None) -> dict:
+    """The child's work (``measure_ms_per_mesh``); ``report`` is called between timed calls."""
     from benchmark.scoring.protocol import scored_mesh_rows
     from radar_sim import RadarConfig, simulate
 
@@ -127,6 +156,7 @@ def _time_every_mesh(data_dir: str) -> dict:
         config = RadarConfig(**radar_config(data))
         mode = radar_config(data, options=True).get("mode", "auto")
         rows = scored_mesh_rows(data)
+        report({"total": len(rows)})
         t0 = time.perf_counter()
         simulate(*data.mesh(int(rows[0])), config, mode=mode)
         warmup = time.perf_counter() - t0
@@ -136,6 +166,7 @@ def _time_every_mesh(data_dir: str) -> dict:
             t0 = time.perf_counter()
             simulate(v, f, config, mode=mode)
             total += time.perf_counter() - t0
+            report({"done": 1})
     return {
         "ms_per_mesh": 1000.0 * total / len(rows),
         "n_meshes": len(rows),
@@ -160,15 +191,16 @@ def record(
     entries_dir: str | os.PathLike = DEFAULT_ENTRIES,
     ms_per_mesh: float | None = None,
     hardware_text: str | None = None,
+    progress: bool = False,
 ):
     """Write (or replace) the simulator entry of a dataset; return its path."""
     with BenchmarkData(data_dir) as data:
-        metrics, scored = mesh_physics_scores(data)
+        metrics, scored = mesh_physics_scores(data, progress)
         fingerprint = data.fingerprint
         timed = ms_per_mesh is None
         config = radar_config(data)
         dataset = dataset_record(data)  # no version field (as simulator entries always were)
-    timing = measure_ms_per_mesh(data_dir) if timed else None
+    timing = measure_ms_per_mesh(data_dir, progress) if timed else None
     if timed:
         ms_per_mesh = timing["ms_per_mesh"]
     name = f"radar_sim on the representation mesh {config.get('name', '')}".strip()
@@ -205,5 +237,9 @@ def record(
         return write_entry(entries_dir, entry, replace=True)
 
 
+def _print(message: dict) -> None:
+    print(json.dumps(message), flush=True)
+
+
 if __name__ == "__main__":  # the timing child of measure_ms_per_mesh
-    print(json.dumps(_time_every_mesh(sys.argv[1])))
+    _print(_time_every_mesh(sys.argv[1], report=_print))

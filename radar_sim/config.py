@@ -10,6 +10,7 @@ and positive range points away from the radar (down-range): a scatterer at p app
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
@@ -37,6 +38,7 @@ MAX_GRID_SAMPLES = 1 << 24  # n_aspect * n_roll * n_freq
 MAX_AXIS = {"n_aspect": 3601, "n_roll": 7200, "n_freq": 65536}
 MAX_FREQUENCY_HZ = 1e12
 CONFIG_MAX_BYTES = 1 << 16
+GRID_SUFFIX = re.compile(r"(.+)-([1-9]\d{0,5})x([1-9]\d{0,5})x([1-9]\d{0,5})")  # with_grid
 
 
 @dataclass(frozen=True)
@@ -85,9 +87,18 @@ class RadarConfig:
 
     @classmethod
     def named(cls, name: str) -> RadarConfig:
-        if name not in NAMED:
-            raise ValueError(f"unknown radar config {name!r}; known: {sorted(NAMED)}")
-        return NAMED[name]
+        """A named config, or one ``with_grid`` made from it: the name stored with the labels
+        (``xband-v2-31x7x107``) loads the config that labelled them."""
+        if name in NAMED:
+            return NAMED[name]
+        grid = GRID_SUFFIX.fullmatch(name)
+        if grid is None or not (grid.group(1) in NAMED or GRID_SUFFIX.fullmatch(grid.group(1))):
+            raise ValueError(
+                f"unknown radar config {name!r}; known: {sorted(NAMED)}, "
+                "each optionally with a grid suffix -<aspects>x<rolls>x<range bins>"
+            )
+        axes = dict(zip(("n_aspect", "n_roll", "n_range"), map(int, grid.group(2, 3, 4))))
+        return cls.named(grid.group(1)).with_grid(**axes)
 
     def with_grid(self, **axes: int) -> RadarConfig:
         """This config with grid axes changed (``n_aspect``, ``n_roll``, ``n_range``), named

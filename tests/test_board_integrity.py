@@ -314,7 +314,7 @@ def test_render_never_carries_a_symlink_into_the_site(tmp_path, secret, capsys):
     (site / "hostdir").symlink_to(secret.parent, target_is_directory=True)
     os.mkfifo(site / "pipe")
     capsys.readouterr()
-    run("render", "--out", site, "--entries", entries)
+    run("render", "--out", site, "--entries", entries, "--quiet")  # warnings still print
     err = capsys.readouterr().err.strip().splitlines()
     tree = _tree(site)
     assert tree["CNAME"] == b"board.example.org" and tree["notes/todo.txt"] == b"mine"
@@ -338,7 +338,7 @@ def test_render_skips_an_entry_that_is_a_symlink(data, submission, tmp_path, cap
     with pytest.raises(store.EntryError, match="symbolic link"):
         store.load_entries(entries)
     capsys.readouterr()
-    run("render", "--out", site, "--entries", entries)
+    run("render", "--out", site, "--entries", entries, "--quiet")  # warnings still print
     (err,) = capsys.readouterr().err.strip().splitlines()
     assert str(link) in err and "symbolic link" in err and "entry skipped" in err, err
     assert ">planted<" not in (site / "index.html").read_text()
@@ -481,6 +481,6 @@ def test_a_bidi_override_is_refused_in_names_and_any_entry_text(data, submission
     entry["metrics"]["per_class"]["cube\u2066"] = entry["metrics"]["per_class"].pop("cube")
     path.write_text(json.dumps(entry))
     capsys.readouterr()
-    run("render", "--out", tmp_path / "site", "--entries", entries)
+    run("render", "--out", tmp_path / "site", "--entries", entries, "--quiet")
     (err,) = capsys.readouterr().err.strip().splitlines()
     assert path.name in err and "U+2066" in err and "skipped" in err

@@ -281,6 +281,18 @@ def test_same_dataset_same_bytes(labelled, exported, tmp_path):
     assert digests(again) == digests(exported)  # re-export in place: same files, no *.tmp
 
 
+def test_export_shows_progress_on_stderr_unless_quiet(labelled, tmp_path, capsys):
+    args = ["export", "--data", str(labelled), "--format", "g2s", "--out"]
+    assert cli.main([*args, str(tmp_path / "a")]) == 0
+    out = capsys.readouterr()
+    assert "g2s check" in out.err and "g2s write" in out.err and "2/2" in out.err
+    assert out.out.startswith("wrote 2 NetCDF (g2s) files")
+    assert cli.main([*args, str(tmp_path / "b"), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    assert cli.main(["export", "--data", str(labelled), "--out", str(tmp_path / "obj")]) == 0
+    assert "export obj" in capsys.readouterr().err
+
+
 def test_unlabelled_dataset_is_refused(raw, tmp_path):
     out = tmp_path / "nc"
     with pytest.raises(SystemExit) as exc:

@@ -117,6 +117,27 @@ def test_radar_config_files(tmp_path):
         RadarConfig.named("nope")
 
 
+def test_stored_radar_config_names_load_their_config():
+    """The config name stamped on a recorded version's labels loads that exact config (the
+    text the labels are fingerprinted with), grid suffix included."""
+    from benchmark.scoring.versions import VERSIONS
+
+    recorded = [v for v in VERSIONS.values() if v.manifest_path.exists()]
+    assert {"demo-v2", "tiny-v1"} <= {v.name for v in recorded}
+    for version in recorded:
+        config = version.radar_config()
+        assert RadarConfig.named(config.name) == config, version.name
+        assert RadarConfig.named(config.name).to_json() == config.to_json(), version.name
+    assert RadarConfig.named("xband-v2-31x7x107").name == "xband-v2-31x7x107"
+    twice = RadarConfig.named("xband-v1").with_grid(n_aspect=31).with_grid(n_roll=3)
+    assert RadarConfig.named(twice.name) == twice
+    for name in ("nope-31x7x107", "xband-v1-31x7", "xband-v1-031x7x107", "xband-v1-0x7x107"):
+        with pytest.raises(ValueError, match=f"unknown radar config '{name}'"):
+            RadarConfig.named(name)
+    with pytest.raises(ValueError, match="n_range odd"):
+        RadarConfig.named("xband-v1-31x7x106")
+
+
 def test_radar_config_size_bounds_follow_memory():
     """docs/RADAR.md "Config bounds": at most MAX_GRID_SAMPLES grid samples (48 B each)."""
     from radar_sim.config import MAX_GRID_SAMPLES

@@ -534,7 +534,7 @@ def test_render_skips_a_bad_entry_file_with_a_warning(data, submission, tmp_path
     path.write_text(json.dumps(entry))
     site = tmp_path / "site"
     capsys.readouterr()
-    run("render", "--out", site, "--entries", entries)
+    run("render", "--out", site, "--entries", entries, "--quiet")  # warnings still print
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and path.name in err[0] and "link" in err[0] and "skipped" in err[0]
     html = (site / "index.html").read_text()
@@ -586,7 +586,20 @@ def test_simulator_point_is_the_physics_on_representation_meshes(data, tmp_path)
     assert json.loads(path.read_text())["speed"]["ms_per_mesh"] == 250.0  # kept
 
 
-def test_simulator_point_measured_with_radar_sim(data, tmp_path):
+def test_simulator_and_render_show_progress_on_stderr_unless_quiet(data, tmp_path, capsys):
+    entries, site = tmp_path / "entries", tmp_path / "site"
+    run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250")
+    assert "simulator: score" in capsys.readouterr().err
+    run("simulator", "--data", data, "--entries", entries, "--ms-per-mesh", "250", "--quiet")
+    assert capsys.readouterr().err == ""
+    run("render", "--out", site, "--entries", entries)
+    out = capsys.readouterr()
+    assert "render" in out.err and "figure" in out.err and out.out.startswith("rendered")
+    run("render", "--out", site, "--entries", entries, "--quiet")
+    assert capsys.readouterr().err == ""
+
+
+def test_simulator_point_measured_with_radar_sim(data, tmp_path, capsys):
     """Real physics labels (radar-sim label, coarse grid, every mesh), then timing radar_sim."""
     import time
 
@@ -617,7 +630,9 @@ def test_simulator_point_measured_with_radar_sim(data, tmp_path):
         ]
     )
     entries = tmp_path / "entries"
+    capsys.readouterr()
     run("simulator", "--data", real, "--entries", entries)
+    assert "simulator: time: 100%" in capsys.readouterr().err  # the child's meshes, as timed
     e = json.loads(next(entries.glob("physics-*.json")).read_text())
     assert e["name"] == "radar_sim on the representation mesh coarse-test"
     assert e["speed"]["source"].startswith("measured") and "one thread" in e["speed"]["source"]

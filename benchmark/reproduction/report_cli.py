@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import sys
 from pathlib import Path
 
 from basic_shapes.infra import add_quiet_flag
@@ -47,32 +48,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> None:
     """Read and check every result, then write the table; nothing is written on an error."""
+    from tqdm import tqdm
+
     from benchmark.scoring.data import BenchmarkData
 
     seeds = seeds_of(args.seeds, PRESETS[args.preset])
     out = Path(args.out)
-    with BenchmarkData(args.data) as data:
-        records = report.load_records(out, args.preset, seeds, data)
-        dataset = report.dataset_info(data, args.data)
-        ref_scorers, ref_rows, oracle = report.reference_rows(data)
-    if not args.quiet:
-        print(
-            f"{sum(map(len, records.values()))} (row, seed) results of {len(records)} rows "
-            f"in {out / 'results'}"
+    # Four steps, each one call without a loop to hook into: a bar of steps, named as they run.
+    with tqdm(total=4, desc="report", unit="step", disable=args.quiet) as bar:
+        bar.set_postfix_str("results")
+        with BenchmarkData(args.data) as data:
+            records = report.load_records(out, args.preset, seeds, data)
+            dataset = report.dataset_info(data, args.data)
+            bar.update()
+            bar.set_postfix_str("reference models")
+            ref_scorers, ref_rows, oracle = report.reference_rows(data)
+            bar.update()
+        if not args.quiet:
+            tqdm.write(
+                f"{sum(map(len, records.values()))} (row, seed) results of {len(records)} rows "
+                f"in {out / 'results'}",
+                file=sys.stdout,
+            )
+        command = f"benchmark report --preset {args.preset} --data {args.data} --out {args.out}"
+        if args.seeds:
+            command += f" --seeds {args.seeds}"
+        bar.set_postfix_str("table and intervals")
+        table = report.build_table(
+            args.preset,
+            seeds,
+            records,
+            dataset,
+            ref_scorers,
+            ref_rows,
+            {
+                "command": command,
+                "hardware": None,
+                "python": platform.python_version(),
+                "timing": None,
+            },
+            oracle,
         )
-    command = f"benchmark report --preset {args.preset} --data {args.data} --out {args.out}"
-    if args.seeds:
-        command += f" --seeds {args.seeds}"
-    table = report.build_table(
-        args.preset,
-        seeds,
-        records,
-        dataset,
-        ref_scorers,
-        ref_rows,
-        {"command": command, "hardware": None, "python": platform.python_version(), "timing": None},
-        oracle,
-    )
-    report.write_outputs(out, table)
+        bar.update()
+        bar.set_postfix_str("plots")
+        report.write_outputs(out, table)
+        bar.update()
     print(report.render_markdown(table))
     print(f"table, JSON and plot in {out}")

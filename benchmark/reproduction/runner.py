@@ -268,7 +268,11 @@ def _start_worker(
         _WORKER["corpus"] = corpus_meshes(pretrain_cfg)
 
 
-def _row_job(cfg, data_dir: Path, out: Path, preset: Preset) -> tuple[object, dict]:
+def _row_job(
+    cfg, data_dir: Path, out: Path, preset: Preset, progress: bool = True
+) -> tuple[object, dict]:
+    """One pooled run. Its progress is a line per epoch, not a bar: the workers train at once
+    and share one terminal, where their bars would overwrite each other."""
     record = run_row(
         cfg,
         data_dir,
@@ -277,7 +281,7 @@ def _row_job(cfg, data_dir: Path, out: Path, preset: Preset) -> tuple[object, di
         _WORKER,
         1,
         progress=False,
-        log=lambda line: print(line, flush=True),
+        log=(lambda line: print(line, flush=True)) if progress else None,
     )
     return cfg, record
 
@@ -321,13 +325,15 @@ def run_jobs(
             initializer=_start_worker,
             initargs=(threads, fingerprint, *corpus),
         ) as pool:
-            futures = [pool.submit(_row_job, cfg, data_dir, out, preset) for cfg in todo]
+            futures = [pool.submit(_row_job, cfg, data_dir, out, preset, progress) for cfg in todo]
             for k, fut in enumerate(as_completed(futures)):
                 cfg, result = fut.result()
-                print(
-                    f"{job_name(cfg)}: done ({result['wall_seconds']:.0f} s), "
-                    f"{k + 1}/{len(todo)} runs"
-                )
+                if progress:
+                    print(
+                        f"{job_name(cfg)}: done ({result['wall_seconds']:.0f} s), "
+                        f"{k + 1}/{len(todo)} runs",
+                        flush=True,
+                    )
                 done(cfg, result)
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)

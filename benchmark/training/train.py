@@ -466,7 +466,7 @@ def fit(
                 )
         history.append(record)
         bar.set_postfix({k: f"{v:.3g}" for k, v in record.items()})
-        if log is not None and rank == 0:
+        if log is not None and rank == 0:  # pooled workers: lines, as bars would collide
             log(
                 f"{desc}: epoch {epoch + 1}/{epochs}, {time.perf_counter() - t0:.0f} s, "
                 + ", ".join(f"{k} {v:.3g}" for k, v in record.items())
