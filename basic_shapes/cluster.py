@@ -1,5 +1,6 @@
 """The toolkit's one batch runner (``run_tasks``) and its Dask client: a local cluster by
-default, an existing one with ``--scheduler``, or one worker thread in this process."""
+default, an existing one with ``--scheduler``, or one worker thread in this process (or, for
+Blender, the calling thread itself: ``batch_client``)."""
 
 from __future__ import annotations
 
@@ -185,11 +186,13 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
     each printing a traceback; a Ctrl-C during the start is delivered once the cluster runs.
     Iterate results with ``finished``.
     """
+    if not scheduler and workers is not None and (isinstance(workers, bool) or workers < 0):
+        raise ValueError(f"--workers must be >= 0 (0 = in this process), got {workers}")
+    if scheduler:
+        check_scheduler(scheduler)  # before importing Dask (seconds): a refusal is immediate
     import dask
     from distributed import Client, LocalCluster
 
-    if not scheduler and workers is not None and (isinstance(workers, bool) or workers < 0):
-        raise ValueError(f"--workers must be >= 0 (0 = in this process), got {workers}")
     with dask.config.set(
         {
             "distributed.worker.daemon": False,
@@ -197,7 +200,6 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
         }
     ):
         if scheduler:
-            check_scheduler(scheduler)
             with Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S * 2:g}s") as client:
                 yield client
             return
@@ -221,6 +223,24 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
                 yield client
 
 
+@contextlib.contextmanager
+def batch_client(workers: int | None = None, scheduler: str | None = None, *, main_thread=False):
+    """``dask_client``, except that with ``main_thread`` ``workers=0`` yields no client at all:
+    ``run_tasks`` then runs each task in the calling thread. Blender needs it: once bpy has run
+    on any other thread, the process segfaults at exit (bpy 5.0), and Dask's in-process worker
+    is another thread."""
+    if main_thread and not scheduler and workers == 0 and not isinstance(workers, bool):
+        yield None
+        return
+    with dask_client(workers, scheduler) as client:
+        yield client
+
+
+def worker_threads(client) -> int:
+    """The worker threads a job runs on (1 for ``batch_client``'s main-thread mode)."""
+    return 1 if client is None else max(1, sum(client.nthreads().values()))
+
+
 class TaskError(Exception):
     """A task failed: ``tag`` is what the caller submitted it with, ``error`` what it raised."""
 
@@ -234,7 +254,16 @@ def run_tasks(client, fn, tasks, window_per_thread: int = 4):
     finish. At most ``window_per_thread`` tasks per worker thread are submitted at a time, so
     a lazy ``tasks`` (one that reads its meshes as it goes) never holds the whole job in
     memory; ``finished`` watches for a cluster without workers and for Ctrl-C. A failed task
-    raises ``TaskError`` naming its tag. Generation and labelling both run through this."""
+    raises ``TaskError`` naming its tag. Generation and labelling both run through this;
+    ``client=None`` (``batch_client``'s main-thread mode) runs each task here, in order."""
+    if client is None:
+        for tag, args in tasks:
+            try:
+                result = fn(*args)
+            except Exception as exc:
+                raise TaskError(tag, exc) from exc
+            yield tag, result
+        return
     from distributed import as_completed
 
     tasks = iter(tasks)

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import sys
 import time
 import zlib
 from dataclasses import asdict, dataclass, field
@@ -253,8 +251,9 @@ def _ood_remeshers(class_name: str, cfg_json: dict) -> int:
     return sum(supports(r, class_name) for r in OOD_REMESHERS)
 
 
-def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
-    """Refuse a directory that holds another dataset; record this config otherwise."""
+def _check_out_dir(out: Path, cfg: GenerateConfig) -> bool:
+    """Refuse a directory that holds another dataset; True while this config is unrecorded.
+    Reads only: nothing is written before the cluster is up (a bad --scheduler leaves no trace)."""
     cfg_path = out / CONFIG_FILE
     if cfg_path.exists():
         old = load_json(cfg_path, max_bytes=1 << 16, error=ShardError)
@@ -268,11 +267,15 @@ def _check_out_dir(out: Path, cfg: GenerateConfig) -> None:
                 f"{out}: holds a dataset with a different config "
                 f"({', '.join(diff)} differ); use another --data"
             )
-        return
+        return False
     if any(out.glob("shard-*.h5")):
         raise ShardError(f"{out}: holds shards but no {CONFIG_FILE}; use another --data")
+    return True
+
+
+def _record_config(out: Path, cfg: GenerateConfig) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(cfg_path) as tmp:
+    with atomic_path(out / CONFIG_FILE) as tmp:
         tmp.write_text(json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
 
 
@@ -302,21 +305,16 @@ def generate(
     ``shards``: build only these shard numbers of the plan (a slice of the dataset, each
     shard byte-identical to the same shard of a whole build).
 
-    ``workers=0`` builds in this process without Dask (debugging); otherwise a LocalCluster
-    with ``workers`` single-threaded processes (default: one per core), or the cluster at
-    ``scheduler``.
+    ``workers=0`` builds in this process, on its main thread (Blender's, see
+    ``cluster.batch_client``); otherwise a LocalCluster with ``workers`` single-threaded
+    processes (default: one per core), or the cluster at ``scheduler``. With ``progress``, the
+    plan line on stdout and a bar on stderr, as ``radar-sim label``.
     """
-    cfg.validate()
-    if workers is not None and (isinstance(workers, bool) or workers < 0):
-        raise ValueError(f"--workers must be >= 0 (0 = in this process), got {workers}")
-    if scheduler is not None:
-        from basic_shapes.cluster import check_scheduler
+    from basic_shapes.cluster import TaskError, batch_client, run_tasks, worker_threads
 
-        check_scheduler(scheduler)
+    cfg.validate()
     out = Path(out)
-    _check_out_dir(out, cfg)
-    if progress:
-        print(plan_text(cfg, workers, scheduler), file=sys.stderr)
+    unrecorded = _check_out_dir(out, cfg)
     tasks = [(str(out / shard_name(i)), plans) for i, plans in enumerate(shard_plans(cfg))]
     if shards is not None:
         if max(shards, default=0) >= len(tasks):
@@ -325,13 +323,28 @@ def generate(
                 f"shards (0..{len(tasks) - 1})"
             )
         tasks = [tasks[i] for i in sorted(set(shards))]
-    for path, _ in tasks:  # only our own leftovers: never other files in the directory
-        Path(path + ".tmp").unlink(missing_ok=True)
     todo = [t for t in tasks if not _is_done(Path(t[0]), cfg)]
     t0 = time.perf_counter()
-    results = list(_run(todo, cfg.to_dict(), workers, scheduler, progress))
+    meshes = 0
+    if todo:
+        # checks --workers and --scheduler before anything is written
+        with batch_client(workers, scheduler, main_thread=True) as client:
+            if unrecorded:
+                _record_config(out, cfg)
+            for path, _ in tasks:  # only our own leftovers: never other files in the directory
+                Path(path + ".tmp").unlink(missing_ok=True)
+            if progress:
+                print(plan_text(cfg, worker_threads(client), scheduler), flush=True)
+            cfg_json = cfg.to_dict()
+            with _bar(todo, cfg_json, progress) as bar:
+                jobs = ((path, (path, plans, cfg_json)) for path, plans in todo)
+                try:
+                    for _, r in run_tasks(client, build_shard, jobs):
+                        bar.update(r["meshes"])
+                        meshes += r["meshes"]
+                except TaskError as exc:
+                    raise exc.error from None
     wall = time.perf_counter() - t0
-    meshes = sum(r["meshes"] for r in results)
     return {
         "shards": len(tasks),
         "built": len(todo),
@@ -342,14 +355,17 @@ def generate(
     }
 
 
-def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -> str:
+def plan_text(cfg: GenerateConfig, threads: int, scheduler: str | None) -> str:
     """One line saying what a run will do, printed before it starts (a run can take days)."""
     objects = len(cfg.classes) * cfg.objects_per_class
     meshes = objects * (cfg.variants + 1)
     shards = -(-objects // cfg.objects_per_shard)
-    n = 1 if workers == 0 else workers or (os.cpu_count() or 1)
-    where = f"the cluster at {scheduler}" if scheduler else f"{n} local worker(s)"
-    hours = meshes / (MESHES_PER_SECOND_PER_WORKER * n) / 3600
+    where = (
+        f"the cluster at {scheduler} ({threads} worker thread(s))"
+        if scheduler
+        else f"{threads} local worker(s)"
+    )
+    hours = meshes / (MESHES_PER_SECOND_PER_WORKER * threads) / 3600
     eta = f"{hours:.1f} h" if hours >= 1 else f"{max(1, round(hours * 60))} min"
     return (
         f"generate: {objects} objects ({len(cfg.classes)} classes x {cfg.objects_per_class}), "
@@ -358,7 +374,8 @@ def plan_text(cfg: GenerateConfig, workers: int | None, scheduler: str | None) -
     )
 
 
-def _run(todo, cfg_json, workers, scheduler, progress):
+def _bar(todo, cfg_json, progress):
+    """The job's tqdm bar on stderr, advanced by meshes (OOD meshes of test objects included)."""
     from tqdm import tqdm
 
     ood = {
@@ -370,22 +387,4 @@ def _run(todo, cfg_json, workers, scheduler, progress):
         for _, ps in todo
         for p in ps
     )
-    bar = tqdm(total=total, unit="mesh", disable=not progress or not todo, desc="generate")
-    if workers == 0 and scheduler is None:
-        for path, plans in todo:
-            r = build_shard(path, plans, cfg_json)
-            bar.update(r["meshes"])
-            yield r
-        bar.close()
-        return
-    from basic_shapes.cluster import TaskError, dask_client, run_tasks
-
-    with dask_client(workers, scheduler) as client:
-        tasks = ((path, (path, plans, cfg_json)) for path, plans in todo)
-        try:
-            for _, r in run_tasks(client, build_shard, tasks):
-                bar.update(r["meshes"])
-                yield r
-        except TaskError as exc:
-            raise exc.error from None
-    bar.close()
+    return tqdm(total=total, unit="mesh", disable=not progress, desc="generate")

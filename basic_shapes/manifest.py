@@ -154,27 +154,7 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
             out.append(f"{where}: {len(sf['objects'])} objects, expected {len(se['objects'])}")
             continue
         for oe, of in zip(se["objects"], sf["objects"]):
-            obj = f"{where} object {oe['id']}"
-            if oe["id"] != of["id"]:
-                out.append(f"{obj}: found object {of['id']} in its place")
-                continue
-            if oe["record"] != of["record"]:
-                out.append(f"{obj}: record differs (class, scale, seed, split or parameters)")
-            variants_e = [m["variant"] for m in oe["meshes"]]
-            variants_f = [m["variant"] for m in of["meshes"]]
-            if variants_e != variants_f:
-                out.append(f"{obj}: variants {variants_f}, expected {variants_e}")
-            else:
-                for me, mf in zip(oe["meshes"], of["meshes"]):
-                    data = [
-                        k
-                        for k in ("vertices", "faces", "record", "physics")
-                        if me.get(k) != mf.get(k)
-                    ]
-                    if data:
-                        out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} differ")
-            if oe.get("label") != of.get("label"):
-                out.append(f"{obj}: label differs")
+            out += _object_differences(f"{where} object {oe['id']}", oe, of)
         if sf.get("stored_fingerprints_differ"):
             out.append(f"{where}: content does not match its stored fingerprints (edited)")
             if len(out) >= limit:
@@ -186,6 +166,27 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
             if expected["fingerprints"].get(kind) != found["fingerprints"].get(kind):
                 out.append(f"{kind} fingerprint differs")
     return out[:limit]
+
+
+def _object_differences(obj: str, oe: dict, of: dict) -> list[str]:
+    """``differences`` of one object's manifest entry, named ``obj``."""
+    if oe["id"] != of["id"]:
+        return [f"{obj}: found object {of['id']} in its place"]
+    out = []
+    if oe["record"] != of["record"]:
+        out.append(f"{obj}: record differs (class, scale, seed, split or parameters)")
+    variants_e = [m["variant"] for m in oe["meshes"]]
+    variants_f = [m["variant"] for m in of["meshes"]]
+    if variants_e != variants_f:
+        out.append(f"{obj}: variants {variants_f}, expected {variants_e}")
+    else:
+        for me, mf in zip(oe["meshes"], of["meshes"]):
+            data = [k for k in ("vertices", "faces", "record", "physics") if me.get(k) != mf.get(k)]
+            if data:
+                out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} differ")
+    if oe.get("label") != of.get("label"):
+        out.append(f"{obj}: label differs")
+    return out
 
 
 def load(path: str | os.PathLike) -> dict:

@@ -90,6 +90,15 @@ def area_normals(triangles: np.ndarray) -> np.ndarray:
     return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
 
 
+def unit_normals(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals (F, 3), twice the areas (F,)) of (F, 3, 3) triangles by ``area_normals``;
+    a degenerate face gets the zero normal rather than NaN (features must stay finite)."""
+    cross = area_normals(triangles)
+    twice = np.linalg.norm(cross, axis=1)
+    normal = np.divide(cross, twice[:, None], out=np.zeros_like(cross), where=twice[:, None] > 0)
+    return normal, twice
+
+
 def twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """|(b - a) x (c - a)|^2 per triangle, from corners a, b, c (F, 3) each: (F,).
 

@@ -4,7 +4,7 @@ A submission is untrusted data: a results JSON and a predictions HDF5 file. Noth
 executed (no pickle, no code, no model): the benchmark reads them with json and h5py and
 validates them (``benchmark.scoring.protocol.load_results``, ``Predictions``: layout, dataset
 fingerprint, every test mesh present, finite values), the predictions are scored again by
-``scoring.protocol.score_predictions``, and every claimed number must agree with the re-score
+``scoring.protocol.score``, and every claimed number must agree with the re-score
 within ``REL_TOL`` / ``ABS_TOL``. All checks run before anything is written, and the entry is
 written atomically, so a refused submission leaves the entries folder untouched. The duplicate
 check and the write hold a lock on the entries folder, so two concurrent submissions of the
@@ -26,7 +26,7 @@ from tqdm import tqdm
 from basic_shapes.infra import utc_timestamp
 from basic_shapes.manifest import file_sha256
 from benchmark.scoring.data import BenchmarkData
-from benchmark.scoring.protocol import Predictions, load_results, score_predictions
+from benchmark.scoring.protocol import Predictions, load_results, score
 from leaderboard import example
 from leaderboard.store import (
     DEFAULT_ENTRIES,
@@ -171,33 +171,37 @@ def submit(
         fingerprint, labels = data.fingerprint, data.label_fingerprint
     except (OSError, ValueError) as exc:
         raise _refuse(data_dir, exc) from None
-    version = dataset_version(data_dir, unregistered)
-    if results["dataset_fingerprint"] != fingerprint:
-        raise SubmissionError(
-            f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
-            f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)"
-        )
-    if results["label_fingerprint"] != labels:
-        raise SubmissionError(
-            f"{results_path}: label fingerprint "
-            f"{results['label_fingerprint'][:16]}... belongs to other labels "
-            f"({data_dir} is {labels[:16]}...: relabelled?)"
-        )
-    try:
-        rescored = score_predictions(data_dir, predictions_path)
-    except (OSError, ValueError) as exc:
-        raise _refuse(predictions_path, exc) from None
-    diffs = compare(results["metrics"], rescored)
-    if diffs:
-        more = f" (and {len(diffs) - 1} more differences)" if len(diffs) > 1 else ""
-        raise SubmissionError(f"{results_path}: {diffs[0]}{more}")
-
-    pred_sha = file_sha256(predictions_path)
-    with data, Predictions(predictions_path, data) as preds:
-        content_sha = preds.content_sha256()
-        _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)  # fail early
-        sample = example.sample(data, preds)
-        dataset = dataset_record(data, version=version)
+    with data:  # opened once: the checks, the re-score and the entry's records all read it
+        version = dataset_version(data_dir, unregistered)
+        if results["dataset_fingerprint"] != fingerprint:
+            raise SubmissionError(
+                f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
+                f" belongs to another dataset ({data_dir} is {fingerprint[:16]}...)"
+            )
+        if results["label_fingerprint"] != labels:
+            raise SubmissionError(
+                f"{results_path}: label fingerprint "
+                f"{results['label_fingerprint'][:16]}... belongs to other labels "
+                f"({data_dir} is {labels[:16]}...: relabelled?)"
+            )
+        try:
+            preds = Predictions(predictions_path, data)
+        except (OSError, ValueError) as exc:
+            raise _refuse(predictions_path, exc) from None
+        with preds:
+            try:
+                rescored = score(data, preds)
+            except (OSError, ValueError) as exc:
+                raise _refuse(predictions_path, exc) from None
+            diffs = compare(results["metrics"], rescored)
+            if diffs:
+                more = f" (and {len(diffs) - 1} more differences)" if len(diffs) > 1 else ""
+                raise SubmissionError(f"{results_path}: {diffs[0]}{more}")
+            pred_sha = file_sha256(predictions_path)
+            content_sha = preds.content_sha256()
+            _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)  # fail early
+            sample = example.sample(data, preds)
+            dataset = dataset_record(data, version=version)
     measured = origin == "seed" and results["speed"].get("self_reported") is False
     entry = {
         "entry_version": ENTRY_VERSION,

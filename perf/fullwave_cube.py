@@ -68,6 +68,7 @@ except ImportError:
 
 import radar_sim
 from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.meshcheck import area_normals
 from radar_sim import exact
 from radar_sim.field import C0, CHANNELS, polarization
 from radar_sim.geometry import line_of_sight
@@ -209,7 +210,7 @@ class Efie:
         e = self.grid.elements.T
         v0, v1, v2 = v[e[:, 0]], v[e[:, 1]], v[e[:, 2]]
         jac = np.stack([v1 - v0, v2 - v0], axis=2)  # (elements, 3, 2)
-        det = np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=1)
+        det = np.linalg.norm(area_normals(v[e]), axis=1)
         length = np.stack(
             [
                 np.linalg.norm(v0 - v1, axis=1),

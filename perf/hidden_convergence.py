@@ -37,6 +37,7 @@ from scipy.spatial import ConvexHull  # noqa: E402
 import radar_sim  # noqa: E402
 from basic_shapes import analytic  # noqa: E402
 from basic_shapes.infra import atomic_path, hardware  # noqa: E402
+from basic_shapes.meshcheck import area_normals  # noqa: E402
 from benchmark.scoring.data import db_target  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -65,9 +66,7 @@ def independent_roundbox(scale, ratio: float, subdivisions: int = 8):
     points = np.concatenate(points)
     hull = ConvexHull(points)
     faces = hull.simplices.copy()
-    normal = np.cross(
-        points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]]
-    )
+    normal = area_normals(points[faces])
     flip = np.einsum("ij,ij->i", normal, hull.equations[:, :3]) < 0  # qhull's are outward
     faces[flip] = faces[flip][:, ::-1]
     used, faces = np.unique(faces, return_inverse=True)

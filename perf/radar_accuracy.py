@@ -33,6 +33,8 @@ import trimesh  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes.infra import hardware  # noqa: E402
+from basic_shapes.meshcheck import area_normals  # noqa: E402
+from radar_sim import geometry  # noqa: E402
 
 C = 299792458.0
 RESULTS = Path(__file__).parent / "results"
@@ -44,7 +46,7 @@ def quadrature_points(vertices, faces, m: int):
     """Centroids (P,3) and area vectors (P,3) of the m*m sub-triangles of every facet."""
     tri = np.asarray(vertices, np.float64)[np.asarray(faces)]
     a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    area_vec = np.cross(e1, e2) / 2 / m**2
+    area_vec = area_normals(tri) / 2 / m**2
     bary = [((i + 1 / 3) / m, (j + 1 / 3) / m) for i in range(m) for j in range(m - i)]
     bary += [((i + 2 / 3) / m, (j + 2 / 3) / m) for i in range(m - 1) for j in range(m - 1 - i)]
     s, t = np.array(bary).T
@@ -98,8 +100,9 @@ def plate_mesh(side: float, n: int):
 
 
 def line_of_sight(aspect_deg, roll_deg):
-    t, p = np.meshgrid(np.radians(aspect_deg), np.radians(roll_deg), indexing="ij")
-    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    """Every aspect at every roll, aspect-major (``radar_sim.geometry.line_of_sight`` on a grid)."""
+    t, p = np.meshgrid(aspect_deg, roll_deg, indexing="ij")
+    return geometry.line_of_sight(t.ravel(), p.ravel())
 
 
 # --- measurement -------------------------------------------------------------------------

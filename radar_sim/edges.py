@@ -111,6 +111,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from basic_shapes.meshcheck import area_normals
 from radar_sim import po_kernel
 from radar_sim.field import CHANNELS, polarization
 from radar_sim.geometry import Mesh, prepare
@@ -209,7 +210,7 @@ def sharp_edges(mesh, min_dihedral_deg: float = MIN_DIHEDRAL_DEG) -> Wedges:
         mesh = prepare(vertices, faces)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
-    normals = _unit(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]))
+    normals = _unit(area_normals(v[f]))
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     face = np.tile(np.arange(len(f)), 3)
     lo, hi = directed.min(axis=1), directed.max(axis=1)
@@ -515,8 +516,10 @@ def _frequency_sums(s, w, k, two_dk, tab, par, out_re, out_im):
         out_im[2, i] += a2i[i] / k[i]
 
 
+# C901: a numba kernel, its loop nest over the edges kept in one piece; a split would first
+# have to be timed against it (no loss of speed, as for po_kernel.first_bounce)
 @njit(cache=True)
-def _edge_kernel(
+def _edge_kernel(  # noqa: C901
     r,
     pol_v,
     pol_h,

@@ -309,8 +309,10 @@ Bins = namedtuple("Bins", "inv_h b_min n_terms two_k_mid")
 bin (0: direct sums instead of moments) and 2·k_mid."""
 
 
+# C901: a numba kernel, its loop nest over the facets kept in one piece; a split would first
+# have to show no loss of speed (perf/radar_kernel.py)
 @njit(cache=True)
-def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):
+def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
     """Moments ``mom`` (n_dirs, 2·n_bins·n_terms: the float64 view of complex moments) of the
     k⁻¹ vertex weights (n_terms = 0: their frequency sums added to ``out`` directly), special
     facets added to ``out`` (n_dirs, n_k); returns the facets left for the stable integral as

@@ -481,7 +481,8 @@ def test_3_render_skips_bad_entries_with_one_warning_each(ws, tmp_path):
         (entries / f"bad-{name}.json").write_text(text)
     site = tmp_path / "site"
     proc = subprocess.run(
-        [sys.executable, "-m", "leaderboard.cli", "render", "--out", site, "--entries", entries],
+        [sys.executable, "-m", "leaderboard.cli", "render", "--quiet", "--out", site]
+        + ["--entries", entries],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -528,7 +529,7 @@ def test_4_generate_keeps_other_peoples_tmp_files(tmp_path):
         timeout=300,
     )
     assert proc.returncode == 0, proc.stderr
-    assert "generate: 1 objects" in proc.stderr  # the plan, printed before the work
+    assert "generate: 1 objects" in proc.stdout  # the plan (stdout), printed before the work
     assert sorted(p.name for p in out.iterdir()) == [
         "dataset.json",
         "notes.tmp",

@@ -12,11 +12,10 @@ from dataclasses import dataclass
 from basic_shapes.infra import FlagError
 from benchmark.training.models import FACE_EMBEDDINGS, REGISTRY
 
-EMBEDDINGS = FACE_EMBEDDINGS  # the paper's encoders: pretrained, with an Ideal row
-ROWS: tuple[tuple[str, str], ...] = (
-    *[(e, r) for e in EMBEDDINGS for r in ("basic", "classification", "autoencoder")],
-    *[(e, "ideal") for e in EMBEDDINGS],
-    *[(e, "basic") for e in REGISTRY if e not in EMBEDDINGS],
+ROWS: tuple[tuple[str, str], ...] = (  # the paper's face encoders: pretrained, with an Ideal row
+    *[(e, r) for e in FACE_EMBEDDINGS for r in ("basic", "classification", "autoencoder")],
+    *[(e, "ideal") for e in FACE_EMBEDDINGS],
+    *[(e, "basic") for e in REGISTRY if e not in FACE_EMBEDDINGS],
 )
 PRETRAINING = {
     "basic": "none",

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json
-from benchmark.reproduction.presets import EMBEDDINGS, PRESETS, PRETRAINING, ROWS
+from benchmark.reproduction.presets import PRESETS, PRETRAINING, ROWS
 from benchmark.reproduction.runner import checkpoint_dir, number, plateau_record, row_files
 from benchmark.scoring.schema import METRIC_NAMES, OOD_METRIC_NAMES, PEAK_METRIC_NAMES
-from benchmark.training.models import REGISTRY
+from benchmark.training.models import FACE_EMBEDDINGS, REGISTRY
 from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
 
 
@@ -374,7 +374,7 @@ def findings(rows: list[dict]) -> list[dict]:
             **_decide(
                 [
                     ((e, "autoencoder"), (e, r))
-                    for e in EMBEDDINGS
+                    for e in FACE_EMBEDDINGS
                     for r in ("classification", "basic")
                 ],
                 by,
@@ -386,7 +386,7 @@ def findings(rows: list[dict]) -> list[dict]:
             **_decide(
                 [
                     (("graph", "autoencoder"), (e, r))
-                    for e in EMBEDDINGS
+                    for e in FACE_EMBEDDINGS
                     for r in pre
                     if (e, r) != ("graph", "autoencoder")
                 ],
@@ -397,7 +397,9 @@ def findings(rows: list[dict]) -> list[dict]:
         {
             "claim": "every non-Ideal model falls short of its Ideal model on Variation MSE",
             **_decide(
-                [((e, "ideal"), (e, r)) for e in EMBEDDINGS for r in pre], by, ("variation_mse",)
+                [((e, "ideal"), (e, r)) for e in FACE_EMBEDDINGS for r in pre],
+                by,
+                ("variation_mse",),
             ),
         },
     ]

@@ -72,15 +72,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def make_dataset(preset: Preset, directory: Path, quiet: bool) -> dict:
-    """Build the preset's dataset version (generate + label; both resume)."""
+    """Build the preset's dataset version (generate + label; both resume). Its
+    ``VersionError`` comes after work, so the CLI boundary's exit 1, not a ``FlagError``'s 2."""
     from benchmark.scoring import versions
 
-    try:
-        return versions.build(
-            versions.get(preset.dataset), directory, workers=preset.workers, quiet=quiet
-        )
-    except versions.VersionError as exc:
-        raise SystemExit(f"benchmark reproduce: {exc}") from None
+    return versions.build(
+        versions.get(preset.dataset), directory, workers=preset.workers, quiet=quiet
+    )
 
 
 def _command(args: argparse.Namespace) -> str:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from basic_shapes.meshcheck import area_normals, directed_edges
+from basic_shapes.meshcheck import area_normals, directed_edges, unit_normals
 
 N_BINS = 128  # discretization levels per quantity, as in MeshGPT
 COORD_RANGE = 0.5
@@ -71,9 +71,7 @@ def _discretize(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
 def face_geometry(vertices: np.ndarray, faces: np.ndarray) -> dict[str, np.ndarray]:
     """Triangles, centres, areas, unit normals and interior angles of every face."""
     tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]  # (F, 3, 3)
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(cross, axis=1)
-    normal = np.divide(cross, norm[:, None], out=np.zeros_like(cross), where=norm[:, None] > 0)
+    normal, norm = unit_normals(tri)
     angles = np.empty((len(tri), 3))
     for k in range(3):
         a = tri[:, (k + 1) % 3] - tri[:, k]
@@ -142,9 +140,7 @@ def ray_probes(
     for s in range(0, len(tri), chunk):
         t3 = tri[s : s + chunk]
         e1, e2 = t3[:, 1] - t3[:, 0], t3[:, 2] - t3[:, 0]
-        normal = np.cross(e1, e2)
-        length = np.linalg.norm(normal, axis=1, keepdims=True)
-        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        normal = unit_normals(t3)[0]
         p = np.cross(d[:, None], e2[None])  # (R, T, 3)
         det = np.einsum("tk,rtk->rt", e1, p)
         ok = np.abs(det) > 1e-15

@@ -195,8 +195,6 @@ def inspect(path: str | os.PathLike, raw: bytes | None = None) -> ModelInfo:
     """Validate a model file against the contract (nothing is run); ``OnnxModelError`` in one
     line naming the file."""
     onnx = _onnx()
-    from onnx import helper
-
     raw = read_model_bytes(path) if raw is None else raw
 
     def fail(problem: str):
@@ -214,6 +212,25 @@ def inspect(path: str | os.PathLike, raw: bytes | None = None) -> ModelInfo:
         fail("not an ONNX model (it does not parse as an ONNX ModelProto)")
     if not model.HasField("graph") or not model.ir_version:
         fail("not an ONNX model (no graph or IR version)")
+    _check_operators(model, fail)
+    names, out = _check_io(model, fail)
+    opset = max((o.version for o in model.opset_import if o.domain in STANDARD_DOMAINS), default=0)
+    return ModelInfo(
+        path=str(path),
+        sha256=hashlib.sha256(raw).hexdigest(),
+        n_bytes=len(raw),
+        params=count_parameters(model),
+        inputs=tuple(names),
+        output=out.name,
+        opset=int(opset),
+        producer=f"{model.producer_name} {model.producer_version}".strip()[:80] or "unknown",
+        metadata=tuple((p.key[:40], p.value[:80]) for p in model.metadata_props[:32]),
+    )
+
+
+def _check_operators(model, fail) -> None:
+    """``inspect``: one self-contained file of standard ONNX operators that passes the checker."""
+    onnx = _onnx()
     if _external(model):
         fail("refers to external data; store every tensor inside the one .onnx file")
     domains = sorted({o.domain for o in model.opset_import} - set(STANDARD_DOMAINS))
@@ -233,6 +250,13 @@ def inspect(path: str | os.PathLike, raw: bytes | None = None) -> ModelInfo:
     except Exception as exc:
         lines = str(exc).strip().splitlines()
         fail(f"fails the ONNX checker ({lines[0][:200] if lines else exc.__class__.__name__})")
+
+
+def _check_io(model, fail) -> tuple[list[str], object]:
+    """``inspect``: the inputs the contract defines (names, dtypes, ranks), one dB-grid output."""
+    onnx = _onnx()
+    from onnx import helper
+
     initializers = {t.name for t in model.graph.initializer}
     inputs = [i for i in model.graph.input if i.name not in initializers]
     names = []
@@ -259,18 +283,7 @@ def inspect(path: str | os.PathLike, raw: bytes | None = None) -> ModelInfo:
         fail("its output must be a float32 tensor (the dB grid)")
     if tt.HasField("shape") and len(tt.shape.dim) != 3:
         fail(f"its output must have rank 3 (aspect, roll, range), not {len(tt.shape.dim)}")
-    opset = max((o.version for o in model.opset_import if o.domain in STANDARD_DOMAINS), default=0)
-    return ModelInfo(
-        path=str(path),
-        sha256=hashlib.sha256(raw).hexdigest(),
-        n_bytes=len(raw),
-        params=count_parameters(model),
-        inputs=tuple(names),
-        output=out.name,
-        opset=int(opset),
-        producer=f"{model.producer_name} {model.producer_version}".strip()[:80] or "unknown",
-        metadata=tuple((p.key[:40], p.value[:80]) for p in model.metadata_props[:32]),
-    )
+    return names, out
 
 
 # --- inputs and running ------------------------------------------------------------------

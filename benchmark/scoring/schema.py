@@ -114,22 +114,9 @@ class Field:
                 raise SchemaError(f"{where} is missing or null")
             return
         if self.kind in ("number", "int"):
-            is_int = isinstance(value, int) and not isinstance(value, bool)
-            if not (is_int or (self.kind == "number" and isinstance(value, float))):
-                what = "an integer" if self.kind == "int" else "a number"
-                raise SchemaError(f"{where} must be {what}, got {_shown(value)}")
-            if (not is_int and not math.isfinite(value)) or not self.lo <= value <= self.hi:
-                raise SchemaError(
-                    f"{where} must be a finite number in [{self.lo:g}, {self.hi:g}], "
-                    f"got {_shown(value)}"
-                )
+            self._check_number(value, where)
         elif self.kind == "interval":
-            if not (isinstance(value, list) and len(value) == 2):
-                raise SchemaError(f"{where} must be an interval [lo, hi]")
-            for k, x in enumerate(value):
-                Field("number", self.lo, self.hi).check(x, f"{where}[{k}]")
-            if value[0] > value[1]:
-                raise SchemaError(f"{where} must have lo <= hi")
+            self._check_interval(value, where)
         elif self.kind == "bool":
             if not isinstance(value, bool):
                 raise SchemaError(f"{where} must be true or false")
@@ -151,6 +138,25 @@ class Field:
             raise SchemaError(
                 f"{where} must be one of {', '.join(map(str, self.choices))}, got {_shown(value)}"
             )
+
+    def _check_number(self, value, where: str) -> None:
+        is_int = isinstance(value, int) and not isinstance(value, bool)
+        if not (is_int or (self.kind == "number" and isinstance(value, float))):
+            what = "an integer" if self.kind == "int" else "a number"
+            raise SchemaError(f"{where} must be {what}, got {_shown(value)}")
+        if (not is_int and not math.isfinite(value)) or not self.lo <= value <= self.hi:
+            raise SchemaError(
+                f"{where} must be a finite number in [{self.lo:g}, {self.hi:g}], "
+                f"got {_shown(value)}"
+            )
+
+    def _check_interval(self, value, where: str) -> None:
+        if not (isinstance(value, list) and len(value) == 2):
+            raise SchemaError(f"{where} must be an interval [lo, hi]")
+        for k, x in enumerate(value):
+            Field("number", self.lo, self.hi).check(x, f"{where}[{k}]")
+        if value[0] > value[1]:
+            raise SchemaError(f"{where} must have lo <= hi")
 
     def _check_text(self, value, where: str) -> None:
         bad = hidden_character(value) if isinstance(value, str) else None

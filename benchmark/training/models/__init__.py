@@ -94,7 +94,7 @@ REGISTRY: dict[str, Embedding] = {
 }
 """Adding an embedding is one entry here: the CLI choices, the table's rows and the plot's
 colours all derive from it."""
-EMBEDDINGS = tuple(REGISTRY)
+EMBEDDINGS = tuple(REGISTRY)  # every model name (the CLI choices)
 FACE_EMBEDDINGS = tuple(name for name, e in REGISTRY.items() if e.face)  # the paper's
 
 
