@@ -9,6 +9,9 @@ of range are refused by the parser too.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -16,7 +19,7 @@ import pytest
 from basic_shapes.shards import Shard, ShardError, dataset_fingerprint, label_fingerprint
 from benchmark.scoring.protocol import MeanResponseModel
 from benchmark_fixture import make_dataset
-from test_hostile import cli
+from test_hostile import ROOT, cli
 
 
 def refused_by_parser(tool: str, args, phrase: str, capsys, watch=()) -> None:
@@ -290,22 +293,27 @@ def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
     )
 
 
-LIGHT_CORE_BLOCKER = """
-import importlib.abc, sys
-HEAVY = {"torch", "torch_geometric", "vector_quantize_pytorch", "bpy", "pymeshlab", "numba",
-         "llvmlite", "scipy", "trimesh", "embreex", "dask", "distributed", "matplotlib",
-         "xarray", "h5netcdf", "manifold3d", "fast_simplification"}
-class Block(importlib.abc.MetaPathFinder):
-    def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in HEAVY:
-            raise ImportError(f"{name} is not in the light core")
-sys.meta_path.insert(0, Block())
-"""
+LIGHT_CORE = ("numpy", "numpy.libs", "h5py", "h5py.libs", "tqdm")
+
+
+def light_core_path(tmp_path) -> str:
+    """A sys.path holding the repository and the light core's packages (pyproject.toml's
+    dependencies) and nothing else installed: with ``python -S`` (no site-packages) it is the
+    environment ``pip install basic-shapes`` without extras gives."""
+    import numpy
+
+    installed = Path(numpy.__file__).parent.parent
+    core = tmp_path / "light-core"
+    core.mkdir()
+    for name in LIGHT_CORE:
+        if (installed / name).exists():
+            (core / name).symlink_to(installed / name)
+    return os.pathsep.join([str(ROOT), str(core)])
 
 
 def test_scoring_and_submitting_need_only_the_light_core(data, tmp_path):
-    """`benchmark evaluate --predictions` and `leaderboard submit` with every package outside
-    the light core (numpy, h5py, tqdm) unimportable: what a submitter installs
+    """`benchmark evaluate --predictions` and `leaderboard submit` in an environment of the
+    light core alone (numpy, h5py, tqdm; no site-packages): what a submitter installs
     (`pip install basic-shapes`, no extras; pyproject.toml)."""
     import subprocess
     import sys
@@ -351,13 +359,16 @@ def test_scoring_and_submitting_need_only_the_light_core(data, tmp_path):
             ],
         ),
     ]
+    env = {**os.environ, "PYTHONPATH": light_core_path(tmp_path)}
     for module, args in runs:
-        code = (
-            LIGHT_CORE_BLOCKER + f"import runpy; sys.argv = ['x', *{args!r}]\n"
-            f"runpy.run_module({module!r}, run_name='__main__')"
+        proc = subprocess.run(
+            [sys.executable, "-S", "-m", module, *args], capture_output=True, text=True, env=env
         )
-        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
+    proc = subprocess.run(  # the environment really is the light core
+        [sys.executable, "-S", "-c", "import torch"], capture_output=True, text=True, env=env
+    )
+    assert "No module named 'torch'" in proc.stderr
     assert len(list((tmp_path / "entries").glob("*.json"))) == 1
 
 
