@@ -377,6 +377,12 @@ def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
                 abc = a * b * c
                 aa, bb, cc = abs(a), abs(b), abs(c)
                 d_max = max(aa, bb, cc)
+                # Hermite-Genocchi: the facet integral is a second divided difference of the
+                # exponential, so A_f(k) = (1/k) sum_i W_i exp(j 2k s_i) with frequency-free
+                # (W0, W1, W2) = P / (2 sqrt(pi) abc) * (b, c, a). Near-coincident phases make
+                # the W large and cancelling: their relative error d_max * eps / (k_lo^2 |abc|)
+                # must stay within tol, else a series form below (docs/RADAR.md, "Exact facet
+                # integral" and the table of forms).
                 if abc != 0.0 and d_max * phase_error <= tol * k_lo2 * abs(abc):
                     q = p / ((2.0 * _SQRT_PI) * abc)
                     w[i0, e] += q * b
