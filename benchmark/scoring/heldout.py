@@ -31,6 +31,7 @@ from benchmark.scoring.versions import (
     VersionError,
     _generator_config,
     stack,
+    stored_configs,
 )
 
 RECORDS = MANIFESTS / "heldout"
@@ -140,14 +141,9 @@ class HeldOut:
 def recipe_of(directory: str | os.PathLike) -> tuple[DatasetVersion, int | None] | None:
     """(the registered version whose recipe ``directory`` was built with, whatever its seed;
     that seed), or None if it follows none (or is not labelled)."""
-    from basic_shapes.shards import Shard, list_shards
-
-    with Shard(list_shards(directory)[0]) as s:
-        gen = dict(s.config)
-        radar = s.radar.config if s.has_labels else None
+    gen, radar = stored_configs(directory)
     if radar is None:
         return None
-    gen.pop("toolkit_version", None)
     seed = gen.pop("seed", None)
     for v in VERSIONS.values():
         recipe = _generator_config(v)

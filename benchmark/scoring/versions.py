@@ -325,17 +325,24 @@ def _generator_config(version: DatasetVersion) -> dict:
     return cfg
 
 
-def identify(directory: str | Path, registry: dict | None = None) -> DatasetVersion:
-    """The registered version a dataset directory was built as, by its generator and radar
-    configs (not by its name or path); VersionError if it is none of them."""
+def stored_configs(directory: str | Path) -> tuple[dict, dict | None]:
+    """(generator config, radar config or None if unlabelled) a dataset directory was built
+    with, read from its first shard: what identifies its recipe (the toolkit version aside)."""
     from basic_shapes.shards import Shard, list_shards
 
     with Shard(list_shards(directory)[0]) as s:
         gen = dict(s.config)
         radar = s.radar.config if s.has_labels else None
+    gen.pop("toolkit_version", None)
+    return gen, radar
+
+
+def identify(directory: str | Path, registry: dict | None = None) -> DatasetVersion:
+    """The registered version a dataset directory was built as, by its generator and radar
+    configs (not by its name or path); VersionError if it is none of them."""
+    gen, radar = stored_configs(directory)
     if radar is None:
         raise VersionError(f"{directory}: not labelled, so not a registered dataset version")
-    gen.pop("toolkit_version", None)
     for v in (registry or VERSIONS).values():
         if gen == _generator_config(v) and radar == v.radar_config().to_dict():
             return v
