@@ -8,6 +8,8 @@ nothing to run: a model must be below them). Speeds the harness did not measure 
 ranked track the Pareto front of the board-measured points (and the simulator) is drawn: the
 models worth running at their speed.
 The per-class figure shows each model's Simple and Complex MSE per class, ranked order.
+The training curves show, for the entries that carry them, each seed's validation MSE per
+epoch with the selected epoch: whether a model had finished learning.
 The example shows one test object's physics response beside the best models' predictions for
 its simple mesh and for a complex mesh of exactly the same shape.
 """
@@ -100,6 +102,37 @@ def per_class(models: list[dict], title: str) -> bytes:
             [
                 (e["name"], e["metrics"]["per_class"], colours[k % len(colours)])
                 for k, e in enumerate(models)
+            ],
+            title,
+        )
+    )
+
+
+def with_curves(models: list[dict]) -> list[dict]:
+    """Models whose entry carries validation curves (``training``; results made before it
+    carry none)."""
+    return [e for e in models if any(e.get("training", {}).get("val_curves") or [])]
+
+
+def training_curves(models: list[dict], title: str) -> bytes:
+    """Each model's validation MSE per epoch, one line per training seed, in the board's order."""
+
+    def seeds(e: dict) -> list:
+        s = e.get("seeds") or {}
+        n = len(e["training"]["val_curves"])
+        listed = s.get("train_all") or [s.get("train")]
+        return listed if len(listed) == n else list(range(n))
+
+    return plotting.png(
+        plotting.training_curves(
+            [
+                (
+                    e["name"],
+                    seeds(e),
+                    e["training"]["val_curves"],
+                    e["training"]["epochs_to_plateau"],
+                )
+                for e in with_curves(models)
             ],
             title,
         )

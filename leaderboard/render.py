@@ -44,7 +44,7 @@ from leaderboard.store import (
     track,
 )
 
-FIGURES = ("speed-vs-error-*.png", "per-class-*.png", "example-*.png")
+FIGURES = ("speed-vs-error-*.png", "per-class-*.png", "curves-*.png", "example-*.png")
 METRIC_TITLES = {
     "simple_mse": "Simple MSE",
     "complex_mse": "Complex MSE",
@@ -56,6 +56,12 @@ COLUMNS = METRIC_NAMES + OOD_METRIC_NAMES  # "—" in older entries
 PACKAGE = resources.files("leaderboard")  # the template and static files
 ASSET_MAX_BYTES = 1 << 20
 SELF_REPORTED = " (self-reported)"  # the marker of a number the harness did not measure
+CURVES_NOTE = (
+    "Validation MSE after each epoch of every training seed, as the training run recorded it "
+    "(results carry it as training.val_curves; for a submitted entry it is the submitter's "
+    "record, not re-run by the board), the dot at the selected epoch. A curve still falling "
+    "at its end is a model that stopped while learning. Entries without curves are left out."
+)
 SELF_REPORTED_NOTE = (
     "(self-reported): given by the submitter, not measured by the harness. "
     "A submission is scored from its predictions file and no model is run, so "
@@ -604,6 +610,16 @@ def html_section(g: dict, images: dict[str, tuple[int, int]]) -> str:
             ),
             html_per_class(g),
         ]
+    if f"curves-{short}.png" in images:
+        parts += [
+            "<h3>Training curves</h3>",
+            f"<p>{_e(CURVES_NOTE)}</p>",
+            _img(
+                f"curves-{short}.png",
+                images[f"curves-{short}.png"],
+                "validation MSE per epoch of every training seed, the selected epoch marked",
+            ),
+        ]
     if g["example"]:
         s = g["example"][0]["sample"]
         parts += [
@@ -754,6 +770,10 @@ def build(entries: list[dict], progress: bool = False) -> dict[str, bytes]:
         if g["models"]:
             drawings[f"per-class-{g['short']}.png"] = lambda g=g: figures.per_class(
                 g["models"], f"{g['dataset'].get('version') or g['short']}: per class"
+            )
+        if figures.with_curves(g["models"]):
+            drawings[f"curves-{g['short']}.png"] = lambda g=g: figures.training_curves(
+                g["models"], f"{g['dataset'].get('version') or g['short']}: validation curves"
             )
         if g["example"]:
             drawings[f"example-{g['short']}.png"] = lambda g=g: figures.example(g["example"])

@@ -234,6 +234,8 @@ def submit(
         },
         "sample": sample,
     }
+    if "training" in results:  # the validation curves (the submitter's word, as its speed)
+        entry["training"] = results["training"]
     try:
         validate_entry(entry)  # before the lock creates the folder: a refusal writes nothing
         with entries_lock(entries_dir):  # the check and the write as one step

@@ -317,6 +317,24 @@ TAMPERS = {
     "no-metrics": (lambda r: r.pop("metrics"), "results.json"),
     "bad-params": (lambda r: r["model"].__setitem__("params", "many"), "params"),
     "long-hardware": (lambda r: r["speed"].__setitem__("hardware", "x" * 500), "speed.hardware"),
+    "curve-past-end": (
+        lambda r: r.__setitem__(
+            "training", {"val_curves": [[9.0, 8.0]], "epochs_to_plateau": [3], "capped": [False]}
+        ),
+        "training.epochs_to_plateau[0] is past the end of its curve",
+    ),
+    "curve-seeds": (
+        lambda r: r.__setitem__(
+            "training", {"val_curves": [[9.0], [8.0]], "epochs_to_plateau": [1], "capped": [None]}
+        ),
+        "must list the same seeds",
+    ),
+    "curve-nan": (
+        lambda r: r.__setitem__(
+            "training", {"val_curves": [[-1.0]], "epochs_to_plateau": [1], "capped": [False]}
+        ),
+        "training.val_curves[0][0]",
+    ),
 }
 
 
@@ -463,6 +481,9 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     )
     r = json.loads(worse_results.read_text())
     r["speed"] = {"ms_per_mesh": 0.1, "hardware": None, "self_reported": True}  # --speed-ms
+    curves = {"val_curves": [[9.0, 7.0, 7.5], None], "epochs_to_plateau": [2, None]}
+    r["training"] = {**curves, "capped": [False, None]}
+    r["seeds"]["train_all"] = [0, 1]
     worse_results.write_text(json.dumps(r))
     run("submit", worse_results, "--predictions", worse, "--data", data, "--entries", entries)
     run(
@@ -513,6 +534,10 @@ def test_render_shows_accepted_entries_in_html_and_markdown(data, submission, tm
     assert f"{exp['complex_mse']:.2f}" in rows[0] and f"{worse_exp['complex_mse']:.2f}" in rows[1]
     for img in re.findall(r'<img src="([^"]+)"', html):
         assert png_size(site / img)[0] > 100
+    # the curves the results carried are on the entry and drawn (the entry without: left out)
+    (worse_entry,) = [e for e in store.load_entries(entries) if e["name"].startswith("direct")]
+    assert worse_entry["training"]["val_curves"] == curves["val_curves"]
+    assert "<h3>Training curves</h3>" in html and len(list(site.glob("curves-*.png"))) == 1
     assert not re.search(r'(src|href)="(?!https://example.org/|data:,")[a-z]+:', html)  # all local
     md = (site / "LEADERBOARD.md").read_text()
     table = [line for line in md.splitlines() if line.startswith("| 1 ")]

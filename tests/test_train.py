@@ -16,7 +16,7 @@ from benchmark.reproduction.presets import ROWS
 from benchmark.reproduction.report import findings
 from benchmark.scoring.data import BenchmarkData, ScaleBins
 from benchmark.scoring.protocol import load_results, score_predictions
-from benchmark.scoring.schema import METRIC_NAMES
+from benchmark.scoring.schema import METRIC_NAMES, check_training
 from benchmark.training import corpus
 from benchmark.training.models import (
     FACE_EMBEDDINGS,
@@ -29,6 +29,7 @@ from benchmark.training.models.checkpoint import (
     CheckpointModel,
     load_checkpoint,
     save_checkpoint,
+    training_record,
 )
 from benchmark.training.train import (
     PretrainTask,
@@ -204,6 +205,7 @@ def test_train_cli_writes_checkpoint_and_results(data_dir, tmp_path, capsys):
         "params": json.loads((tmp_path / "ck" / "config.json").read_text())["params"],
     }
     assert results["seeds"]["train"] == 0 and results["metrics"]["n_objects"] == 3
+    assert "training" not in results  # the fixture has no val split: no curve to record
     assert "direct-ideal: checkpoint in" in capsys.readouterr().out
 
 
@@ -253,6 +255,8 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
         assert row["complex_mse"] == pytest.approx(results["metrics"]["complex_mse"], rel=1e-12)
         board = load_results(out / "results" / row["name"] / "results.json")
         assert board["seeds"]["train_all"] == [0] and board["metrics"] == results["metrics"]
+        kept = [c for c in row["val_curves"] if c]  # the tiny dataset may have no val split
+        assert board.get("training", {}).get("val_curves", []) == kept
         rescored = score_predictions(out / "data", out / "results" / row["name"] / "predictions.h5")
         assert rescored["complex_mse"] == results["metrics"]["complex_mse"]
         assert row["speed"]["threads"] >= 1 and "timed alone" in row["speed"]["hardware"]
@@ -607,6 +611,10 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
     # the returned weights are the selected epoch's: their val MSE is the recorded one
     again = validation_mse(model, val, 4, torch.device("cpu"))
     assert again == pytest.approx(sel["val_mse"], rel=1e-5)
+    # the curve the results carry for the board, in the schema results are checked with
+    block = check_training(training_record([config]))
+    assert block["val_curves"] == [[h["val_mse"] for h in hist]]
+    assert block["epochs_to_plateau"] == [sel["epoch"] + 1] and block["capped"] == [sel["capped"]]
     with BenchmarkData(
         make_dataset(tmp_path / "nv", objects_per_class=3, n_test_per_class=1, grid=(3, 2, 8))
     ) as data:
@@ -620,6 +628,7 @@ def test_validation_split_selects_the_checkpoint(tmp_path):
         "patience": None,
         "capped": None,
     }
+    assert training_record([config]) is None  # no curve: the results carry no training block
 
 
 @pytest.mark.parametrize(

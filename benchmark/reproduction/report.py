@@ -19,10 +19,10 @@ import numpy as np
 
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.reproduction.presets import PRESETS, PRETRAINING, ROWS
-from benchmark.reproduction.runner import checkpoint_dir, number, plateau_record, row_files
+from benchmark.reproduction.runner import checkpoint_dir, row_files
 from benchmark.scoring.schema import METRIC_NAMES, OOD_METRIC_NAMES, PEAK_METRIC_NAMES
 from benchmark.training.models import FACE_EMBEDDINGS, REGISTRY
-from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
+from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES, number, plateau_record
 
 
 class ReportError(ValueError):
@@ -700,39 +700,16 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
 
 
 def plot_curves(rows: list[dict], path: Path, title: str) -> bool:
-    """Validation MSE against epoch, one panel per row, one line per seed, the selected
-    (best) epoch marked; False (nothing written) where no row kept its curves."""
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator
-
+    """``plotting.training_curves`` of the rows that kept a curve; False (nothing written)
+    where none did."""
     from benchmark.scoring import plotting
 
     rows = [r for r in rows if any(c for c in r.get("val_curves", []))]
     if not rows:
         return False
-    cols = min(4, len(rows))
-    grid = (len(rows) + cols - 1) // cols
-    fig, axes = plt.subplots(
-        grid, cols, figsize=(3.2 * cols + 1.6, 2.4 * grid + 1.2), squeeze=False
+    fig = plotting.training_curves(
+        [(r["name"], r["seeds"], r["val_curves"], r["epochs_to_plateau"]) for r in rows], title
     )
-    for ax, r in zip(axes.flat, rows):
-        for seed, curve, best in zip(r["seeds"], r["val_curves"], r["epochs_to_plateau"]):
-            if not curve:
-                continue
-            line = ax.plot(range(1, len(curve) + 1), curve, lw=1, label=f"seed {seed}")[0]
-            if best is not None:
-                ax.plot([best], [curve[best - 1]], "o", ms=4, color=line.get_color())
-        ax.set_title(r["name"], fontsize=9)
-        ax.tick_params(labelsize=7)
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.ticklabel_format(axis="y", useOffset=False, style="plain")
-    for ax in axes.flat[len(rows) :]:
-        ax.set_visible(False)
-    axes[0, 0].legend(fontsize=7)
-    fig.supxlabel("epoch (dot: the selected epoch)")
-    fig.supylabel("validation MSE (dB²)")
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     with atomic_path(path) as tmp:
         tmp.write_bytes(plotting.png(fig))
     return True

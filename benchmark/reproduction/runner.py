@@ -9,7 +9,6 @@ Every (row, seed) already finished with the same configuration on the same datas
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
@@ -19,7 +18,11 @@ from pathlib import Path
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.reproduction.presets import Preset
 from benchmark.training.models import REGISTRY
-from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES
+from benchmark.training.models.checkpoint import (
+    CONFIG_MAX_BYTES,
+    plateau_record,
+    training_record,
+)
 
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
 """Relative training time per regime (times the embedding's ``cost``): costly runs go first."""
@@ -71,29 +74,6 @@ def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
     ):
         return None
     return ck
-
-
-MAX_CURVE = 10_000  # epochs in a validation curve read back from a checkpoint
-
-
-def number(v) -> bool:
-    """A finite int or float (not a bool): what a config read back may be trusted to hold."""
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def plateau_record(config: dict) -> dict:
-    """``epochs_to_plateau``, ``capped`` and the validation curve (``val_curve``) of a run,
-    from its checkpoint config (Nones where absent or malformed: a run without a val split)."""
-    chosen = config.get("selection") if isinstance(config.get("selection"), dict) else {}
-    history = config.get("history") if isinstance(config.get("history"), dict) else {}
-    epochs = history.get("train") if isinstance(history.get("train"), list) else []
-    curve = [e.get("val_mse") if isinstance(e, dict) else None for e in epochs[:MAX_CURVE]]
-    plateau = chosen.get("epochs_to_plateau")
-    return {
-        "epochs_to_plateau": plateau if number(plateau) else None,
-        "capped": chosen.get("capped") if isinstance(chosen.get("capped"), bool) else None,
-        "val_curve": curve if curve and all(number(v) for v in curve) else None,
-    }
 
 
 def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
@@ -412,8 +392,9 @@ def time_alone(
 
 
 def publish_row(out: Path, name: str, seeds: list[int]) -> None:
-    """``results/<row>/``: the first seed's predictions and results (naming every seed), for
-    ``leaderboard seed``; hard-linked where the file system allows, else copied."""
+    """``results/<row>/``: the first seed's predictions and results (naming every seed, with
+    every seed's validation curve), for ``leaderboard seed``; hard-linked where the file
+    system allows, else copied."""
     import shutil
 
     from benchmark.scoring.protocol import load_results, write_results
@@ -427,4 +408,11 @@ def publish_row(out: Path, name: str, seeds: list[int]) -> None:
             shutil.copyfile(src_preds, tmp)
     results = load_results(src_results)
     results["seeds"]["train_all"] = list(seeds)
+    configs = [checkpoint_dir(out, name, s) / "config.json" for s in seeds]
+    training = training_record(
+        [load_json(c, max_bytes=CONFIG_MAX_BYTES) if c.is_file() else {} for c in configs]
+    )
+    results.pop("training", None)
+    if training:
+        results["training"] = training
     write_results(dst_results, results)

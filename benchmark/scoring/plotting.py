@@ -1,5 +1,5 @@
 """The charts drawn one way for the reproduction table and the board: speed against error,
-and the errors per class.
+the errors per class, and the validation curves.
 
 Labels never overlap: every point's name sits in one column right of the axes, at the height
 of its point where there is room and pushed apart by one line height where there is not, with
@@ -18,7 +18,12 @@ import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from matplotlib.ticker import FormatStrFormatter, LogFormatter, SymmetricalLogLocator
+from matplotlib.ticker import (
+    FormatStrFormatter,
+    LogFormatter,
+    MaxNLocator,
+    SymmetricalLogLocator,
+)
 
 FONT_PT = 8.0
 LINE = 1.35  # label pitch in font heights
@@ -221,5 +226,35 @@ def per_class(entries: list[tuple[str, dict, str]], title: str):
         ax.grid(axis="x", lw=0.3)
     axes[0, 0].set_yticks(y, [literal(n) for n, _, _ in entries], fontsize=7)
     fig.suptitle(f"{title} (hollow: Simple MSE, filled: Complex MSE)", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def training_curves(rows: list[tuple[str, list, list, list]], title: str):
+    """Validation MSE against epoch, one panel per row, one line per training seed, the
+    selected (best) epoch marked. ``rows``: (name, seeds, curves, selected epochs), a curve or
+    epoch None where a run kept none. Whether a run had stopped learning shows at a glance."""
+    cols = min(4, len(rows))
+    grid = (len(rows) + cols - 1) // cols
+    fig, axes = plt.subplots(
+        grid, cols, figsize=(3.2 * cols + 1.6, 2.4 * grid + 1.2), squeeze=False
+    )
+    for ax, (name, seeds, curves, best_epochs) in zip(axes.flat, rows):
+        for seed, curve, best in zip(seeds, curves, best_epochs):
+            if not curve:
+                continue
+            line = ax.plot(range(1, len(curve) + 1), curve, lw=1, label=f"seed {seed}")[0]
+            if best is not None:
+                ax.plot([best], [curve[best - 1]], "o", ms=4, color=line.get_color())
+        ax.set_title(literal(name), fontsize=9)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+    for ax in axes.flat[len(rows) :]:
+        ax.set_visible(False)
+    axes[0, 0].legend(fontsize=7)
+    fig.supxlabel("epoch (dot: the selected epoch)")
+    fig.supylabel("validation MSE (dB²)")
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig

@@ -30,6 +30,7 @@ MAX_TEXT = 200
 MAX_NAME = 80
 MAX_CLASSES = 64
 MAX_SEEDS = 16
+MAX_EPOCHS = 10_000  # epochs in a training curve
 
 
 class SchemaError(ValueError):
@@ -360,6 +361,28 @@ def check_seeds(seeds, where: str = "seeds") -> dict:
     return seeds
 
 
+TRAINING = {  # per training seed, in the order of seeds.train_all (or [seeds.train])
+    "val_curves": Field(  # validation MSE (dB²) after each epoch; null where not kept
+        "list", 1, MAX_SEEDS, item=Field("list", 1, MAX_EPOCHS, item=mse(False), null=True)
+    ),
+    "epochs_to_plateau": Field(  # epochs up to the selected (best) one
+        "list", 1, MAX_SEEDS, item=Field("int", 1, MAX_EPOCHS, null=True)
+    ),
+    "capped": Field("list", 1, MAX_SEEDS, item=Field("bool", null=True)),  # still improving
+}
+
+
+def check_training(t, where: str = "training") -> dict:
+    """``TRAINING``: one value per seed in every list, each selected epoch on its curve."""
+    check_fields(t, TRAINING, where)
+    if len({len(v) for v in t.values()}) != 1:
+        raise SchemaError(f"{where}: {', '.join(TRAINING)} must list the same seeds")
+    for k, (curve, best) in enumerate(zip(t["val_curves"], t["epochs_to_plateau"])):
+        if curve is not None and best is not None and best > len(curve):
+            raise SchemaError(f"{where}.epochs_to_plateau[{k}] is past the end of its curve")
+    return t
+
+
 PER_OBJECT_OOD = OOD_METRIC_NAMES + tuple(
     f"{m}:{r}" for r in OOD_REMESHERS for m in OOD_METRIC_NAMES
 )  # metrics.ood_keys
@@ -391,13 +414,16 @@ def check_per_object(po, n_objects: int, where: str = "per_object") -> dict:
 def check_results(r, source: str = "results") -> dict:
     """A whole results record (docs/ARCHITECTURE.md, "Results JSON"); errors name ``source``."""
     try:
-        check_fields(r, RESULTS, "", extra=("model", "metrics", "speed", "seeds", "per_object"))
+        extra = ("model", "metrics", "speed", "seeds", "per_object", "training")
+        check_fields(r, RESULTS, "", extra=extra)
         check_fields(r.get("model"), MODEL, "model")
         check_metrics(r.get("metrics"), "metrics")
         if "per_object" in r:
             check_per_object(r["per_object"], r["metrics"]["n_objects"], "per_object")
         check_fields(r.get("speed"), SPEED, "speed")
         check_seeds(r.get("seeds"), "seeds")
+        if "training" in r:
+            check_training(r["training"], "training")
     except SchemaError as exc:
         raise SchemaError(f"{source}: {exc}") from None
     return r
@@ -510,6 +536,7 @@ ENTRY = {  # one file of leaderboard/entries (leaderboard/entries/README.md)
         "record", table={**SPEED, "source": Field("text", hi=MAX_TEXT, null=True, required=False)}
     ),
     "seeds": Field("record", checker=check_seeds, null=True, required=False),
+    "training": Field("record", checker=check_training, required=False),
     "created": replace(RESULTS["created"], null=True, required=False),
     "submitted": Field("time"),  # UTC time of acceptance
     "files": Field(

@@ -634,7 +634,7 @@ def evaluate_checkpoint(
     predictions file is kept at ``predictions`` when given (a leaderboard submission)."""
     from benchmark.scoring.evaluate import evaluate
     from benchmark.scoring.protocol import write_results
-    from benchmark.training.models.checkpoint import CheckpointModel
+    from benchmark.training.models.checkpoint import CheckpointModel, training_record
 
     model = CheckpointModel(checkpoint, device=str(device))
     if predictions:
@@ -646,6 +646,9 @@ def evaluate_checkpoint(
         progress=progress,
         write_predictions=predictions,
     )
+    training = training_record([model.config])
+    if training:
+        record["training"] = training
     if results:
         Path(results).parent.mkdir(parents=True, exist_ok=True)
         write_results(results, record)

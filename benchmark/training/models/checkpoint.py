@@ -9,6 +9,7 @@ the target grid shape and the scale bins used in training.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 
 from basic_shapes.infra import atomic_path, load_json
+from benchmark.scoring.schema import MAX_EPOCHS
 from benchmark.training.models import (
     REGISTRY,
     MeshSimulator,
@@ -29,6 +31,40 @@ CHECKPOINT_FORMAT = "basic-shapes-checkpoint"
 CHECKPOINT_VERSION = 1
 WEIGHTS, CONFIG = "model.pt", "config.json"
 CONFIG_MAX_BYTES = 16 << 20  # config.json: the config and per-epoch history
+
+
+def number(v) -> bool:
+    """A finite int or float (not a bool): what a config read back may be trusted to hold."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def plateau_record(config: dict) -> dict:
+    """``epochs_to_plateau``, ``capped`` and the validation curve (``val_curve``) of a run,
+    from its checkpoint config (Nones where absent or malformed: a run without a val split)."""
+    chosen = config.get("selection") if isinstance(config.get("selection"), dict) else {}
+    history = config.get("history") if isinstance(config.get("history"), dict) else {}
+    epochs = history.get("train") if isinstance(history.get("train"), list) else []
+    curve = [e.get("val_mse") if isinstance(e, dict) else None for e in epochs[:MAX_EPOCHS]]
+    plateau = chosen.get("epochs_to_plateau")
+    return {
+        "epochs_to_plateau": plateau if number(plateau) else None,
+        "capped": chosen.get("capped") if isinstance(chosen.get("capped"), bool) else None,
+        "val_curve": curve if curve and all(number(v) for v in curve) else None,
+    }
+
+
+def training_record(configs: list[dict]) -> dict | None:
+    """The results' ``training`` block (``schema.TRAINING``) of the runs of one row, one
+    checkpoint config per training seed, in seed order: what the board plots as curves;
+    None where no run kept a curve (nothing to plot)."""
+    runs = [plateau_record(c if isinstance(c, dict) else {}) for c in configs]
+    if not any(r["val_curve"] for r in runs):
+        return None
+    return {
+        "val_curves": [r["val_curve"] for r in runs],
+        "epochs_to_plateau": [r["epochs_to_plateau"] for r in runs],
+        "capped": [r["capped"] for r in runs],
+    }
 
 
 class CheckpointError(ValueError):
