@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from basic_shapes import ellipsoid_closest, portable
-from basic_shapes.meshcheck import area_normals
+from basic_shapes.geometry import area_normals
 from basic_shapes.primitives import ROUND_RATIO_MAX
 
 C0 = 299_792_458.0

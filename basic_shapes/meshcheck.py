@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from basic_shapes.geometry import twice_area_squared
+
 MAX_COORDINATE = 1e9
 """Largest vertex coordinate accepted (metres for the simulator): a million kilometres. Far
 beyond it products of coordinates overflow and phases lose every digit (a mesh scaled by 1e30
@@ -80,37 +82,6 @@ def bbox_diagonal(vertices: np.ndarray) -> float:
     relative distances and areas."""
     v = np.asarray(vertices, np.float64)
     return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-
-
-def area_normals(triangles: np.ndarray) -> np.ndarray:
-    """(F, 3) (b - a) x (c - a) of (F, 3, 3) triangles: the normal by the right-hand rule,
-    of length twice the area. The toolkit's one face-normal formula (generator, simulator
-    and benchmark features all orient and weigh faces by it)."""
-    t = np.asarray(triangles)
-    return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-
-
-def unit_normals(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unit normals (F, 3), twice the areas (F,)) of (F, 3, 3) triangles by ``area_normals``;
-    a degenerate face gets the zero normal rather than NaN (features must stay finite)."""
-    cross = area_normals(triangles)
-    twice = np.linalg.norm(cross, axis=1)
-    normal = np.divide(cross, twice[:, None], out=np.zeros_like(cross), where=twice[:, None] > 0)
-    return normal, twice
-
-
-def twice_area_squared(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """|(b - a) x (c - a)|^2 per triangle, from corners a, b, c (F, 3) each: (F,).
-
-    Squared, so no square root is taken where only a comparison is needed (np.cross is
-    several times slower than these products).
-    """
-    u, w = b - a, c - a
-    return (
-        (u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]) ** 2
-        + (u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]) ** 2
-        + (u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]) ** 2
-    )
 
 
 def repeated_vertex(faces: np.ndarray) -> np.ndarray:

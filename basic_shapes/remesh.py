@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes import analytic, meshcheck, primitives, verify
+from basic_shapes import analytic, geometry, meshcheck, primitives, verify
 from basic_shapes.meshlab_child import MeshLabChild
 from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
 
@@ -348,7 +348,7 @@ def _meshlab(vertices: np.ndarray, faces: np.ndarray):
 def _area(vertices: np.ndarray, faces: np.ndarray) -> float:
     v = np.asarray(vertices, np.float64)
     return 0.5 * float(
-        np.sqrt(meshcheck.twice_area_squared(*(v[faces[:, i]] for i in range(3)))).sum()
+        np.sqrt(geometry.twice_area_squared(*(v[faces[:, i]] for i in range(3)))).sum()
     )
 
 
@@ -502,7 +502,7 @@ def _delaunay(solid, _source, params, rng, _child):
         tris.append(idx[Delaunay(uv).simplices])
     f = np.concatenate(tris)
     p = metric[f]
-    normal = meshcheck.area_normals(p)
+    normal = geometry.area_normals(p)
     flip = np.einsum("ij,ij->i", normal, p.mean(axis=1)) < 0
     f[flip] = f[flip][:, ::-1]
     params["points"] = len(u)

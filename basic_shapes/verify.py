@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from basic_shapes import analytic, meshlab_bounds, primitives
-from basic_shapes.meshcheck import bbox_diagonal, twice_area_squared
+from basic_shapes.geometry import twice_area_squared
+from basic_shapes.meshcheck import bbox_diagonal
 
 PLANAR_TOLERANCE = 1e-6
 """Bound for planar-faced shapes: float32 vertex rounding is ~6e-8 of the diagonal."""

@@ -99,35 +99,31 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
 
 
 def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
-    """The registered version (``benchmark.scoring.versions``) the dataset is, by its generator and
-    radar configs; a dataset that is none is refused unless ``unregistered`` (a private board:
-    its entries say so and the site lists them apart)."""
-    from benchmark.scoring.versions import VersionError, identify
-
-    try:
-        return identify(data_dir).name
-    except VersionError as exc:
-        if unregistered:
-            return None
-        raise SubmissionError(f"{exc}; pass --unregistered for a private board") from None
-
-
-def refuse_heldout(data_dir: str | os.PathLike) -> None:
-    """Refuse a held-out build as the dataset of a predictions file: the ranked track scores
-    only models the board runs (``leaderboard evaluate-model``), so no predictions file, the
-    true labels included, can enter it."""
+    """The registered version (``benchmark.scoring.versions``) the dataset is, by its generator
+    and radar configs (read once). A held-out build is refused: the ranked track scores only
+    models the board runs (``leaderboard evaluate-model``), so no predictions file, the true
+    labels included, can enter it. A dataset that is no version is refused unless
+    ``unregistered`` (a private board: its entries say so and the site lists them apart)."""
     from benchmark.scoring import heldout
 
     try:
         follows = heldout.recipe_of(data_dir)
-    except (OSError, ValueError):  # unreadable: refused later, with its own message
-        return
-    if follows is None or follows[1] == follows[0].seed:  # no recipe, or the public build
-        return
+    except (OSError, ValueError) as exc:
+        raise _refuse(data_dir, exc) from None
+    if follows is not None and follows[1] != follows[0].seed:
+        raise SubmissionError(
+            f"{data_dir}: a held-out build of {follows[0].name}, the ranked track, which "
+            f"accepts only ONNX models run by the board (leaderboard evaluate-model MODEL.onnx), "
+            f"never a predictions file"
+        )
+    if follows is not None:
+        return follows[0].name
+    if unregistered:
+        return None
     raise SubmissionError(
-        f"{data_dir}: a held-out build of {follows[0].name}, the ranked track, which "
-        f"accepts only ONNX models run by the board (leaderboard evaluate-model MODEL.onnx), "
-        f"never a predictions file"
+        f"{data_dir}: not a registered dataset version (benchmark dataset --list names them; "
+        f"build one with benchmark dataset NAME --data DIR); pass --unregistered for a "
+        f"private board"
     )
 
 
@@ -156,7 +152,6 @@ def submit(
     """
     if origin not in ("submit", "seed"):
         raise ValueError(f"origin must be submit or seed, not {origin!r}")
-    refuse_heldout(data_dir)
     try:
         results = load_results(results_path)
     except ValueError as exc:

@@ -67,11 +67,10 @@ except ImportError:
     sys.exit("perf/fullwave_cube.py: needs bempp-cl: pip install -c constraints.txt '.[fullwave]'")
 
 import radar_sim
+from basic_shapes.geometry import area_normals, line_of_sight
 from basic_shapes.infra import atomic_path, hardware
-from basic_shapes.meshcheck import area_normals
 from radar_sim import exact
 from radar_sim.field import C0, CHANNELS, polarization
-from radar_sim.geometry import line_of_sight
 
 RESULTS = Path(__file__).parent / "results"
 FLOOR = 1e-4  # benchmark.scoring.data.FLOOR_AMPLITUDE: -80 dB

@@ -36,8 +36,8 @@ from scipy.spatial import ConvexHull  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes import analytic  # noqa: E402
+from basic_shapes.geometry import area_normals  # noqa: E402
 from basic_shapes.infra import atomic_path, hardware  # noqa: E402
-from basic_shapes.meshcheck import area_normals  # noqa: E402
 from benchmark.scoring.data import db_target  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"

@@ -56,7 +56,7 @@ import numpy as np  # noqa: E402
 import radar_sim  # noqa: E402
 from basic_shapes.infra import atomic_path, hardware  # noqa: E402
 from radar_sim import field as current_field  # noqa: E402
-from radar_sim import geometry, po_kernel  # noqa: E402
+from radar_sim import po_kernel, scene  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from radar_kernel import lit_counts, mesh_for  # noqa: E402
@@ -200,13 +200,13 @@ def main(argv=None) -> int:
         if args.baseline:
             codes["baseline"] = load_baseline(args.baseline, Path(tmp))
         v0, f0 = mesh_for(2000)
-        warm = geometry.prepare(v0, f0)
+        warm = scene.prepare(v0, f0)
         for code in codes.values():
             code.mesh_field(warm, k, dirs[:9], "convex")  # numba: compile or load
         start_load = os.getloadavg()
         for n_faces in args.faces:
             v, f = mesh_for(n_faces)
-            mesh = geometry.prepare(v, f)
+            mesh = scene.prepare(v, f)
             runs = {name: [] for name in codes}
             digests = {}
             for rep in range(args.repeats):

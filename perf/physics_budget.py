@@ -217,8 +217,8 @@ def po_edges_prism(contour_xy, length_m, freq_hz, roll_rad, pol) -> np.ndarray:
     "TM" and HH for "TE"."""
     from dataclasses import replace
 
+    from basic_shapes.geometry import line_of_sight
     from radar_sim import edges, field
-    from radar_sim.geometry import line_of_sight
 
     v, faces = exact.prism_mesh(contour_xy, length_m)
     los = line_of_sight(np.full(len(roll_rad), 90.0), np.degrees(roll_rad))

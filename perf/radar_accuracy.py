@@ -32,9 +32,9 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
 import radar_sim  # noqa: E402
+from basic_shapes import geometry  # noqa: E402
+from basic_shapes.geometry import area_normals  # noqa: E402
 from basic_shapes.infra import hardware  # noqa: E402
-from basic_shapes.meshcheck import area_normals  # noqa: E402
-from radar_sim import geometry  # noqa: E402
 
 C = 299792458.0
 RESULTS = Path(__file__).parent / "results"
@@ -100,7 +100,8 @@ def plate_mesh(side: float, n: int):
 
 
 def line_of_sight(aspect_deg, roll_deg):
-    """Every aspect at every roll, aspect-major (``radar_sim.geometry.line_of_sight`` on a grid)."""
+    """Every aspect at every roll, aspect-major (``basic_shapes.geometry.line_of_sight`` on a
+    grid)."""
     t, p = np.meshgrid(aspect_deg, roll_deg, indexing="ij")
     return geometry.line_of_sight(t.ravel(), p.ravel())
 

@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402 - thread limits are set before numpy loads
 import radar_sim  # noqa: E402 - thread limits are set before numpy loads
 from basic_shapes.analytic import uv_sphere  # noqa: E402 - thread limits are set before numpy loads
 from basic_shapes.infra import hardware  # noqa: E402 - thread limits are set before numpy loads
-from radar_sim import facet, field, geometry  # noqa: E402 - thread limits are set before numpy loads
+from radar_sim import facet, field, scene  # noqa: E402 - thread limits are set before numpy loads
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results"
@@ -148,10 +148,10 @@ def main(argv=None) -> int:
         old_field = importlib.import_module("old_radar_sim.field")
         old_geometry = importlib.import_module("old_radar_sim.geometry")
         v0, f0 = mesh_for(2000)
-        field.mesh_field(geometry.prepare(v0, f0), k, dirs[:2], "convex")  # warm-up (numba)
+        field.mesh_field(scene.prepare(v0, f0), k, dirs[:2], "convex")  # warm-up (numba)
         for n_faces in args.faces:
             v, f = mesh_for(n_faces)
-            mesh = geometry.prepare(v, f)
+            mesh = scene.prepare(v, f)
             new, new_s, new_wall = cpu(lambda m=mesh: field.mesh_field(m, k, dirs, "convex"))
             _, sim_s, _ = cpu(lambda v=v, f=f: radar_sim.simulate(v, f, config, mode="convex"))
             lit_f, lit_v = lit_counts(mesh, dirs)

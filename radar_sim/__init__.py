@@ -9,8 +9,8 @@ __version__ = "0.1.0"
 
 from radar_sim.config import RadarConfig, RadarResult, simulate
 from radar_sim.field import CHANNELS, monostatic_field, polarimetric_field
-from radar_sim.geometry import MeshError, UnitsWarning, detect_mode
 from radar_sim.rcs import rcs
+from radar_sim.scene import MeshError, UnitsWarning, detect_mode
 
 __all__ = [
     "CHANNELS",

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.geometry import line_of_sight
 from basic_shapes.infra import load_json
 from radar_sim.field import (
     C0,
@@ -26,7 +27,7 @@ from radar_sim.field import (
     resolve_mode,
     wavenumbers,
 )
-from radar_sim.geometry import MILLIMETRE_RADIUS, MeshError, check_units, line_of_sight, prepare
+from radar_sim.scene import MILLIMETRE_RADIUS, MeshError, check_units, prepare
 
 WINDOWS = ("hann", "none")
 TEXT_FIELDS = ("name", "window", "channels", "edges")

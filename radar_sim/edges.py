@@ -111,10 +111,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from basic_shapes.meshcheck import area_normals
+from basic_shapes.geometry import area_normals
 from radar_sim import po_kernel
 from radar_sim.field import CHANNELS, polarization
-from radar_sim.geometry import Mesh, prepare
+from radar_sim.scene import Mesh, prepare
 
 MIN_DIHEDRAL_DEG = 15.0  # normals turning by more than this make a sharp edge
 GRAZING_TAPER = 0.1  # sin β below which the contribution fades to 0 (grazing along the edge)
@@ -192,7 +192,7 @@ def sharp_edges(mesh, min_dihedral_deg: float = MIN_DIHEDRAL_DEG) -> Wedges:
     """The wedges of a mesh: its convex edges whose face normals turn by more than
     ``min_dihedral_deg`` (closed meshes), and the boundary edges of open meshes (half-planes).
 
-    ``mesh``: a ``radar_sim.geometry.Mesh`` (as ``field.mesh_field`` receives it) or a
+    ``mesh``: a ``radar_sim.scene.Mesh`` (as ``field.mesh_field`` receives it) or a
     ``(vertices, faces)`` pair, which is prepared (welded, oriented) first.
 
     The default of 15° lies above every angle between neighbouring facets on the smooth parts

@@ -29,7 +29,7 @@ import numpy as np
 
 from basic_shapes.portable import complex_parts, matmul, matmul_parts
 from radar_sim import facet, po_kernel
-from radar_sim.geometry import Mesh, RayCaster, UnitsWarning, check_units, mode_of, prepare
+from radar_sim.scene import Mesh, RayCaster, UnitsWarning, check_units, mode_of, prepare
 
 C0 = 299_792_458.0
 MODES = ("auto", "convex", "shadowed", "bounce2")

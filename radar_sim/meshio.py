@@ -1,7 +1,7 @@
 """Read one mesh file (OBJ, STL, PLY) for the command line, in metres.
 
 Mesh files carry no units, so the caller states them (``--units``) and we scale to metres,
-the simulator's unit. OBJ goes through the toolkit's own reader (``basic_shapes.objfile``:
+the simulator's unit. OBJ goes through the toolkit's own reader (``basic_shapes.geometry``:
 relative indices resolved where they appear), STL and PLY through trimesh. STL stores a
 triangle soup: coincident vertices are merged so that
 closure and convexity can be detected. Anything unreadable is a one-line ``MeshFileError``;
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from basic_shapes.geometry import read_obj
 from basic_shapes.meshcheck import MeshError, check_coordinates
-from basic_shapes.objfile import read_obj
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 FORMATS = (".obj", ".stl", ".ply")

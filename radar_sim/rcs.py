@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from basic_shapes.geometry import line_of_sight
 from radar_sim.field import DEFAULT_TOL, monostatic_field
-from radar_sim.geometry import line_of_sight
 
 
 def rcs(

@@ -16,7 +16,7 @@ from basic_shapes.analytic import simulation_mesh, solid_for
 from radar_sim import edges, exact
 from radar_sim.config import RadarConfig
 from radar_sim.field import C0, CHANNELS, channel_field, mesh_field, polarization
-from radar_sim.geometry import prepare
+from radar_sim.scene import prepare
 
 F12 = 12e9
 K = 2 * np.pi * np.linspace(8e9, 12e9, 16) / C0

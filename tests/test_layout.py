@@ -123,3 +123,37 @@ def test_only_shards_py_reads_a_shards_hdf5_paths():
         if leak.search(line)
     ]
     assert not bad, "\n".join(bad)
+
+
+TOOLBOX = ROOT / "basic_shapes" / "geometry.py"
+
+
+def test_geometry_has_one_home():
+    """Face normals and areas, the line of sight, the direction set and the OBJ reader are
+    written once, in basic_shapes/geometry.py: no second definition of its functions, and no
+    face normal formed from a triangle's edges (``np.cross(t[:, 1] - t[:, 0], ...)``) elsewhere."""
+    import re
+
+    names = {
+        n.name
+        for n in ast.parse(TOOLBOX.read_text()).body
+        if isinstance(n, ast.FunctionDef) and not n.name.startswith("_")
+    }
+    assert {"area_normals", "line_of_sight", "fibonacci_directions", "read_obj"} <= names
+    edge_cross = re.compile(r"np\.cross\([^,]*\[:, ?1\][^,]*-[^,]*\[:, ?0\]")
+    bad = []
+    for _, path in _sources():
+        if path == TOOLBOX:
+            continue
+        text = path.read_text()
+        bad += [
+            f"{path.relative_to(ROOT)}: defines {n.name}"
+            for n in ast.walk(ast.parse(text))
+            if isinstance(n, ast.FunctionDef) and n.name in names
+        ]
+        bad += [
+            f"{path.relative_to(ROOT)}:{k}: a face normal by hand"
+            for k, line in enumerate(text.splitlines(), 1)
+            if edge_cross.search(line)
+        ]
+    assert not bad, "\n".join(bad)

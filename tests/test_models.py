@@ -9,6 +9,7 @@ import pytest
 import torch
 import trimesh
 
+from basic_shapes.geometry import fibonacci_directions
 from benchmark.scoring.mesh_features import N_POINTS
 from benchmark.training.models import (
     EMBEDDINGS,
@@ -20,7 +21,6 @@ from benchmark.training.models import (
 )
 from benchmark.training.models.features import N_BINS, OPTIONAL, face_adjacency, face_geometry
 from benchmark.training.models.probes import N_RAYS, ray_probes
-from radar_sim.geometry import fibonacci_directions
 
 N_OUT = 2 * 3 * 4
 

@@ -7,6 +7,7 @@ import trimesh
 from scipy import integrate, special
 from scipy.spatial import Delaunay
 
+from basic_shapes.geometry import fibonacci_directions
 from radar_sim import (
     CHANNELS,
     RadarConfig,
@@ -16,7 +17,6 @@ from radar_sim import (
     simulate,
 )
 from radar_sim.field import C0
-from radar_sim.geometry import fibonacci_directions
 
 
 def db(x):

@@ -187,7 +187,7 @@ def test_generated_spheres_never_take_the_bounce_path(tmp_path):
     from basic_shapes.cli import main as generate
     from basic_shapes.shards import Shard
     from radar_sim import detect_mode
-    from radar_sim.geometry import prepare
+    from radar_sim.scene import prepare
 
     generate(
         [
@@ -225,7 +225,7 @@ def test_generated_spheres_never_take_the_bounce_path(tmp_path):
 def test_float32_noise_is_convex():
     """A sphere whose float32 vertices make a few edges concave by ~1e-6 of the radius is
     still "convex" (the old 1e-6 tolerance sent such meshes to shadow rays)."""
-    from radar_sim.geometry import CONVEX_TOL, prepare
+    from radar_sim.scene import CONVEX_TOL, prepare
 
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
     v = np.array(sphere.vertices)

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 import radar_sim
-from radar_sim.geometry import line_of_sight
+from basic_shapes.geometry import line_of_sight
 
 C0 = 299_792_458.0
 

@@ -140,17 +140,20 @@ class HeldOut:
 
 def recipe_of(directory: str | os.PathLike) -> tuple[DatasetVersion, int | None] | None:
     """(the registered version whose recipe ``directory`` was built with, whatever its seed;
-    that seed), or None if it follows none (or is not labelled)."""
+    that seed), or None if it follows none (or is not labelled). Where two versions share a
+    recipe, the one whose seed it has (its public build) is named."""
     gen, radar = stored_configs(directory)
     if radar is None:
         return None
     seed = gen.pop("seed", None)
+    found = []
     for v in VERSIONS.values():
         recipe = _generator_config(v)
         recipe.pop("seed")
         if gen == recipe and radar == v.radar_config().to_dict():
-            return v, seed
-    return None
+            found.append(v)
+    found.sort(key=lambda v: v.seed != seed)
+    return (found[0], seed) if found else None
 
 
 def identify(directory: str | os.PathLike) -> HeldOut:

@@ -10,7 +10,7 @@ alike. Meshes arrive scale-normalized (``benchmark.scoring.data.normalize_mesh``
 axis spans [-0.5, 0.5]); discretization covers ``[-COORD_RANGE, COORD_RANGE]`` and clips
 anything outside.
 
-Ray probes: ``N_RAYS`` fixed directions (``radar_sim.geometry.fibonacci_directions``) are cast
+Ray probes: ``N_RAYS`` fixed directions (``basic_shapes.geometry.fibonacci_directions``) are cast
 from the bounding-box centre against the mesh; each ray reports its nearest and farthest hit
 (distance and the surface normal there, oriented along the ray). These are properties of the
 surface alone, so any two meshings of one surface give the same probes up to round-off (the
@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from basic_shapes.meshcheck import area_normals, directed_edges, unit_normals
+from basic_shapes.geometry import area_normals, fibonacci_directions, unit_normals
+from basic_shapes.meshcheck import directed_edges
 
 N_BINS = 128  # discretization levels per quantity, as in MeshGPT
 COORD_RANGE = 0.5
@@ -129,7 +130,6 @@ def ray_probes(
     v = np.asarray(vertices, np.float64)
     origin = (v.min(0) + v.max(0)) / 2
     tri = v[np.asarray(faces, np.int64)] - origin
-    from radar_sim.geometry import fibonacci_directions  # the toolkit's one direction set
 
     d = fibonacci_directions(n_rays)
     near = np.full(n_rays, np.inf)

@@ -20,6 +20,7 @@ import manifold3d as m3d
 import numpy as np
 from tqdm import tqdm
 
+from basic_shapes.geometry import read_obj
 from basic_shapes.infra import atomic_path, load_json, open_hdf5
 from basic_shapes.meshcheck import (
     MeshError,
@@ -30,7 +31,6 @@ from basic_shapes.meshcheck import (
     repeated_vertex,
     weld,
 )
-from basic_shapes.objfile import read_obj
 from benchmark.scoring.data import normalize_mesh  # one normalization for corpus and benchmark
 
 Mesh = tuple[np.ndarray, np.ndarray, int]

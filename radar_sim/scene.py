@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from basic_shapes.geometry import area_normals, fibonacci_directions
 from basic_shapes.meshcheck import (  # MeshError is raised here too and re-exported
     MeshError,
-    area_normals,
     as_arrays,
     directed_edges,
     drop_unreferenced,
@@ -172,49 +172,6 @@ class RayCaster:
         o, d = self._arrays(origins, directions, normals)
         hit = self.scene.run(o, d, output=1)
         return hit["primID"].astype(np.int64), hit["tfar"].astype(np.float64)
-
-
-def _sind(deg):
-    """sin of degrees, exact at multiples of 90° (so axis-aligned views are exactly aligned)."""
-    deg = np.asarray(deg, dtype=np.float64)
-    r = np.sin(np.radians(deg))
-    quarter = np.mod(deg, 90.0) == 0
-    return np.where(quarter, np.round(r), r)
-
-
-def _cosd(deg):
-    deg = np.asarray(deg, dtype=np.float64)
-    r = np.cos(np.radians(deg))
-    quarter = np.mod(deg, 90.0) == 0
-    return np.where(quarter, np.round(r), r)
-
-
-def line_of_sight(aspect_deg, roll_deg=0.0) -> np.ndarray:
-    """(n, 3) unit lines of sight for aspects θ (degrees) at roll φ (scalar or one per aspect)."""
-    theta = np.atleast_1d(np.asarray(aspect_deg, dtype=np.float64))
-    if theta.ndim != 1 or len(theta) == 0 or not np.isfinite(theta).all():
-        raise ValueError(
-            f"aspect_deg must be a non-empty 1-D array of finite degrees, "
-            f"got shape {np.shape(aspect_deg)}"
-        )
-    phi = np.asarray(roll_deg, dtype=np.float64)
-    if phi.ndim > 1 or phi.size not in (1, len(theta)) or not np.isfinite(phi).all():
-        raise ValueError(
-            f"roll_deg must be one finite angle or one per aspect, "
-            f"got shape {np.shape(roll_deg)} for {len(theta)} aspects"
-        )
-    phi = np.broadcast_to(phi.reshape(-1), theta.shape)
-    st = _sind(theta)
-    return np.stack([st * _cosd(phi), st * _sind(phi), _cosd(theta)], axis=-1)
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    """n nearly uniform unit vectors (golden-angle spiral)."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5.0**0.5) * i
-    r = np.sqrt(1.0 - z * z)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def reflected_fraction(mesh: Mesh, caster: RayCaster | None = None, n_probe: int = 64) -> float:
