@@ -94,4 +94,4 @@ def test_seeds_for_counts_per_object_seed_noise_as_what_seeds_remove():
     well enough."""
     rng = np.random.default_rng(7)
     a, b = (rng.normal(20, 30, (12, len(STRATA))) for _ in range(2))
-    assert 6 <= paired_seeds(a, b, STRATA)["seeds_for"]["3.0"] <= 10
+    assert 6 <= paired_seeds(a, b, STRATA)["seeds_for_3"] <= 10

@@ -321,7 +321,7 @@ def _decide(pairs: list[tuple], by: dict, metrics: tuple[str, ...]) -> dict:
                     "ci": p["ci"],
                     "half_width": p["half_width"],
                     "verdict": verdict(p["ci"]),
-                    **({"seeds_for_3": p["seeds_for"]["3.0"]} if "seeds_for" in p else {}),
+                    **({"seeds_for_3": p["seeds_for_3"]} if "seeds_for_3" in p else {}),
                 }
             )
     counts = {

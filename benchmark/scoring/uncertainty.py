@@ -166,11 +166,11 @@ def paired_seeds(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict |
         "half_width": float(half),
         "seeds": seeds,
         "df": float(df),
-        "seeds_for": {str(w): seeds_for(v_fixed, spread, w) for w in TARGET_HALF_WIDTHS},
+        "seeds_for_3": seeds_for(v_fixed, spread, TARGET_HALF_WIDTH),
     }
 
 
-TARGET_HALF_WIDTHS = (3.0,)
+TARGET_HALF_WIDTH = 3.0  # dB²: the paired half-width a finding should reach (seeds_for_3)
 MAX_SEEDS = 1000
 
 
