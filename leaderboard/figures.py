@@ -24,6 +24,7 @@ from benchmark.scoring.plotting import Point, literal
 from leaderboard.store import speed_self_reported
 
 EXAMPLE_ROWS = 4
+CURVE_PANELS = 20  # training-curve panels: the first entries in board order (a figure's height)
 DB_RANGE = 60.0  # colour scale: the physics peak down to DB_RANGE dB below it
 
 
@@ -115,7 +116,8 @@ def with_curves(models: list[dict]) -> list[dict]:
 
 
 def training_curves(models: list[dict], title: str) -> bytes:
-    """Each model's validation MSE per epoch, one line per training seed, in the board's order."""
+    """Each model's validation MSE per epoch, one line per training seed, in the board's order
+    (the first ``CURVE_PANELS`` that carry curves)."""
 
     def seeds(e: dict) -> list:
         s = e.get("seeds") or {}
@@ -132,7 +134,7 @@ def training_curves(models: list[dict], title: str) -> bytes:
                     e["training"]["val_curves"],
                     e["training"]["epochs_to_plateau"],
                 )
-                for e in with_curves(models)
+                for e in with_curves(models)[:CURVE_PANELS]
             ],
             title,
         )

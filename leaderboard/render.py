@@ -60,7 +60,8 @@ CURVES_NOTE = (
     "Validation MSE after each epoch of every training seed, as the training run recorded it "
     "(results carry it as training.val_curves; for a submitted entry it is the submitter's "
     "record, not re-run by the board), the dot at the selected epoch. A curve still falling "
-    "at its end is a model that stopped while learning. Entries without curves are left out."
+    "at its end is a model that stopped while learning. Entries without curves are left out; "
+    f"at most the first {figures.CURVE_PANELS} in the table's order are drawn."
 )
 SELF_REPORTED_NOTE = (
     "(self-reported): given by the submitter, not measured by the harness. "

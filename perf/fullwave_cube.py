@@ -2,8 +2,9 @@
 the boundary element method (bempp-cl), against physical optics (PO) and PO + edge diffraction
 (Michaeli's equivalent edge currents, MEC) of the simulator, in the benchmark's metric.
 
-    python perf/fullwave_cube.py [--sizes 0.5 1] [--epw 10] [--refine-epw 20] [--rolls 0 45]
-                                 [--cut-step 1] [--freq-ghz 10] [--sphere-radius 0.5]
+    python perf/fullwave_cube.py [--sizes 0.5 1] [--epw 10] [--refine-epw 20]
+                                 [--refine-sizes 0.5] [--rolls 0 45] [--cut-step 1]
+                                 [--freq-ghz 10] [--sphere-radius 0.5] [--out NAME.json]
 
 Needs the optional extra: pip install -c constraints.txt '.[fullwave]' (bempp-cl, numba backend;
 no OpenCL). Sizes are in wavelengths at ``--freq-ghz``; every figure scales with a/λ only.
@@ -18,10 +19,11 @@ well-conditioned forms need Buffa-Christiansen functions on the barycentric refi
 elements, ~36x the assembly), too costly on this machine. The EFIE is wrong only near interior
 (cavity) resonances, ka = π√(l²+m²+n²) with at most one index zero: each size reports its
 distance to the nearest (0.5 λ: 41%, 1 λ: 12%, 2 λ: 3%; 1.5 λ sits on one). The reference's
-own error: the first size solved again at ``--refine-epw`` (self-convergence, in the same
-metric), and the sphere against Mie at the same density. The mirror symmetry of the roll-0 cut
-(θ ↔ 90° - θ swaps two faces) is only a consistency check of the assembly, quadrature and
-right-hand sides: the structured mesh has that symmetry too, so it cannot see the mesh's error.
+own error: the sizes of ``--refine-sizes`` (default the first) solved again at
+``--refine-epw`` (self-convergence, in the same metric), and the sphere against Mie at the same
+density. The mirror symmetry of the roll-0 cut (θ ↔ 90° - θ swaps two faces) is only a
+consistency check of the assembly, quadrature and right-hand sides: the structured mesh has that
+symmetry too, so it cannot see the mesh's error.
 Cost: dense assembly grows as (elements)², 6(a/λ · epw)² elements; a 1 λ cube at λ/10 (1,200
 triangles, 1,800 unknowns) is about a minute on an idle 2-core machine, 2 λ (4,800 triangles)
 16 times that and 0.8 GB of matrix, so the default sizes stop at 1 λ.
@@ -381,7 +383,10 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", type=float, nargs="+", default=[0.5, 1.0], help="a/λ")
     p.add_argument("--epw", type=float, default=10.0, help="mesh cells per wavelength")
-    p.add_argument("--refine-epw", type=float, default=20.0, help="first size again; 0: skip")
+    p.add_argument("--refine-epw", type=float, default=20.0, help="solve again at; 0: skip")
+    p.add_argument(
+        "--refine-sizes", type=float, nargs="+", help="a/λ solved again (default: the first)"
+    )
     p.add_argument("--rolls", type=float, nargs="+", default=[0.0, 45.0], help="cut rolls, deg")
     p.add_argument("--cut-step", type=float, default=1.0, help="aspect step, degrees")
     p.add_argument("--freq-ghz", type=float, default=10.0)
@@ -405,7 +410,7 @@ def main() -> None:
         )
 
     rows, cases = [], []
-    for i, a_wl in enumerate(args.sizes):
+    for a_wl in args.sizes:
         res = cube_resonance(a_wl)
         if res["distance"] < RESONANCE_WARN:
             print(f"warning: a = {a_wl:g} λ is {res['distance']:.1%} from a cavity resonance")
@@ -417,7 +422,7 @@ def main() -> None:
             **{k: v for k, v in ref.items() if k != "cuts"},
             "cuts": {},
         }
-        if i == 0 and args.refine_epw > 0:
+        if a_wl in (args.refine_sizes or args.sizes[:1]) and args.refine_epw > 0:
             fine = solve_cube(a_wl, args.refine_epw, freq, args.rolls, args.cut_step)
             case["refined"] = {
                 **{k: v for k, v in fine.items() if k != "cuts"},
