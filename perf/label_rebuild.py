@@ -14,7 +14,7 @@ and the labelling time. The generator is not run: every shard is complete, so it
 
 Writes perf/results/label_rebuild.json (or ``--out``) and prints one line per shard.
 
-Measured (docs/ARCHITECTURE.md, "Determinism"): shards of demo-v2, cpu-v2 and hidden-cpu-v3
+Measured (docs/DATASETS.md, "A second machine, real"): shards of demo-v2, cpu-v2 and hidden-cpu-v3
 stripped on the AMD EPYC that built them and labelled on an Intel Xeon (glibc 2.39, Python
 3.12, the pinned numpy 1.26.4 and scipy 1.17.1) match their manifests
 (results/label_rebuild_intel_xeon.json); with numpy 2.5.2 instead, both machines agree with
