@@ -255,3 +255,51 @@ def test_hidden_v3_slice_with_both_families_rebuilds(tmp_path):
         if m["variant"] >= 900
     }
     assert ood == {36, 37, 38}  # isotropic, qem (rounded boxes) and delaunay (both)
+
+
+def test_labels_rebuild_from_stripped_meshes_without_blender(tiny, tmp_path):
+    """perf/label_rebuild.py: the meshes copied without /radar, labelled again in a process
+    where bpy cannot be imported, give the manifest's label fingerprints; a label left
+    behind would make the check vacuous, so the stripped copy must hold none."""
+    script = Path(__file__).resolve().parents[1] / "perf" / "label_rebuild.py"
+    stripped = tmp_path / "stripped"
+    run = functools.partial(subprocess.run, capture_output=True, text=True)
+    proc = run(
+        [
+            sys.executable,
+            script,
+            "strip",
+            "tiny-v2",
+            "--data",
+            tiny,
+            "--shards",
+            "0",
+            "--into",
+            stripped,
+        ]
+    )
+    assert proc.returncode == 0, proc.stderr
+    with h5py.File(stripped / "shard-00000.h5", "r") as f:
+        assert "radar" not in f and "meshes" in f
+    block = tmp_path / "block"
+    block.mkdir()
+    (block / "sitecustomize.py").write_text("import sys\nsys.modules['bpy'] = None\n")
+    out = tmp_path / "rebuild.json"
+    proc = run(
+        [sys.executable, script, "check", f"tiny-v2={stripped}", "--workers", "1", "--out", out],
+        env={
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join([str(block), os.environ.get("PYTHONPATH", "")]),
+        },
+    )
+    assert proc.returncode == 0, proc.stderr
+    (result,) = json.loads(out.read_text())["versions"]
+    recorded = versions.get("tiny-v2").manifest["shards"][0]["label_fingerprint"]
+    assert result["shards"] == [
+        {
+            "shard": "shard-00000.h5",
+            "label_fingerprint": recorded,
+            "matches": True,
+            "objects": len(versions.get("tiny-v2").manifest["shards"][0]["objects"]),
+        }
+    ]
