@@ -34,6 +34,7 @@ from test_leaderboard import make_dataset, refused, run, write_predictions, writ
 
 ROOT = Path(__file__).resolve().parents[1]
 SECRET = "SECRET-host-file-contents"
+OLD_ENTRIES = Path(__file__).resolve().parent / "old_entries"
 
 
 @pytest.fixture(scope="module")
@@ -128,10 +129,12 @@ def test_seed_keeps_what_the_harness_measured_unmarked(data, tmp_path):
 
 
 def test_old_entries_without_origin_read_as_submitted(tmp_path):
-    """Committed entries still validate and render; lacking ``origin`` they are read as
-    ``leaderboard submit`` made them (their source says: not re-measured), so their speed and
-    parameter count are marked even where the file says ``self_reported: false``."""
-    committed = store.load_entries(store.DEFAULT_ENTRIES)  # every one still valid
+    """Entries made before ``origin`` existed (tests/old_entries: two that the board
+    published until 2026-11-26) still validate and render; lacking ``origin`` they are read
+    as ``leaderboard submit`` made them (their source says: not re-measured), so their speed
+    and parameter count are marked even where the file says ``self_reported: false``."""
+    store.load_entries(store.DEFAULT_ENTRIES)  # every committed entry still valid
+    committed = store.load_entries(OLD_ENTRIES)
     model = next(e for e in committed if e["kind"] == "model" and "origin" not in e)
     physics = next(
         e
@@ -143,7 +146,7 @@ def test_old_entries_without_origin_read_as_submitted(tmp_path):
     entries, site = tmp_path / "entries", tmp_path / "site"
     entries.mkdir()
     for e in (model, physics):
-        shutil.copy(store.DEFAULT_ENTRIES / f"{e['id']}.json", entries)
+        shutil.copy(OLD_ENTRIES / f"{e['id']}.json", entries)
     run("render", "--out", site, "--entries", entries)
     html, md = (site / "index.html").read_text(), (site / "LEADERBOARD.md").read_text()
     (row,) = _rows(html)
