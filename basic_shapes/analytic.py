@@ -62,21 +62,27 @@ TORUS_MAJOR, TORUS_MINOR = 1.0, 0.25
 TORUS_EXTENTS = (2.5, 2.5, 0.5)
 """Bounding-box extents of the default torus: a torus object is it scaled by scale / these."""
 
-SIMULATION_RULE = {
-    "name": "edge-grating",
-    "version": 1,
-    # Facet edges along a curved direction form a grating; its first lobe appears once the
-    # spacing exceeds half a wavelength, so edges are kept at most this fraction of lambda/2
-    # at the top frequency (docs/RADAR.md, "Object labels: simulation meshes"): strips of
-    # singly curved sides (cylinder, cone) ...
-    "strip_edge_half_wavelengths": 0.7,
-    # ... and doubly curved surfaces (ellipsoid, torus), whose jagged shadow boundary adds an
-    # error that only shrinks with the facets.
-    "surface_edge_half_wavelengths": 0.5,
-    # and never turn by more than this angle (radians) between neighbouring facets, which
-    # only binds on small radii of curvature (the rim of a flat ellipsoid).
-    "max_turn_rad": 0.1,
+SIMULATION_RULES = {
+    1: {
+        "name": "edge-grating",
+        "version": 1,
+        # Facet edges along a curved direction form a grating; its first lobe appears once the
+        # spacing exceeds half a wavelength, so edges are kept at most this fraction of
+        # lambda/2 at the top frequency (docs/RADAR.md, "Object labels: simulation meshes"):
+        # strips of singly curved sides (cylinder, cone) ...
+        "strip_edge_half_wavelengths": 0.7,
+        # ... and doubly curved surfaces (ellipsoid, torus), whose jagged shadow boundary adds
+        # an error that only shrinks with the facets.
+        "surface_edge_half_wavelengths": 0.5,
+        # and never turn by more than this angle (radians) between neighbouring facets, which
+        # only binds on small radii of curvature (the rim of a flat ellipsoid).
+        "max_turn_rad": 0.1,
+    },
 }
+# Version 2 (physics xband-v3): rims, whose edge currents carry HH, are cut at half of every
+# limit above. At version 1's chords HH on cylinders and frusta stays 0.12-0.47 dB^2 from an
+# 8x finer mesh; at half of them within 0.04 (docs/RADAR.md, "A rim rule").
+SIMULATION_RULES[2] = {**SIMULATION_RULES[1], "version": 2, "rim_refinement": 2.0}
 
 
 @dataclass(frozen=True)
@@ -601,23 +607,22 @@ def _outward(v, tri):
 # simulation meshes
 
 
-def _edge_length(radius, wavelength, refine, surface=False):
-    """Longest allowed edge across a direction of curvature radius ``radius`` (metres) on a
-    strip (or a doubly curved ``surface``), divided by ``refine`` (2: the twice-finer mesh of
-    the convergence study)."""
-    rule = SIMULATION_RULE
+def _edge_length(rule, radius, wavelength, refine, surface=False):
+    """Longest allowed edge under ``rule`` across a direction of curvature radius ``radius``
+    (metres) on a strip (or a doubly curved ``surface``), divided by ``refine`` (2: the
+    twice-finer mesh of the convergence study)."""
     factor = rule["surface_edge_half_wavelengths" if surface else "strip_edge_half_wavelengths"]
     grating = factor * wavelength / 2.0
     return np.minimum(grating, rule["max_turn_rad"] * radius) / refine
 
 
-def _ellipse_angles(a, b, wavelength, refine, minimum=4, surface=False):
+def _ellipse_angles(rule, a, b, wavelength, refine, minimum=4, surface=False):
     """Quadrant-symmetric parameter angles t (x = a cos t, y = b sin t) with edges per
     _edge_length of the local radius of curvature: a multiple of 4, >= minimum * refine."""
     t = np.linspace(0.0, np.pi / 2, 4097)
     speed = np.sqrt((a * np.sin(t)) ** 2 + (b * np.cos(t)) ** 2)
     radius = speed * speed * speed / (a * b)  # not ** 3: numpy's power is CPU-dependent
-    density = speed / _edge_length(radius, wavelength, refine, surface)
+    density = speed / _edge_length(rule, radius, wavelength, refine, surface)
     cum = np.concatenate([[0.0], np.cumsum((density[1:] + density[:-1]) / 2 * np.diff(t))])
     m = max(math.ceil(cum[-1]), math.ceil(minimum * refine / 4))
     q = np.interp(np.arange(m + 1) * (cum[-1] / m), cum, t)
@@ -719,18 +724,18 @@ there (perf/hidden_convergence.py: at the rule's count its label is 0.73-0.85 dB
 independent fine mesh, at twice it 0.03)."""
 
 
-def _roundbox_simulation_mesh(solid: Solid, wavelength: float, refinement: float):
+def _roundbox_simulation_mesh(solid: Solid, rule: dict, wavelength: float, refinement: float):
     """The rounded box with its quarter circles cut under the doubly curved limit, refined by
     ROUNDBOX_REFINEMENT (the corners' and the edges' arcs share their vertices): flat faces and
     edge strips are exact along their straight directions."""
     _inner, radius = roundbox_parts(solid)
-    edge = _edge_length(radius, wavelength, refinement * ROUNDBOX_REFINEMENT, surface=True)
+    edge = _edge_length(rule, radius, wavelength, refinement * ROUNDBOX_REFINEMENT, surface=True)
     v, quads, tris = roundbox_polygons(solid.half, radius, math.ceil(np.pi / 2 * radius / edge))
     return v, np.concatenate([tris, quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
 
 
-def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
-    """The deterministic mesh on which the object's label is computed (SIMULATION_RULE).
+def simulation_mesh(solid: Solid, f_max_hz: float, *, rule: int = 1, refinement: float = 1.0):
+    """The deterministic mesh on which the object's label is computed (SIMULATION_RULES[rule]).
 
     Closed, outward oriented, every vertex on the surface: (vertices float64 (V, 3), faces
     int32 (F, 3)). Only curved directions are refined; the box is its 12 triangles (exact).
@@ -738,34 +743,40 @@ def simulation_mesh(solid: Solid, f_max_hz: float, *, refinement: float = 1.0):
     """
     if not (np.isfinite(f_max_hz) and f_max_hz > 0):
         raise ValueError(f"f_max_hz must be positive and finite, got {f_max_hz!r}")
+    if rule not in SIMULATION_RULES:
+        raise ValueError(f"unknown simulation rule {rule!r}; known: {sorted(SIMULATION_RULES)}")
+    spec = SIMULATION_RULES[rule]
     wavelength = C0 / f_max_hz
     h = solid.half
     kind = solid.kind
+
+    def angles(a, b, refine, minimum, surface=False):
+        return _ellipse_angles(spec, a, b, wavelength, refine, minimum, surface)
+
+    # the angles around a cylinder's, cone's or frustum's axis are its rims' chords
+    rim = refinement * spec.get("rim_refinement", 1.0)
     if kind == "cube":
         v, f = _box_mesh(h)
     elif kind == "sphere":
         unit, f = _cube_sphere(
-            _ellipsoid_cells(h, lambda r: _edge_length(r, wavelength, refinement, surface=True))
+            _ellipsoid_cells(h, lambda r: _edge_length(spec, r, wavelength, refinement, True))
         )
         v = unit * h
     elif kind == "cylinder":
-        v, f = _cylinder_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
+        v, f = _cylinder_mesh(*h, angles(*h[:2], rim, 16))
     elif kind == "cone":
-        v, f = _cone_mesh(*h, _ellipse_angles(*h[:2], wavelength, refinement, 16))
+        v, f = _cone_mesh(*h, angles(*h[:2], rim, 16))
     elif kind == "frustum":
         # the base rim has the largest radii: its angles bound the top rim's edges too
-        v, f = _frustum_mesh(
-            *h, _ellipse_angles(*h[:2], wavelength, refinement, 16), solid.params["top_ratio"]
-        )
+        v, f = _frustum_mesh(*h, angles(*h[:2], rim, 16), solid.params["top_ratio"])
     elif kind == "roundbox":
-        v, f = _roundbox_simulation_mesh(solid, wavelength, refinement)
+        v, f = _roundbox_simulation_mesh(solid, spec, wavelength, refinement)
     elif kind == "torus":
         s = np.asarray(solid.scale) / np.asarray(TORUS_EXTENTS)
         outer = TORUS_MAJOR + TORUS_MINOR
-        u = _ellipse_angles(outer * s[0], outer * s[1], wavelength, refinement, 16, True)
+        u = angles(outer * s[0], outer * s[1], refinement, 16, True)
         minor = [
-            _ellipse_angles(TORUS_MINOR * r, TORUS_MINOR * s[2], wavelength, refinement, 8, True)
-            for r in (s[0], s[1])
+            angles(TORUS_MINOR * r, TORUS_MINOR * s[2], refinement, 8, True) for r in (s[0], s[1])
         ]
         v, f = _torus_mesh(s, u, max(minor, key=len))
     else:

@@ -232,7 +232,8 @@ def dataset_signature(
             )
         params = s.object_params()[k]
     cfg = load_config(config)
-    vertices, faces = simulation_mesh(solid_for(obj["class"], obj["scale"], params), cfg.f_stop_hz)
+    solid = solid_for(obj["class"], obj["scale"], params)
+    vertices, faces = simulation_mesh(solid, cfg.f_stop_hz, rule=cfg.simulation_rule)
     return simulated_signature(
         vertices,
         faces,

@@ -9,13 +9,17 @@ and positive range points away from the radar (down-range): a scatterer at p app
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 import re
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
+from basic_shapes import portable
+from basic_shapes.analytic import SIMULATION_RULES
 from basic_shapes.geometry import line_of_sight
 from basic_shapes.infra import load_json
 from radar_sim.field import (
@@ -30,8 +34,9 @@ from radar_sim.field import (
 from radar_sim.scene import MILLIMETRE_RADIUS, MeshError, check_units, prepare
 
 WINDOWS = ("hann", "none")
-TEXT_FIELDS = ("name", "window", "channels", "edges")
-LATER_FIELDS = {"channels": "VV", "edges": "none"}  # absent from the JSON when at the default
+TRANSFORMS = ("numpy-fft", "portable-dft")
+# fields added after xband-v1: absent from the config JSON when at these defaults
+LATER_FIELDS = {"channels": "VV", "edges": "none", "simulation_rule": 1, "transform": "numpy-fft"}
 # Size bounds (docs/RADAR.md, "Config bounds"): simulate holds the frequency response and two
 # FFT temporaries, about 48 bytes per grid sample (complex128 x 3), so MAX_GRID_SAMPLES keeps a
 # worker under ~0.8 GB whatever the mesh; per-axis bounds keep each list sane on its own.
@@ -58,6 +63,10 @@ class RadarConfig:
     n_range: int = 107  # range bins kept, centred on the origin
     channels: str = "VV"  # polarization channels stored, from HH,VV,HV; VV is the task's target
     edges: str = "none"  # edge diffraction: "none" (PO) or "mec" (equivalent edge currents)
+    simulation_rule: int = 1  # basic_shapes.analytic.SIMULATION_RULES: an object's label mesh
+    # frequencies to range: "numpy-fft" (np.fft, as labels through xband-v2 were made) or
+    # "portable-dft" (a fixed-order DFT whose bytes do not depend on numpy or the CPU)
+    transform: str = "numpy-fft"
 
     def __post_init__(self):
         problems = []
@@ -80,6 +89,10 @@ class RadarConfig:
             problems.append(f"channels a comma list from {','.join(CHANNELS)} including VV")
         if self.edges not in EDGES:
             problems.append(f"edges in {EDGES}")
+        if self.simulation_rule not in SIMULATION_RULES:
+            problems.append(f"simulation_rule in {sorted(SIMULATION_RULES)}")
+        if self.transform not in TRANSFORMS:
+            problems.append(f"transform in {TRANSFORMS}")
         reserved = globals().get("NAMED", {}).get(self.name)
         if reserved is not None and self != reserved:
             problems.append(f"a name other than {self.name!r} (reserved for a named config)")
@@ -129,12 +142,9 @@ class RadarConfig:
         try:
             if any(isinstance(v, (bool, list, dict)) or v is None for v in data.values()):
                 raise ValueError("fields must be numbers or strings")
-            kwargs = {
-                k: (str(v) if k in TEXT_FIELDS else int(v) if k.startswith("n_") else float(v))
-                for k, v in data.items()
-            }
-            if any(k.startswith("n_") and v != data[k] for k, v in kwargs.items()):
-                raise ValueError("counts must be integers")
+            kwargs = {k: {"str": str, "int": int, "float": float}[known[k]](v) for k, v in data.items()}
+            if any(known[k] == "int" and v != data[k] for k, v in kwargs.items()):
+                raise ValueError("counts and versions must be integers")
             return cls(**kwargs)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: {exc}") from None
@@ -196,6 +206,10 @@ class RadarConfig:
 
     def range_profiles(self, response: np.ndarray) -> np.ndarray:
         """(..., n_freq) frequency response -> (..., n_range) complex range profiles."""
+        if self.transform == "portable-dft":
+            flat = np.asarray(response, np.complex128).reshape(-1, self.n_freq)
+            out = portable.matmul_parts(flat, _dft_parts(self))
+            return out.reshape(*np.shape(response)[:-1], self.n_range)
         w = self.window_weights()
         n = self.n_freq
         spectrum = np.fft.ifft(response * w, axis=-1) * (n / w.sum())
@@ -205,10 +219,46 @@ class RadarConfig:
         return spectrum[..., bins % n] * carrier
 
 
+@functools.cache
+def _dft_parts(config: RadarConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The (n_freq, n_range) matrix of the portable transform, split for ``matmul_parts``:
+    T[n, m] = w_n exp(j(2π n m / N + 2 k_0 r_m)) / Σ w, the same sum as the inverse FFT's kept
+    bins times the carrier, built from Python floats and ``math`` (IEEE operations and one
+    glibc: the same bits everywhere), the window summed by ``math.fsum``."""
+    n, half = config.n_freq, config.n_range // 2
+    if config.window == "hann":
+        w = [0.5 - 0.5 * math.cos(2.0 * math.pi * i / (n - 1)) for i in range(n)]
+    else:
+        w = [1.0] * n
+    total = math.fsum(w)
+    turn = [(math.cos(2.0 * math.pi * i / n), math.sin(2.0 * math.pi * i / n)) for i in range(n)]
+    k0 = 2.0 * math.pi * config.f_start_hz / C0
+    re = np.empty((n, 2 * half + 1))
+    im = np.empty_like(re)
+    for col, m in enumerate(range(-half, half + 1)):
+        phase = 2.0 * k0 * (m * config.range_resolution_m)
+        cr, ci = math.cos(phase), math.sin(phase)
+        for i in range(n):
+            tr, ti = turn[(i * m) % n]
+            g = w[i] / total
+            re[i, col] = g * (tr * cr - ti * ci)
+            im[i, col] = g * (tr * ci + ti * cr)
+    return re, im
+
+
 NAMED = {
     "xband-v1": RadarConfig(),
     # xband-v1's grid with all three channels and edge diffraction (docs/RADAR.md)
     "xband-v2": RadarConfig(name="xband-v2", channels="HH,VV,HV", edges="mec"),
+    # xband-v2's physics, its rims cut finer (simulation rule 2: HH converged) and range
+    # profiles from the portable DFT (labels independent of numpy's version)
+    "xband-v3": RadarConfig(
+        name="xband-v3",
+        channels="HH,VV,HV",
+        edges="mec",
+        simulation_rule=2,
+        transform="portable-dft",
+    ),
 }
 
 

@@ -52,7 +52,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from basic_shapes.analytic import SIMULATION_RULE, simulation_mesh, solid_for
+from basic_shapes.analytic import SIMULATION_RULES, simulation_mesh, solid_for
 from basic_shapes.cluster import TaskError, dask_client, run_tasks
 from basic_shapes.infra import warn
 from basic_shapes.shards import (
@@ -108,7 +108,9 @@ class LabelRequest:
         return {
             "config": self.config.to_json(),
             "options": json.dumps(options, sort_keys=True),
-            "simulation_rule": json.dumps(SIMULATION_RULE, sort_keys=True),
+            "simulation_rule": json.dumps(
+                SIMULATION_RULES[self.config.simulation_rule], sort_keys=True
+            ),
         }
 
 
@@ -196,7 +198,9 @@ def _plan_object(
     """
     oid, scale = int(objs["id"][k]), objs["scale"][k]
     try:
-        v, f = simulation_mesh(solid_for(name, scale, params), config.f_stop_hz)
+        v, f = simulation_mesh(
+            solid_for(name, scale, params), config.f_stop_hz, rule=config.simulation_rule
+        )
     except ValueError as exc:
         raise LabelError(f"{path}: object {oid}: {exc}") from None
     radius = float(np.sqrt((v * v).sum(axis=1).max()))
@@ -300,7 +304,9 @@ def label_object(
 
     _warm_up()
     t0 = time.perf_counter()
-    v, f = simulation_mesh(solid_for(class_name, scale, params), config.f_stop_hz)
+    v, f = simulation_mesh(
+        solid_for(class_name, scale, params), config.f_stop_hz, rule=config.simulation_rule
+    )
     try:
         r = simulate(v, f, config, mode=object_mode(class_name, mode))
     except MeshError as exc:

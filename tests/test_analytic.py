@@ -116,13 +116,17 @@ def test_simulation_mesh_volume_converges_to_the_smooth_solid():
     assert trimesh.Trimesh(v, f, process=False).volume == pytest.approx(torus, rel=1e-3)
 
 
-def test_strip_edges_follow_the_rule():
-    # cylinder side strips: every rim edge at most strip_edge_half_wavelengths * lambda / 2
+@pytest.mark.parametrize("rule", sorted(analytic.SIMULATION_RULES))
+def test_strip_edges_follow_the_rule(rule):
+    # cylinder side strips: every rim edge at most strip_edge_half_wavelengths * lambda / 2,
+    # divided by the rule's rim refinement (version 2 cuts rims at half the limit)
+    spec = analytic.SIMULATION_RULES[rule]
     solid = analytic.solid_for("cylinder", (2.0, 1.0, 1.0))
-    v, f = analytic.simulation_mesh(solid, 12e9)
+    v, f = analytic.simulation_mesh(solid, 12e9, rule=rule)
     rim = v[v[:, 2] == -0.5][:-1]
     edges = np.linalg.norm(np.diff(np.vstack([rim, rim[:1]]), axis=0), axis=1)
-    limit = analytic.SIMULATION_RULE["strip_edge_half_wavelengths"] * analytic.C0 / 12e9 / 2
+    limit = spec["strip_edge_half_wavelengths"] * analytic.C0 / 12e9 / 2
+    limit /= spec.get("rim_refinement", 1.0)
     assert edges.max() <= limit and edges.max() > 0.7 * limit
 
 
@@ -151,7 +155,10 @@ def test_surface_samples_lie_on_the_surface_and_cover_it():
 def test_json_rule_and_bad_input():
     import json
 
-    assert json.loads(json.dumps(analytic.SIMULATION_RULE)) == analytic.SIMULATION_RULE
+    for rule in analytic.SIMULATION_RULES.values():
+        assert json.loads(json.dumps(rule)) == rule
+    with pytest.raises(ValueError, match="unknown simulation rule 3"):
+        analytic.simulation_mesh(analytic.solid_for("cube", (1, 1, 1)), 12e9, rule=3)
     with pytest.raises(ValueError, match="unknown primitive class 'prism'"):
         analytic.solid_for("prism", (1, 1, 1))
     with pytest.raises(ValueError, match="three positive finite"):

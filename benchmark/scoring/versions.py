@@ -200,6 +200,28 @@ VERSIONS["hidden-cpu-v3"] = DatasetVersion(
     shard_format=1,
 )
 
+# The v3 labels (docs/RADAR.md, "Labels v3"): xband-v3 physics, xband-v2's with rims cut finer
+# (HH converged) and range profiles from a portable DFT (the same bytes under any numpy); the
+# v1 recipes and the hidden track's second round (hidden-cpu-v3, whose name was taken: -v4).
+VERSIONS.update(
+    {
+        new: replace(
+            VERSIONS[old],
+            name=new,
+            summary=VERSIONS[old].summary.replace("(xband-v2)", "(xband-v3)"),
+            physics="xband-v3",
+            shard_format=SHARD_FORMAT,
+        )
+        for old, new in (
+            ("tiny-v2", "tiny-v3"),
+            ("demo-v2", "demo-v3"),
+            ("cpu-v2", "cpu-v3"),
+            ("paper-v2", "paper-v3"),
+            ("hidden-cpu-v3", "hidden-cpu-v4"),
+        )
+    }
+)
+
 
 def get(name: str) -> DatasetVersion:
     try:
