@@ -30,7 +30,7 @@ browser:
 
 # The main job on a small default: 12 objects x 10 meshes, every step of the data flow.
 demo: install
-	$(BIN)/benchmark dataset demo-v2 --data $(OUT)/data
+	$(BIN)/benchmark dataset demo-v3 --data $(OUT)/data
 	$(BIN)/basic-shapes info --data $(OUT)/data --figure $(OUT)/info.png
 	$(BIN)/basic-shapes show --data $(OUT)/data --object 5 --out $(OUT)/shapes.png
 	$(BIN)/radar-sim plot --data $(OUT)/data --object 1 --roll 30 --out $(OUT)/radar.png

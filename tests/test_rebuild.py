@@ -1,10 +1,10 @@
 """A recorded dataset version rebuilds byte for byte on another machine, or says where not.
 
-``tiny-v2`` is a slice of everything a version holds: objects of every class, OOD meshes of
+``tiny-v3`` is a slice of everything a version holds: objects of every class, OOD meshes of
 every remesher, labels. It is built here in fresh processes, once natively and once under an
 emulated foreign CPU (numpy's AVX-512 loops off, OpenBLAS's Haswell kernels on one thread,
 numba compiling for a generic x86-64, a different worker count and memory layout), and both
-builds must equal the committed manifest (benchmark/manifests/tiny-v2.json) in every hash.
+builds must equal the committed manifest (benchmark/manifests/tiny-v3.json) in every hash.
 The old code failed exactly this: its scales came from numpy's exp, whose AVX-512 loop
 rounds differently, and its labels from BLAS.
 
@@ -33,6 +33,8 @@ import pytest
 from basic_shapes import manifest as mf
 from benchmark.scoring import versions
 
+TINY = "tiny-v3"
+"""The newest tiny version (xband-v3 labels); its meshes are tiny-v2's."""
 FOREIGN_CPU = {
     "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "
     "AVX512_SPR",
@@ -54,19 +56,19 @@ def dataset_cli(*args, env=None, cwd=None) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Path:
-    """tiny-v2 built natively on 2 workers (fresh processes)."""
-    data = tmp_path_factory.mktemp("tiny") / "tiny-v2"
-    proc = dataset_cli("tiny-v2", "--data", str(data), "--workers", "2", "--quiet")
+    """TINY built natively on 2 workers (fresh processes)."""
+    data = tmp_path_factory.mktemp("tiny") / TINY
+    proc = dataset_cli(TINY, "--data", str(data), "--workers", "2", "--quiet")
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["matches_recorded"] is True, report["differences"]
-    assert report["mesh"] == versions.get("tiny-v2").fingerprints["mesh"]
+    assert report["mesh"] == versions.get(TINY).fingerprints["mesh"]
     return data
 
 
 def test_tiny_v1_is_a_slice_of_everything(tiny):
     """Every class, test objects with OOD meshes of all three remeshers, and labels."""
-    expected = versions.get("tiny-v2").manifest
+    expected = versions.get(TINY).manifest
     variants = {m["variant"] for s in expected["shards"] for o in s["objects"] for m in o["meshes"]}
     assert {0, 1, 2} <= variants
     assert {v // 25 for v in variants if v >= 900} == {36, 37, 38}  # isotropic, qem, delaunay
@@ -83,7 +85,7 @@ def test_rebuild_under_a_foreign_cpu_matches_the_manifest(tmp_path):
         "-m",
         "benchmark.cli",
         "dataset",
-        "tiny-v2",
+        TINY,
         "--data",
         str(data),
         "--workers",
@@ -110,11 +112,11 @@ def test_check_names_the_altered_mesh(tiny, tmp_path):
         start = int(f["meshes/vertex_offset"][row])
         v = f["meshes/vertices"][start]
         f["meshes/vertices"][start] = np.nextafter(v, np.float32(np.inf))
-    proc = dataset_cli("tiny-v2", "--check", "--data", str(data))
+    proc = dataset_cli(TINY, "--check", "--data", str(data))
     assert proc.returncode == 1
     error = proc.stderr.strip()
     assert error.count("\n") == 0
-    object_id = versions.get("tiny-v2").manifest["shards"][0]["objects"][2]["id"]
+    object_id = versions.get(TINY).manifest["shards"][0]["objects"][2]["id"]
     assert f"shard-00000.h5 object {object_id} mesh variant 1: vertices differ" in error
     report = json.loads(proc.stdout)
     assert report["matches_recorded"] is False
@@ -126,9 +128,9 @@ def test_check_names_an_altered_label(tiny, tmp_path):
     shutil.copytree(tiny, data)
     with h5py.File(data / "shard-00000.h5", "r+") as f:
         f["radar/response"][1] = f["radar/response"][1] * np.complex64(10)
-    proc = dataset_cli("tiny-v2", "--check", "--data", str(data))
+    proc = dataset_cli(TINY, "--check", "--data", str(data))
     assert proc.returncode == 1
-    object_id = versions.get("tiny-v2").manifest["shards"][0]["objects"][1]["id"]
+    object_id = versions.get(TINY).manifest["shards"][0]["objects"][1]["id"]
     assert f"object {object_id}: label differs" in proc.stderr
 
 
@@ -154,21 +156,21 @@ def server(tmp_path):
 
 def test_pack_then_fetch_over_http_gives_the_recorded_bytes(tiny, server, tmp_path):
     root, url = server
-    proc = dataset_cli("tiny-v2", "--pack", str(root / "tiny-v2.tar"), "--data", str(tiny))
+    proc = dataset_cli(TINY, "--pack", str(root / f"{TINY}.tar"), "--data", str(tiny))
     assert proc.returncode == 0, proc.stderr
     target = tmp_path / "fetched"
-    proc = dataset_cli("tiny-v2", "--from", f"{url}/tiny-v2.tar", "--data", str(target), "--quiet")
+    proc = dataset_cli(TINY, "--from", f"{url}/{TINY}.tar", "--data", str(target), "--quiet")
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["matches_recorded"] is True
-    assert report["mesh"] == versions.get("tiny-v2").fingerprints["mesh"]
-    recorded = versions.get("tiny-v2").manifest
+    assert report["mesh"] == versions.get(TINY).fingerprints["mesh"]
+    recorded = versions.get(TINY).manifest
     for shard in recorded["shards"]:
         assert mf.file_sha256(target / shard["name"]) == shard["sha256"]
     # packing is deterministic: the same directory gives the same archive bytes
-    again = dataset_cli("tiny-v2", "--pack", str(tmp_path / "again.tar"), "--data", str(target))
+    again = dataset_cli(TINY, "--pack", str(tmp_path / "again.tar"), "--data", str(target))
     assert again.returncode == 0
-    assert mf.file_sha256(tmp_path / "again.tar") == mf.file_sha256(root / "tiny-v2.tar")
+    assert mf.file_sha256(tmp_path / "again.tar") == mf.file_sha256(root / f"{TINY}.tar")
 
 
 def _tar(path: Path, members: dict[str, bytes]) -> None:
@@ -182,7 +184,7 @@ def _tar(path: Path, members: dict[str, bytes]) -> None:
 def test_corrupted_and_foreign_archives_are_refused(tiny, server, tmp_path):
     root, url = server
     good = root / "good.tar"
-    assert dataset_cli("tiny-v2", "--pack", str(good), "--data", str(tiny)).returncode == 0
+    assert dataset_cli(TINY, "--pack", str(good), "--data", str(tiny)).returncode == 0
     with tarfile.open(good) as tar:
         members = {m.name: tar.extractfile(m).read() for m in tar.getmembers()}
     shard = bytearray(members["shard-00000.h5"])
@@ -200,7 +202,7 @@ def test_corrupted_and_foreign_archives_are_refused(tiny, server, tmp_path):
     }
     for name, message in cases.items():
         target = tmp_path / f"out-{name}"
-        proc = dataset_cli("tiny-v2", "--from", f"{url}/{name}", "--data", str(target), "--quiet")
+        proc = dataset_cli(TINY, "--from", f"{url}/{name}", "--data", str(target), "--quiet")
         assert proc.returncode == 1, name
         assert message in proc.stderr and proc.stderr.strip().count("\n") == 0, proc.stderr
         assert not target.exists(), name
@@ -212,7 +214,7 @@ def test_fetch_refuses_a_directory_that_holds_data(tiny, tmp_path):
     target = tmp_path / "busy"
     target.mkdir()
     (target / "keep.txt").write_text("mine")
-    proc = dataset_cli("tiny-v2", "--from", str(tmp_path / "none.tar"), "--data", str(target))
+    proc = dataset_cli(TINY, "--from", str(tmp_path / "none.tar"), "--data", str(target))
     assert proc.returncode == 1 and "not empty" in proc.stderr
     assert (target / "keep.txt").read_text() == "mine"
 
@@ -220,10 +222,10 @@ def test_fetch_refuses_a_directory_that_holds_data(tiny, tmp_path):
 def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
     """--shards builds only some shards; they are checked against those of the manifest."""
     data = tmp_path / "slice"
-    proc = dataset_cli("tiny-v2", "--data", str(data), "--shards", "0", "--workers", "0", "--quiet")
+    proc = dataset_cli(TINY, "--data", str(data), "--shards", "0", "--workers", "0", "--quiet")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["matches_recorded"] is True
-    proc = dataset_cli("tiny-v2", "--data", str(tmp_path / "x"), "--shards", "7", "--quiet")
+    proc = dataset_cli(TINY, "--data", str(tmp_path / "x"), "--shards", "7", "--quiet")
     assert proc.returncode == 1 and "shard 7 does not exist" in proc.stderr
 
 
@@ -257,10 +259,13 @@ def test_hidden_v3_slice_with_both_families_rebuilds(tmp_path):
     assert ood == {36, 37, 38}  # isotropic, qem (rounded boxes) and delaunay (both)
 
 
-def test_labels_rebuild_from_stripped_meshes_without_blender(tiny, tmp_path):
+@pytest.mark.parametrize("version", ["tiny-v2", TINY])
+def test_labels_rebuild_from_stripped_meshes_without_blender(tiny, tmp_path, version):
     """perf/label_rebuild.py: the meshes copied without /radar, labelled again in a process
-    where bpy cannot be imported, give the manifest's label fingerprints; a label left
+    where bpy cannot be imported, give the manifest's label fingerprints (tiny-v2's labels,
+    numpy's FFT, and tiny-v3's, the portable DFT, from the same meshes); a label left
     behind would make the check vacuous, so the stripped copy must hold none."""
+    assert versions.get(version).fingerprints["mesh"] == versions.get(TINY).fingerprints["mesh"]
     script = Path(__file__).resolve().parents[1] / "perf" / "label_rebuild.py"
     stripped = tmp_path / "stripped"
     run = functools.partial(subprocess.run, capture_output=True, text=True)
@@ -269,7 +274,7 @@ def test_labels_rebuild_from_stripped_meshes_without_blender(tiny, tmp_path):
             sys.executable,
             script,
             "strip",
-            "tiny-v2",
+            version,
             "--data",
             tiny,
             "--shards",
@@ -286,7 +291,7 @@ def test_labels_rebuild_from_stripped_meshes_without_blender(tiny, tmp_path):
     (block / "sitecustomize.py").write_text("import sys\nsys.modules['bpy'] = None\n")
     out = tmp_path / "rebuild.json"
     proc = run(
-        [sys.executable, script, "check", f"tiny-v2={stripped}", "--workers", "1", "--out", out],
+        [sys.executable, script, "check", f"{version}={stripped}", "--workers", "1", "--out", out],
         env={
             **os.environ,
             "PYTHONPATH": os.pathsep.join([str(block), os.environ.get("PYTHONPATH", "")]),
@@ -294,12 +299,12 @@ def test_labels_rebuild_from_stripped_meshes_without_blender(tiny, tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     (result,) = json.loads(out.read_text())["versions"]
-    recorded = versions.get("tiny-v2").manifest["shards"][0]["label_fingerprint"]
+    recorded = versions.get(version).manifest["shards"][0]["label_fingerprint"]
     assert result["shards"] == [
         {
             "shard": "shard-00000.h5",
             "label_fingerprint": recorded,
             "matches": True,
-            "objects": len(versions.get("tiny-v2").manifest["shards"][0]["objects"]),
+            "objects": len(versions.get(version).manifest["shards"][0]["objects"]),
         }
     ]

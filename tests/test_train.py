@@ -311,7 +311,7 @@ def test_tiny_preset_end_to_end(tiny, tmp_path):
     )
     assert len(list(entries.glob("*.json"))) == len(ROWS)
     assert {json.loads(p.read_text())["dataset"]["version"] for p in entries.glob("*.json")} == {
-        "tiny-v2"
+        "tiny-v3"
     }  # reproduce built the registered version, and submit identified it
     assert leaderboard_cli.main(["render", "--out", str(site), "--entries", str(entries)]) is None
     assert all(row["name"] in (site / "index.html").read_text() for row in table["rows"])

@@ -65,7 +65,7 @@ demo-v2's simple meshes with this model) add about 30% to an epoch of all rows."
 PRESETS = {
     # For the test suite: every row on a few objects, with models too small to learn much.
     "tiny": Preset(
-        dataset="tiny-v2",
+        dataset="tiny-v3",
         workers=0,
         train=dict(
             dim=16,
@@ -86,7 +86,7 @@ PRESETS = {
     ),
     # The demo's dataset with the CPU models: a quick look, too few test objects for findings.
     "small": Preset(
-        dataset="demo-v2",
+        dataset="demo-v3",
         workers=None,
         jobs=2,
         train=dict(SMALL_MODEL, **PLATEAU, batch_size=8),
@@ -105,7 +105,7 @@ PRESETS = {
     ),
     # The paper's scale: 3000 objects x 100 meshes, full radar grid, GPU(s).
     "paper": Preset(
-        dataset="paper-v2",
+        dataset="paper-v3",
         workers=None,
         train=dict(
             dim=256,
