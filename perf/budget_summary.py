@@ -4,9 +4,9 @@ Reads perf/results/physics_budget.json (PEC spheres against the Mie series) and
 perf/results/physics_budget_2d.json (circular and square cylinders against the exact 2-D
 solutions, through the 2-D to 3-D mapping), both written by ``perf/physics_budget.py``, and
 writes ``benchmark/scoring/physics_budget.json``: per radar physics ("xband-v1": PO;
-"xband-v2" and "xband-v3": PO + edge diffraction, VV the scored channel) and class, the range over the
-measured sizes of the labels' MSE against the exact answer in the benchmark metric, all bins
-and bins within 30 dB of each profile's peak. The board and docs/RESULTS.md show it beside
+"xband-v2" and "xband-v3": PO + edge diffraction, VV the scored channel) and class, the range
+over the measured sizes of the labels' MSE against the exact answer in the benchmark metric,
+all bins and bins within 30 dB of each profile's peak. The board and docs/RESULTS.md show it beside
 the scores: differences between models below it are physics noise.
 
     python perf/physics_budget.py          # the measurements (minutes; the 2-D MoM dominates)

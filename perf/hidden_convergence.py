@@ -92,9 +92,11 @@ def rows_for(kind: str, key: str, scale, values, config) -> list[dict]:
     rows, first = [], None
     for value in values:
         solid = analytic.solid_for(kind, scale, {key: value})
-        v1, f1 = analytic.simulation_mesh(solid, config.f_stop_hz)
+        rule = config.simulation_rule
+        v1, f1 = analytic.simulation_mesh(solid, config.f_stop_hz, rule=rule)
         t1, seconds = label(v1, f1, config)
-        t2, _ = label(*analytic.simulation_mesh(solid, config.f_stop_hz, refinement=2.0), config)
+        finer = analytic.simulation_mesh(solid, config.f_stop_hz, rule=rule, refinement=2.0)
+        t2, _ = label(*finer, config)
         ref = INDEPENDENT[kind](scale, value)
         t3, _ = label(*ref, config)
         first = t1 if first is None else first
@@ -125,7 +127,7 @@ def main(argv=None) -> None:
     parser.add_argument("--class", dest="kind", choices=sorted(INDEPENDENT), required=True)
     parser.add_argument("--values", help="hidden parameter values (default: per class)")
     parser.add_argument("--grid", choices=sorted(GRIDS), default="coarse")
-    parser.add_argument("--physics", choices=("xband-v1", "xband-v2"), default="xband-v2")
+    parser.add_argument("--physics", choices=sorted(radar_sim.config.NAMED), default="xband-v2")
     parser.add_argument(
         "--scales", help="semicolon-separated extents, e.g. '2,2,2;0.2,2,2' (default: 3)"
     )
@@ -150,7 +152,7 @@ def main(argv=None) -> None:
         "hidden": key,
         "grid": config.name,
         "config": json.loads(config.to_json()),
-        "rule": analytic.SIMULATION_RULE,
+        "rule": analytic.SIMULATION_RULES[config.simulation_rule],
         "hardware": hardware(),
         "rows": rows,
     }

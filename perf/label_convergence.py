@@ -1,6 +1,6 @@
 """Is an object's label converged? The simulation-mesh rule against twice its resolution.
 
-    python perf/label_convergence.py [--grid full|coarse] [--physics xband-v1|xband-v2]
+    python perf/label_convergence.py [--grid full|coarse] [--physics xband-v1|xband-v2|xband-v3]
                                      [--classes cube,sphere,...] [--independent]
                                      [--faces-sample N] [--out JSON]
 
@@ -10,7 +10,8 @@ rule with every edge-length limit halved (refinement 2). The error is the benchm
 MSE over the whole response of T = 20 log10(max(|range profile|, 1e-4)), in dB^2. The rule
 is converged when that MSE is <= 0.1 dB^2 on the full default grid ("xband-v1").
 ``--physics xband-v2`` labels as the v2 versions do (PO plus edge diffraction, HH, VV and HV)
-and reports the MSE of each channel (VV is the task's target).
+and reports the MSE of each channel (VV is the task's target); ``--physics xband-v3`` adds
+simulation rule 2 (rims cut at half the chords; docs/RADAR.md, "Labels v3").
 ``--independent`` also compares the label with an independent fine mesh of the same primitive
 (trimesh icosphere / cylinder / cone, scaled per axis); the issue's bound is 1 dB^2.
 ``--faces-sample N`` reports mean / max faces over N log-uniform scales (0.2 - 2 m per axis).
@@ -99,7 +100,7 @@ F_MAX = radar_sim.RadarConfig.named("xband-v1").f_stop_hz  # every named physics
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--grid", choices=sorted(GRIDS), default="full")
-    parser.add_argument("--physics", choices=("xband-v1", "xband-v2"), default="xband-v1")
+    parser.add_argument("--physics", choices=sorted(radar_sim.config.NAMED), default="xband-v1")
     parser.add_argument("--classes", default=",".join(analytic.KINDS))
     parser.add_argument(
         "--scales",
@@ -111,6 +112,7 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=RESULTS / "label_convergence.json")
     args = parser.parse_args(argv)
     config = radar_sim.RadarConfig.named(args.physics).with_grid(**GRIDS[args.grid])
+    rule = analytic.SIMULATION_RULES[config.simulation_rule]
     scales = (
         [tuple(float(x) for x in s.split(",")) for s in args.scales.split(";")]
         if args.scales
@@ -123,14 +125,16 @@ def main(argv=None) -> None:
     )
     print(
         f"grid {config.name}: {config.n_aspect} aspects x {config.n_roll} rolls x "
-        f"{config.n_freq} freqs; rule {json.dumps(analytic.SIMULATION_RULE)}"
+        f"{config.n_freq} freqs; rule {json.dumps(rule)}"
     )
     print(header)
     for kind in args.classes.split(","):
         for scale in scales:
             solid = analytic.solid_for(kind, scale)
-            v1, f1 = analytic.simulation_mesh(solid, F_MAX)
-            v2, f2 = analytic.simulation_mesh(solid, F_MAX, refinement=2.0)
+            v1, f1 = analytic.simulation_mesh(solid, F_MAX, rule=config.simulation_rule)
+            v2, f2 = analytic.simulation_mesh(
+                solid, F_MAX, rule=config.simulation_rule, refinement=2.0
+            )
             p1, seconds = label(v1, f1, config, kind)
             p2, _ = label(v2, f2, config, kind)
             row = {
@@ -168,7 +172,7 @@ def main(argv=None) -> None:
     out = {
         "grid": config.name,
         "config": config.to_dict(),
-        "rule": analytic.SIMULATION_RULE,
+        "rule": rule,
         "rows": rows,
         "faces_sample": sample,
         "hardware": hardware(),

@@ -142,7 +142,8 @@ class RadarConfig:
         try:
             if any(isinstance(v, (bool, list, dict)) or v is None for v in data.values()):
                 raise ValueError("fields must be numbers or strings")
-            kwargs = {k: {"str": str, "int": int, "float": float}[known[k]](v) for k, v in data.items()}
+            cast = {"str": str, "int": int, "float": float}
+            kwargs = {k: cast[known[k]](v) for k, v in data.items()}
             if any(known[k] == "int" and v != data[k] for k, v in kwargs.items()):
                 raise ValueError("counts and versions must be integers")
             return cls(**kwargs)

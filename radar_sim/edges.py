@@ -196,7 +196,7 @@ def sharp_edges(mesh, min_dihedral_deg: float = MIN_DIHEDRAL_DEG) -> Wedges:
     ``(vertices, faces)`` pair, which is prepared (welded, oriented) first.
 
     The default of 15° lies above every angle between neighbouring facets on the smooth parts
-    of the simulation meshes (at most 6° on the convex primitives: ``SIMULATION_RULE`` turns by
+    of the simulation meshes (at most 6° on the convex primitives: ``SIMULATION_RULES`` turn by
     <= 0.1 rad; 11.5° on an eccentric torus) and below the sharp rims of the primitives (box
     and cylinder 90°, cone base 93°-169°, frustum top rims down to 12° only for nearly flat
     frusta with a top ratio under 0.1, whose fringe is small: f¹, g¹ vanish like N − 1). The

@@ -90,6 +90,9 @@ def test_radar_config_files(tmp_path):
     good.write_text(config.to_json())
     assert RadarConfig.from_file(good) == config
     assert RadarConfig.from_file(good).directions().shape == (20, 3)
+    v3 = RadarConfig.named("xband-v3").with_grid(n_aspect=5)  # every later field set
+    good.write_text(v3.to_json())
+    assert RadarConfig.from_file(good) == v3 and v3.simulation_rule == 2
     cases = {
         "notjson": "{",
         "list": "[1, 2]",
@@ -105,6 +108,9 @@ def test_radar_config_files(tmp_path):
         "overflow": '{"name": "x", "f_stop_hz": 1e999}',
         "terahertz": json.dumps({"name": "x", "f_stop_hz": 2e12}),
         "null": json.dumps({"name": "x", "n_roll": None}),
+        "rule": json.dumps({"name": "x", "simulation_rule": 9}),
+        "rule fraction": json.dumps({"name": "x", "simulation_rule": 1.5}),
+        "transform": json.dumps({"name": "x", "transform": "fftw"}),
         "deep": '{"name": ' + "[" * 5000 + "]" * 5000 + "}",
     }
     for name, text in cases.items():

@@ -18,6 +18,6 @@ def load() -> dict:
 
 def rows(physics: str, classes: list[str]) -> list[dict]:
     """``[{"class", "reference", "all_bins_db2": [lo, hi], "near_peak_db2": [lo, hi]}]`` for the
-    classes the budget covers under radar config ``physics`` ("xband-v1", "xband-v2", "xband-v3")."""
+    classes the budget covers under radar config ``physics`` ("xband-v1", ...)."""
     known = load()["physics"].get(physics, {})
     return [{"class": c, **known[c]} for c in classes if c in known]
