@@ -81,7 +81,7 @@ SIMULATION_RULES = {
 }
 # Version 2 (physics xband-v3): rims, whose edge currents carry HH, are cut at half of every
 # limit above. At version 1's chords HH on cylinders and frusta stays 0.12-0.47 dB^2 from an
-# 8x finer mesh; at half of them within 0.04 (docs/RADAR.md, "A rim rule").
+# 8x finer mesh; at half of them within 0.04 (docs/RADAR.md, "Labels v3").
 SIMULATION_RULES[2] = {**SIMULATION_RULES[1], "version": 2, "rim_refinement": 2.0}
 
 

@@ -86,11 +86,15 @@ def _suffix(channel: str) -> str:
     return "" if channel == "VV" else f"_{channel}"
 
 
-def faces_sample(kind: str, n: int, seed: int = 0) -> dict:
-    """Mean / max simulation-mesh faces over n scales drawn log-uniform in 0.2-2 m per axis."""
+def faces_sample(kind: str, n: int, rule: int, seed: int = 0) -> dict:
+    """Mean / max simulation-mesh faces (``rule``) over n scales drawn log-uniform in 0.2-2 m
+    per axis."""
     rng = np.random.default_rng(seed)
     scales = np.exp(rng.uniform(np.log(0.2), np.log(2.0), (n, 3)))
-    counts = [len(analytic.simulation_mesh(analytic.solid_for(kind, s), F_MAX)[1]) for s in scales]
+    counts = [
+        len(analytic.simulation_mesh(analytic.solid_for(kind, s), F_MAX, rule=rule)[1])
+        for s in scales
+    ]
     return {"n": n, "mean_faces": float(np.mean(counts)), "max_faces": int(np.max(counts))}
 
 
@@ -160,7 +164,10 @@ def main(argv=None) -> None:
                 flush=True,
             )
     sample = (
-        {kind: faces_sample(kind, args.faces_sample) for kind in args.classes.split(",")}
+        {
+            kind: faces_sample(kind, args.faces_sample, config.simulation_rule)
+            for kind in args.classes.split(",")
+        }
         if args.faces_sample
         else {}
     )
