@@ -25,7 +25,8 @@ from benchmark.training.models.checkpoint import (
 )
 
 COST = {"ideal": 4.0, "classification": 2.0, "autoencoder": 1.5, "basic": 1.0}
-"""Relative training time per regime (times the embedding's ``cost``): costly runs go first."""
+"""Relative training time per regime (times the embedding's ``cost``): within a seed, costly
+runs go first."""
 TIMED_ALONE = "timed alone"
 TIMING_MESHES = 480
 """Test meshes (about) that ``time_alone`` times per row."""
@@ -288,8 +289,10 @@ def run_jobs(
     that was not timed alone.
 
     With several jobs, runs are independent: a pool of single-threaded workers keeps every
-    core busy without OpenMP threads of one process waiting on each other; costly rows go
-    first. Else one at a time in this process, where a first seed is already timed alone.
+    core busy without OpenMP threads of one process waiting on each other. Seeds go in
+    order, costly rows first within a seed, so that a long run stopped anywhere (a session's
+    end) leaves every row with the same finished seeds, which paired intervals need. Else
+    one at a time in this process, where a first seed is already timed alone.
     """
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -298,7 +301,7 @@ def run_jobs(
 
     pooled = jobs > 1 and len(todo) > 1
     if pooled:
-        todo = sorted(todo, key=lambda c: (-COST[c.regime] * REGISTRY[c.embedding].cost, c.seed))
+        todo = sorted(todo, key=lambda c: (c.seed, -COST[c.regime] * REGISTRY[c.embedding].cost))
         with ProcessPoolExecutor(
             jobs,
             mp_context=multiprocessing.get_context("spawn"),
