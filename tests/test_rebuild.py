@@ -230,12 +230,14 @@ def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
 
 
 @pytest.mark.slow  # two shards of real Blender, remeshing and labelling: CI's slow set
-def test_hidden_v3_slice_with_both_families_rebuilds(tmp_path):
+@pytest.mark.parametrize("version", ["hidden-cpu-v3", "hidden-cpu-v4"])
+def test_hidden_slice_with_both_families_rebuilds(tmp_path, version):
     """Shards 56 (test frustums) and 187 (test rounded boxes), with their OOD meshes and
-    labels, rebuild under the emulated foreign CPU to the recorded hidden-cpu-v3 manifest."""
-    data = tmp_path / "v3"
+    labels, rebuild under the emulated foreign CPU to the recorded manifest (xband-v2 and
+    xband-v3 labels of the same meshes)."""
+    data = tmp_path / version
     proc = dataset_cli(
-        "hidden-cpu-v3",
+        version,
         "--data",
         str(data),
         "--shards",
@@ -248,7 +250,7 @@ def test_hidden_v3_slice_with_both_families_rebuilds(tmp_path):
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report["matches_recorded"] is True, report["differences"]
-    expected = versions.get("hidden-cpu-v3").manifest["shards"]
+    expected = versions.get(version).manifest["shards"]
     ood = {
         m["variant"] // 25
         for i in (56, 187)
