@@ -191,22 +191,38 @@ def cmd_rcs(args) -> None:
 
 
 def dataset_signature(
-    directory, object_id: int, config: str, mode: str = "auto", variant: int | None = None
+    directory, object_id: int, config: str | None, mode: str = "auto", variant: int | None = None
 ):
     """(coordinates, profiles, frequency response, title) of one mesh of a dataset object.
 
     Without ``variant``: the object's label, stored when it includes the frequency response,
-    otherwise computed as ``radar-sim label`` does (the primitive on its simulation mesh) with
-    ``config``. With ``variant``: the physics on that representation mesh (0 = simple),
-    simulated with ``config``.
+    otherwise computed as ``radar-sim label`` does (the primitive on its simulation mesh).
+    With ``variant``: the physics on that representation mesh (0 = simple), simulated. Both
+    simulate with ``config``, by default the config the dataset was labelled with (so the
+    plot is its label), xband-v1 for an unlabelled dataset.
     """
     from basic_shapes.analytic import simulation_mesh, solid_for
-    from radar_sim import MeshError
+    from radar_sim import MeshError, RadarConfig
     from radar_sim.label import object_mode
 
     path, obj, meshes = find_object(directory, object_id)
     k = obj["shard_object_index"]
     title = f"object {obj['id']} ({obj['class']})"
+    with Shard(path) as s:
+        radar = s.radar if s.has_labels else None
+        if variant is None and radar is not None and radar.has_frequency_response:
+            return (
+                radar.coordinates,
+                radar.response(k),
+                radar.frequency_response(k),
+                f"{title}, stored label",
+            )
+        params = s.object_params()[k]
+        try:
+            stored = None if config or radar is None else radar.config
+            cfg = RadarConfig(**stored) if stored else load_config(config or "xband-v1")
+        except (TypeError, ValueError) as exc:
+            raise ShardError(f"{path}: stored radar config: {exc}") from None
     if variant is not None:
         by_variant = {v: (vertices, faces) for v, vertices, faces in meshes}
         if variant not in by_variant:
@@ -217,42 +233,32 @@ def dataset_signature(
         name = "simple mesh" if variant == 0 else f"variant {variant}"
         try:
             return simulated_signature(
-                *by_variant[variant], config, mode, f"{title}, physics on its {name}"
+                *by_variant[variant], cfg, mode, f"{title}, physics on its {name}"
             )
         except MeshError as exc:  # name the shard and the mesh, not only --data
             raise ShardError(f"{path}: object {obj['id']} variant {variant}: {exc}") from None
-    with Shard(path) as s:
-        if s.has_labels and s.radar.has_frequency_response:
-            radar = s.radar
-            return (
-                radar.coordinates,
-                radar.response(k),
-                radar.frequency_response(k),
-                f"{title}, stored label",
-            )
-        params = s.object_params()[k]
-    cfg = load_config(config)
     solid = solid_for(obj["class"], obj["scale"], params)
     vertices, faces = simulation_mesh(solid, cfg.f_stop_hz, rule=cfg.simulation_rule)
     return simulated_signature(
         vertices,
         faces,
-        config,
+        cfg,
         object_mode(obj["class"], mode),
         f"{title}, label on its {len(faces)}-face simulation mesh",
     )
 
 
-def simulated_signature(vertices, faces, config: str, mode: str, title: str):
+def simulated_signature(vertices, faces, config, mode: str, title: str):
+    """``config``: a RadarConfig."""
     from radar_sim import simulate
 
-    result = simulate(vertices, faces, load_config(config), mode=mode)
+    result = simulate(vertices, faces, config, mode=mode)
     coords = {n: getattr(result, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
     return (
         coords,
         result.range_profiles,
         result.frequency_response,
-        f"{title}, simulated ({result.mode}, config {config})",
+        f"{title}, simulated ({result.mode}, config {config.name})",
     )
 
 
@@ -279,7 +285,11 @@ def cmd_plot(args) -> None:
         vertices, faces = load_mesh(args.meshfile, args.units)
         with units_hint(args.meshfile):
             signature = simulated_signature(
-                vertices, faces, args.config, args.mode, Path(args.meshfile).name
+                vertices,
+                faces,
+                load_config(args.config or "xband-v1"),
+                args.mode,
+                Path(args.meshfile).name,
             )
     coords, profiles, response, title = signature
     plot_signature(
@@ -390,7 +400,12 @@ def build_parser() -> ArgumentParser:
     q.add_argument(
         "--roll", type=number(), default=0.0, help="degrees; nearest grid roll (default 0)"
     )
-    q.add_argument("--config", default="xband-v1", help="config name or JSON file for simulation")
+    q.add_argument(
+        "--config",
+        default=None,
+        help="config name or JSON file for simulation (default: the one the dataset was "
+        "labelled with; xband-v1 for a mesh file or an unlabelled dataset)",
+    )
     q.add_argument("--units", choices=UNITS, default="m", help="units of a mesh file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")
     q.set_defaults(run=cmd_plot)

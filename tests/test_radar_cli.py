@@ -9,6 +9,7 @@ import pytest
 import trimesh
 from matplotlib.image import imread
 
+from basic_shapes.shards import Shard
 from radar_sim.cli import dataset_signature, main
 from test_label import write_dataset
 
@@ -155,6 +156,27 @@ def test_plot_uses_stored_labels(tmp_path):
     np.testing.assert_array_equal(coords["aspect_deg"], config.aspect_deg)
     main(["plot", "--data", str(data), "--object", "0", "--out", str(tmp_path / "o0.png")])
     _check_png(tmp_path / "o0.png")
+
+
+def test_plot_defaults_to_the_labelling_config(tmp_path):
+    """Labels stored without the frequency response are recomputed for the plot with the
+    config the dataset was labelled with, not xband-v1: the profiles are the stored label
+    (the same bytes, a cylinder under xband-v3's rim rule and portable DFT)."""
+    import radar_sim
+
+    data = write_dataset(tmp_path / "data", n_objects=3, objects_per_shard=3)
+    config = radar_sim.RadarConfig.named("xband-v3").with_grid(n_aspect=5, n_roll=3)
+    (tmp_path / "c.json").write_text(config.to_json())
+    main(["label", "--data", str(data), "--workers", "1", "--config", str(tmp_path / "c.json")])
+    with Shard(data / "shard-00000.h5") as s:
+        objects = s.objects()
+        k = [s.class_names[c] for c in objects["class"]].index("cylinder")
+        stored, oid = s.radar.response(k), int(objects["id"][k])
+    _, profiles, _, title = dataset_signature(data, oid, None)
+    assert config.name in title and "simulation mesh" in title
+    np.testing.assert_array_equal(profiles.astype(np.complex64), stored)
+    _, other, _, _ = dataset_signature(data, oid, "xband-v1")  # asked for: another config
+    assert other.shape != stored.shape
 
 
 def test_millimetre_file_read_as_metres_is_flagged(tmp_path, capsys):
