@@ -57,6 +57,15 @@ def atomic_path(path: str | os.PathLike):
         tmp.unlink(missing_ok=True)
 
 
+def write_json(path: str | os.PathLike, payload) -> None:
+    """``payload`` as indented JSON at ``path`` (parent folders made), written atomically: the
+    one way measurement scripts write their results."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+
+
 def save_png(fig, out: str | os.PathLike, dpi: int = 110) -> None:
     """Write a matplotlib figure as PNG atomically (a killed run leaves the old picture or
     none, never half of one) and close it; no software tag, so same input, same bytes."""

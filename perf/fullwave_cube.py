@@ -53,7 +53,6 @@ all figures) and prints tables.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -70,7 +69,7 @@ except ImportError:
 
 import radar_sim
 from basic_shapes.geometry import area_normals, line_of_sight
-from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.infra import hardware, write_json
 from radar_sim import exact
 from radar_sim.field import C0, CHANNELS, polarization
 
@@ -466,9 +465,7 @@ def main() -> None:
 
     payload |= {"cases": cases, "rows": rows, "total_s": time.perf_counter() - t_start}
     payload["hardware"] = hardware()
-    RESULTS.mkdir(exist_ok=True)
-    with atomic_path(RESULTS / args.out) as tmp:
-        tmp.write_text(json.dumps(payload, indent=1))
+    write_json(RESULTS / args.out, payload)
     print_tables(payload)
 
 

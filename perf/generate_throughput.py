@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.infra import hardware, write_json
 
 GOAL = 450.0
 ROOT = Path(__file__).resolve().parents[1]
@@ -249,9 +249,7 @@ def main() -> None:
                 f"wall, {r['workers']} worker(s): {r['meshes_per_second']} meshes/s "
                 f"(load {r['load_average']:.2f})"
             )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
+    write_json(args.out, report)
     print(f"wrote {args.out}")
 
 

@@ -37,7 +37,7 @@ from scipy.spatial import ConvexHull  # noqa: E402
 import radar_sim  # noqa: E402
 from basic_shapes import analytic  # noqa: E402
 from basic_shapes.geometry import area_normals  # noqa: E402
-from basic_shapes.infra import atomic_path, hardware  # noqa: E402
+from basic_shapes.infra import hardware, write_json  # noqa: E402
 from benchmark.scoring.data import db_target  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -157,9 +157,7 @@ def main(argv=None) -> None:
         "rows": rows,
     }
     path = args.out or RESULTS / f"{args.kind}_convergence.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(out, indent=1) + "\n")
+    write_json(path, out)
     print(f"wrote {path}")
 
 

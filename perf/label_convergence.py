@@ -35,7 +35,7 @@ import trimesh  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes import analytic  # noqa: E402
-from basic_shapes.infra import atomic_path, hardware  # noqa: E402
+from basic_shapes.infra import hardware, write_json  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 FLOOR = 1e-4
@@ -184,9 +184,7 @@ def main(argv=None) -> None:
         "faces_sample": sample,
         "hardware": hardware(),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(out, indent=1) + "\n")
+    write_json(args.out, out)
 
 
 if __name__ == "__main__":

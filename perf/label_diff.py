@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes.infra import atomic_path
+from basic_shapes.infra import write_json
 from basic_shapes.shards import Shard
 
 
@@ -57,9 +57,7 @@ def main(argv=None) -> None:
         )
     pairs = json.loads(args.out.read_text()) if args.out.exists() else {}  # one file, keyed
     pairs[f"{args.old.name} -> {args.new.name}"] = rows
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(pairs, indent=1) + "\n")
+    write_json(args.out, pairs)
 
 
 if __name__ == "__main__":

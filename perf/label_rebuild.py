@@ -25,7 +25,6 @@ complex exp in ``RadarConfig.range_profiles`` round differently across numpy ver
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -33,7 +32,7 @@ from pathlib import Path
 
 import h5py
 
-from basic_shapes.infra import atomic_path
+from basic_shapes.infra import atomic_path, write_json
 from basic_shapes.shards import Shard, shard_name
 from benchmark.scoring import versions
 
@@ -149,9 +148,7 @@ def main() -> None:
             f"recorded one in {sorted(v['stack_differs'])}"
         )
     print(f"{result['cpu']}, {result['cores']} cores")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(result, indent=1) + "\n")
+    write_json(args.out, result)
     print(f"wrote {args.out}")
 
 

@@ -13,7 +13,6 @@ prints a table; ``--figure`` also draws the face-count histogram of docs/GENERAT
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import time
@@ -25,7 +24,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import blender, primitives
-from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.infra import hardware, write_json
 
 STAGES = (
     "simple",
@@ -160,9 +159,7 @@ def main(argv: list[str] | None = None) -> None:
         "startup_cpu_s": startup,
         "results": results,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
+    write_json(args.out, report)
     print(f"wrote {args.out}")
     if args.figure:
         figure(results, args.figure)

@@ -17,7 +17,6 @@ object's simple mesh, a training variant and its OOD meshes (docs/img/ood.png).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
 import sys
@@ -30,7 +29,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from basic_shapes import analytic, blender, primitives, remesh, verify
-from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.infra import hardware, write_json
 from basic_shapes.render import draw_mesh
 from basic_shapes.scales import SCALE_RANGE
 from basic_shapes.shards import OOD_REMESHERS
@@ -184,9 +183,7 @@ def main(argv: list[str] | None = None) -> None:
         "per_remesher": args.per_remesher,
         "results": rows,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
+    write_json(args.out, report)
     print(f"wrote {args.out}")
     if args.figure:
         figure("cylinder", np.array([1.6, 0.9, 1.2]), 3, args.figure)

@@ -43,7 +43,6 @@ Writes perf/results/physics_budget.json (spheres) and perf/results/physics_budge
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -53,7 +52,7 @@ import numpy as np
 
 import radar_sim
 from basic_shapes.analytic import simulation_mesh, solid_for
-from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.infra import hardware, write_json
 from radar_sim import exact
 from radar_sim.field import C0
 
@@ -320,12 +319,6 @@ def print_prisms(rows: list[dict], length_m: float, n_angle: int) -> None:
         )
 
 
-def write(name: str, payload: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    with atomic_path(RESULTS / name) as tmp:
-        tmp.write_text(json.dumps(payload, indent=2))
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument(
@@ -342,8 +335,8 @@ def main() -> None:
         n_aspect, n_roll = (int(x) for x in args.grid.split("x"))
         config = band.with_grid(n_aspect=n_aspect, n_roll=n_roll)
         rows = sphere_rows(args.radii, config)
-        write(
-            "physics_budget.json",
+        write_json(
+            RESULTS / "physics_budget.json",
             {
                 "grid": args.grid,
                 "band_hz": [config.f_start_hz, config.f_stop_hz],
@@ -360,8 +353,8 @@ def main() -> None:
         rows += score_prism_model("PO + edges", po_edges_prism, refs, band, args.length)
         rows += polarization_rows(refs, band)
         consistency = po_consistency(refs, band, args.length)
-        write(
-            "physics_budget_2d.json",
+        write_json(
+            RESULTS / "physics_budget_2d.json",
             {
                 "band_hz": [band.f_start_hz, band.f_stop_hz],
                 "n_freq": band.n_freq,

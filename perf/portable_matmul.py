@@ -20,7 +20,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402 - thread limits are set before numpy loads
-import json  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -28,7 +27,7 @@ import numpy as np  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes.analytic import simulation_mesh, solid_for  # noqa: E402
-from basic_shapes.infra import atomic_path, hardware  # noqa: E402
+from basic_shapes.infra import hardware, write_json  # noqa: E402
 from basic_shapes.portable import matmul  # noqa: E402
 from radar_sim import field, geometry  # noqa: E402
 
@@ -78,9 +77,7 @@ def main() -> None:
             }
         )
     out = {"grid": args.grid, "scale_m": args.scale, "hardware": hardware(), "rows": rows}
-    RESULTS.mkdir(exist_ok=True)
-    with atomic_path(RESULTS / "portable_matmul.json") as tmp:
-        tmp.write_text(json.dumps(out, indent=2))
+    write_json(RESULTS / "portable_matmul.json", out)
     print(f"simulate on the xband-v1 grid {args.grid}, one core, best of 3")
     print(
         f"{'class':9s} {'faces':>7s} {'BLAS s':>8s} {'fixed s':>8s} {'ratio':>6s} "

@@ -11,14 +11,13 @@ wavelengths at 12 GHz. Writes perf/results/primitive_distance.json and prints a 
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
 from basic_shapes import analytic, blender, verify
-from basic_shapes.infra import atomic_path
+from basic_shapes.infra import write_json
 
 OUT = Path(__file__).parent / "results" / "primitive_distance.json"
 
@@ -60,9 +59,7 @@ def main() -> None:
             f"{kind:9} {how:9} {len(a):3d} {row['max_relative']:9.2e} {row['bound']:9.2e} "
             f"{row['max_ratio']:9.2f} {row['max_wavelengths']:6.3f}"
         )
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(OUT) as tmp:
-        tmp.write_text(json.dumps(table, indent=1) + "\n")
+    write_json(OUT, table)
 
 
 if __name__ == "__main__":

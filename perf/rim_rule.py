@@ -15,7 +15,6 @@ Writes perf/results/rim_rule.json and prints a table.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ import numpy as np
 
 import radar_sim
 from basic_shapes import analytic
-from basic_shapes.infra import atomic_path, hardware
+from basic_shapes.infra import hardware, write_json
 
 RESULTS = Path(__file__).parent / "results"
 SHAPES = [
@@ -88,9 +87,7 @@ def main(argv=None) -> None:
         "rows": rows,
         "hardware": hardware(),
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(json.dumps(out, indent=1) + "\n")
+    write_json(args.out, out)
     print(f"wrote {args.out}")
 
 
