@@ -29,7 +29,7 @@ import radar_sim  # noqa: E402
 from basic_shapes.analytic import simulation_mesh, solid_for  # noqa: E402
 from basic_shapes.infra import hardware, write_json  # noqa: E402
 from basic_shapes.portable import matmul  # noqa: E402
-from radar_sim import field, geometry  # noqa: E402
+from radar_sim import field  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 CLASSES = ("cube", "cylinder", "sphere", "frustum")
@@ -40,7 +40,7 @@ def blas(a, b):
 
 
 def timed(vertices, faces, config, product) -> tuple[float, np.ndarray]:
-    field.matmul = geometry.matmul = product
+    field.matmul = product
     # the contraction multiplies by a matrix split into real and imaginary parts once
     field.matmul_parts = lambda a, parts: product(a, parts[0] + 1j * parts[1])
     radar_sim.simulate(vertices, faces, config)  # warm-up (numba, caches)
