@@ -23,21 +23,21 @@ import numpy as np
 from basic_shapes.generate import GenerateConfig, generate
 from basic_shapes.shards import Shard, list_shards
 from benchmark.scoring.data import db_target
-from radar_sim import RadarConfig, geometry, simulate
+from radar_sim import RadarConfig, scene, simulate
 
 FORMER = {"CONVEX_TOL": 1e-6, "SEE_DISTANCE": 0.0}
 
 
 def detect(vertices, faces, rule: dict) -> str:
-    """``geometry.detect_mode`` with the module's thresholds set to ``rule`` for this call."""
-    saved = {k: getattr(geometry, k) for k in rule}
+    """``scene.detect_mode`` with the module's thresholds set to ``rule`` for this call."""
+    saved = {k: getattr(scene, k) for k in rule}
     try:
         for k, v in rule.items():
-            setattr(geometry, k, v)
-        return geometry.detect_mode(vertices, faces)
+            setattr(scene, k, v)
+        return scene.detect_mode(vertices, faces)
     finally:
         for k, v in saved.items():
-            setattr(geometry, k, v)
+            setattr(scene, k, v)
 
 
 def main() -> None:
@@ -61,7 +61,7 @@ def main() -> None:
             with Shard(path) as s:
                 for i in range(s.n_meshes):
                     v, f = s.mesh(i)
-                    old, new = detect(v, f, FORMER), geometry.detect_mode(v, f)
+                    old, new = detect(v, f, FORMER), scene.detect_mode(v, f)
                     row = {"mesh": i, "faces": len(f), "former": old, "current": new}
                     if old != new:
                         labels = {}
