@@ -185,15 +185,16 @@ def beats_mean(m: dict) -> tuple[str, bool]:
 
 
 def datasets(entries: list[dict]) -> list[dict]:
-    """Group entries by dataset: models sorted by Complex MSE, and the simulator entry if any."""
-    groups: dict[str, dict] = {}
+    """Group entries by dataset, its meshes and its labels (versions such as cpu-v2 and cpu-v3
+    share meshes): models sorted by Complex MSE, and the simulator entry if any."""
+    groups: dict[tuple[str, str], dict] = {}
     for e in entries:
-        fp = e["dataset"]["fingerprint"]
+        fp, labels = e["dataset"]["fingerprint"], e["dataset"].get("label_fingerprint") or ""
         g = groups.setdefault(
-            fp,
+            (fp, labels),
             {
                 "fingerprint": fp,
-                "short": fp[:12],
+                "short": f"{fp[:12]}-{labels[:8]}" if labels else fp[:12],
                 "dataset": e["dataset"],
                 "models": [],
                 "simulator": None,

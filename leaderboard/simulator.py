@@ -196,7 +196,7 @@ def record(
     """Write (or replace) the simulator entry of a dataset; return its path."""
     with BenchmarkData(data_dir) as data:
         metrics, scored = mesh_physics_scores(data, progress)
-        fingerprint = data.fingerprint
+        fingerprint, labels = data.fingerprint, data.label_fingerprint
         timed = ms_per_mesh is None
         config = radar_config(data)
         dataset = dataset_record(data)  # no version field (as simulator entries always were)
@@ -206,7 +206,7 @@ def record(
     name = f"radar_sim on the representation mesh {config.get('name', '')}".strip()
     entry = {
         "entry_version": ENTRY_VERSION,
-        "id": f"physics-{fingerprint[:12]}",
+        "id": f"physics-{fingerprint[:12]}-{labels[:8]}",  # versions can share meshes
         "kind": "simulator",
         "origin": "simulator",
         "track": _track(data_dir),

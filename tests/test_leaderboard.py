@@ -83,8 +83,9 @@ def _scale(object_id: int, salt: int) -> np.ndarray:
     return np.array([0.5 + 0.1 * object_id, 0.7 + 0.05 * salt, 0.9 - 0.03 * object_id])
 
 
-def make_dataset(directory: Path, salt: int = 0) -> Path:
-    """Two labelled shards (objects 0-4 and 5-8), written by the real shard writer."""
+def make_dataset(directory: Path, salt: int = 0, config: str = "analytic-test") -> Path:
+    """Two labelled shards (objects 0-4 and 5-8), written by the real shard writer; labels
+    stamped with radar config ``config``."""
     directory.mkdir(parents=True)
     ids = list(range(9))
     for shard, chunk in enumerate((ids[:5], ids[5:])):
@@ -118,7 +119,7 @@ def make_dataset(directory: Path, salt: int = 0) -> Path:
             write_radar(
                 f,
                 attrs={
-                    "config": json.dumps({"name": "analytic-test"}),
+                    "config": json.dumps({"name": config}),
                     "simulation_rule": json.dumps({"test": True}),
                 },
                 coordinates={
@@ -580,7 +581,8 @@ def test_results_without_speed_are_accepted_and_left_off_the_chart(data, tmp_pat
         "no-speed" in html
         and "Not on the chart (no speed or no Complex MSE reported): no-speed" in html
     )
-    assert png_size(site / f"speed-vs-error-{dataset_fingerprint(data)[:12]}.png")[0] > 100
+    short = f"{dataset_fingerprint(data)[:12]}-{label_fingerprint(data)[:8]}"
+    assert png_size(site / f"speed-vs-error-{short}.png")[0] > 100
 
 
 def test_simulator_point_is_the_physics_on_representation_meshes(data, tmp_path):
@@ -825,3 +827,24 @@ def test_board_shows_the_labels_physics_budget_of_the_version():
     assert v1[2][1] == f"{lo:.3g}–{hi:.3g}" and "Mie" in v1[2][3]
     assert render.budget({"version": None, "classes": classes}) == []
     assert "Physics error budget" in render.html_budget({"version": "demo-v1", "classes": classes})
+
+
+def test_versions_sharing_meshes_are_separate_groups(data, tmp_path):
+    """cpu-v2 and cpu-v3 share their meshes and differ in labels: their entries are never
+    ranked together, and each keeps its own simulator entry (one no longer replaces the
+    other)."""
+    from leaderboard.render import datasets
+
+    relabelled = make_dataset(tmp_path / "relabelled", config="analytic-test-v2")
+    assert dataset_fingerprint(relabelled) == dataset_fingerprint(data)
+    assert label_fingerprint(relabelled) != label_fingerprint(data)
+    entries = tmp_path / "entries"
+    for d in (data, relabelled):
+        run("simulator", "--data", d, "--entries", entries, "--ms-per-mesh", "250")
+    found = [json.loads(p.read_text()) for p in sorted(entries.glob("physics-*.json"))]
+    assert (
+        len(found) == 2 and found[0]["dataset"]["fingerprint"] == found[1]["dataset"]["fingerprint"]
+    )
+    groups = datasets(found)
+    assert len(groups) == 2 and len({g["short"] for g in groups}) == 2
+    assert all(g["simulator"] is not None for g in groups)
