@@ -326,7 +326,10 @@ def build_parser() -> ArgumentParser:
         "--data", required=True, metavar="DIR", help="dataset directory holding shard-*.h5"
     )
     q.add_argument(
-        "--config", default="xband-v1", help="config name or JSON file (default %(default)s)"
+        "--config",
+        default="xband-v1",
+        help="config name or JSON file (default %(default)s: PO, VV; xband-v3, the newest: HH, "
+        "VV and HV with edge diffraction, the v3 dataset versions' labels)",
     )
     add_cluster_flags(q, "worker processes, one thread each")
     add_quiet_flag(q)
