@@ -269,7 +269,7 @@ def test_template_model_goes_from_export_to_the_rendered_board(builds, tmp_path)
        builds.public, "--entries", entries, "--name", "my-model-public")  # fmt: skip
     lb("render", "--out", site, "--entries", entries)
     html, md = (site / "index.html").read_text(), (site / "LEADERBOARD.md").read_text()
-    sections = re.findall(r'<section id="dataset-[0-9a-f]+" class="track-(\w+)">', html)
+    sections = re.findall(r'<section id="dataset-[0-9a-f-]+" class="track-(\w+)">', html)
     assert sections == ["heldout", "public"]
     heads = re.findall(r"<h2>(.*?)</h2>", html)
     assert heads[0].startswith("Ranked track (held-out): held-out build of tiny-v1")
@@ -282,7 +282,8 @@ def test_template_model_goes_from_export_to_the_rendered_board(builds, tmp_path)
     assert "Pareto front of Complex MSE against board-measured ms per mesh" in ranked
     assert "my-model" in re.search(r"Pareto front of.*?</p>", ranked, re.S)[0]
     assert md.index("## Ranked track (held-out)") < md.index("## Self-scored track")
-    assert (site / f"speed-vs-error-{entry['dataset']['fingerprint'][:12]}.png").is_file()
+    short = f"{entry['dataset']['fingerprint'][:12]}-{entry['dataset']['label_fingerprint'][:8]}"
+    assert (site / f"speed-vs-error-{short}.png").is_file()
 
 
 # --- the answer key cannot enter ---------------------------------------------------------
