@@ -18,10 +18,12 @@ import numpy as np
 
 from basic_shapes.infra import write_json
 from basic_shapes.shards import Shard
+from benchmark.scoring.data import db_target
 
 
 def target(profiles: np.ndarray) -> np.ndarray:
-    return 20.0 * np.log10(np.maximum(np.abs(profiles), 1e-4))
+    """The benchmark's target (``db_target``), in float64 for the differences."""
+    return db_target(profiles).astype(np.float64)
 
 
 def per_class(old: Path, new: Path) -> dict[str, list[float]]:
