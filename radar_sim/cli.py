@@ -24,6 +24,7 @@ from basic_shapes.infra import (
     separate_outputs,
 )
 from basic_shapes.shards import Shard, ShardError, find_object
+from radar_sim.field import CHANNELS
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_mesh_labels
 from radar_sim.meshio import UNITS, load_mesh
 
@@ -191,9 +192,15 @@ def cmd_rcs(args) -> None:
 
 
 def dataset_signature(
-    directory, object_id: int, config: str | None, mode: str = "auto", variant: int | None = None
+    directory,
+    object_id: int,
+    config: str | None,
+    mode: str = "auto",
+    variant: int | None = None,
+    channel: str = "VV",
 ):
-    """(coordinates, profiles, frequency response, title) of one mesh of a dataset object.
+    """(coordinates, profiles, frequency response, title) of one mesh of a dataset object, in
+    one polarization ``channel``.
 
     Without ``variant``: the object's label, stored when it includes the frequency response,
     otherwise computed as ``radar-sim label`` does (the primitive on its simulation mesh).
@@ -210,12 +217,13 @@ def dataset_signature(
     title = f"object {obj['id']} ({obj['class']})"
     with Shard(path) as s:
         radar = s.radar if s.has_labels else None
-        if variant is None and radar is not None and radar.has_frequency_response:
+        stored_vv = channel == "VV" and radar is not None and radar.has_frequency_response
+        if variant is None and stored_vv:
             return (
                 radar.coordinates,
                 radar.response(k),
                 radar.frequency_response(k),
-                f"{title}, stored label",
+                f"{title}, stored label, VV",
             )
         params = s.object_params()[k]
         try:
@@ -233,7 +241,7 @@ def dataset_signature(
         name = "simple mesh" if variant == 0 else f"variant {variant}"
         try:
             return simulated_signature(
-                *by_variant[variant], cfg, mode, f"{title}, physics on its {name}"
+                *by_variant[variant], cfg, mode, f"{title}, physics on its {name}", channel
             )
         except MeshError as exc:  # name the shard and the mesh, not only --data
             raise ShardError(f"{path}: object {obj['id']} variant {variant}: {exc}") from None
@@ -245,20 +253,31 @@ def dataset_signature(
         cfg,
         object_mode(obj["class"], mode),
         f"{title}, label on its {len(faces)}-face simulation mesh",
+        channel,
     )
 
 
-def simulated_signature(vertices, faces, config, mode: str, title: str):
-    """``config``: a RadarConfig."""
+def simulated_signature(vertices, faces, config, mode: str, title: str, channel: str = "VV"):
+    """``config``: a RadarConfig; ``channel`` one of its channels."""
     from radar_sim import simulate
 
+    channels = config.channel_list
+    if channel not in channels:
+        raise SystemExit(
+            f"config {config.name} has no {channel} channel (it computes {','.join(channels)}; "
+            "HH and HV need a polarimetric config, xband-v2 or later)"
+        )
     result = simulate(vertices, faces, config, mode=mode)
     coords = {n: getattr(result, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
+    profiles, response = result.range_profiles, result.frequency_response
+    if channel != "VV":
+        c = channels.index(channel)
+        profiles, response = result.channel_profiles[c], result.channel_response[c]
     return (
         coords,
-        result.range_profiles,
-        result.frequency_response,
-        f"{title}, simulated ({result.mode}, config {config.name})",
+        profiles,
+        response,
+        f"{title}, simulated ({result.mode}, config {config.name}, {channel})",
     )
 
 
@@ -276,7 +295,9 @@ def cmd_plot(args) -> None:
             raise SystemExit(f"--data {args.data}: not a dataset directory")
         if args.object is None:
             raise SystemExit(f"--data {args.data}: pass --object ID")
-        signature = dataset_signature(args.data, args.object, args.config, args.mode, args.variant)
+        signature = dataset_signature(
+            args.data, args.object, args.config, args.mode, args.variant, args.channel
+        )
     else:
         if args.variant is not None or args.object is not None:
             raise SystemExit(
@@ -290,6 +311,7 @@ def cmd_plot(args) -> None:
                 load_config(args.config or "xband-v1"),
                 args.mode,
                 Path(args.meshfile).name,
+                args.channel,
             )
     coords, profiles, response, title = signature
     plot_signature(
@@ -411,6 +433,13 @@ def build_parser() -> ArgumentParser:
     )
     q.add_argument("--units", choices=UNITS, default="m", help="units of a mesh file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")
+    q.add_argument(
+        "--channel",
+        choices=CHANNELS,
+        default="VV",
+        help="polarization (default VV, the benchmark's target); HH and HV need a polarimetric "
+        "config (xband-v2 and later; a dataset labelled with one has them)",
+    )
     q.set_defaults(run=cmd_plot)
     return p
 

@@ -78,7 +78,9 @@ def plot_signature(
     )
     ax.set_xlabel("range (m)")
     ax.set_ylabel("aspect (deg)")
-    ax.set_title(f"range profile, roll {float(np.asarray(roll_deg)[r]):.4g} deg")
+    shown_roll = float(np.asarray(roll_deg)[r])
+    asked = "" if shown_roll == roll else f" (the grid roll nearest {roll:g})"
+    ax.set_title(f"range profile, roll {shown_roll:.4g} deg{asked}")
     fig.colorbar(mesh, ax=ax, label="|profile| (dB, 20 log10)")
 
     ax = fig.add_subplot(1, 2, 2, projection="polar")

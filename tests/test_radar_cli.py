@@ -158,10 +158,11 @@ def test_plot_uses_stored_labels(tmp_path):
     _check_png(tmp_path / "o0.png")
 
 
-def test_plot_defaults_to_the_labelling_config(tmp_path):
+def test_plot_defaults_to_the_labelling_config_in_every_channel(tmp_path):
     """Labels stored without the frequency response are recomputed for the plot with the
     config the dataset was labelled with, not xband-v1: the profiles are the stored label
-    (the same bytes, a cylinder under xband-v3's rim rule and portable DFT)."""
+    (the same bytes, a cylinder under xband-v3's rim rule and portable DFT), VV by default and
+    HH on request."""
     import radar_sim
 
     data = write_dataset(tmp_path / "data", n_objects=3, objects_per_shard=3)
@@ -177,6 +178,14 @@ def test_plot_defaults_to_the_labelling_config(tmp_path):
     np.testing.assert_array_equal(profiles.astype(np.complex64), stored)
     _, other, _, _ = dataset_signature(data, oid, "xband-v1")  # asked for: another config
     assert other.shape != stored.shape
+    with Shard(data / "shard-00000.h5") as s:
+        hh = s.radar.polarimetric(k)[list(s.radar.channels).index("HH")]
+    _, profiles, _, title = dataset_signature(data, oid, None, channel="HH")
+    assert title.endswith(", HH)")
+    np.testing.assert_array_equal(profiles.astype(np.complex64), hh)
+    assert np.abs(hh - stored).max() > 1e-3 * np.abs(stored).max()  # HH is not VV on a cylinder
+    with pytest.raises(SystemExit, match="config xband-v1 has no HH channel"):
+        dataset_signature(data, oid, "xband-v1", channel="HH")
 
 
 def test_millimetre_file_read_as_metres_is_flagged(tmp_path, capsys):
