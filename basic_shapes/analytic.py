@@ -102,7 +102,7 @@ class Solid:
 
     @property
     def diagonal(self) -> float:
-        return float(np.linalg.norm(self.scale))
+        return portable.norm(self.scale)
 
 
 def solid_for(class_name: str, scale, params: dict | None = None) -> Solid:
@@ -313,10 +313,7 @@ def _newton_step(res, value, grad, hess, lam):
     jac[:, :d, d] = grad
     jac[:, d, :d] = grad
     rhs = -np.concatenate([res, value[:, None]], axis=1)
-    try:
-        step = np.linalg.solve(jac, rhs[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        step = np.stack([np.linalg.lstsq(j, r, rcond=None)[0] for j, r in zip(jac, rhs)])
+    step = portable.solve(jac, rhs)
     return step[:, :d], step[:, d]
 
 
@@ -511,7 +508,9 @@ def _torus_starts(p, s, n_u=256, n_v=128, m=9, tries=4):
     offsets = np.linspace(-1.0, 1.0, m)
     near = np.concatenate(
         [
-            np.argpartition(g2[None, :] - 2.0 * p[i : i + 1024] @ grid.T, tries, axis=1)[:, :tries]
+            np.argpartition(
+                g2[None, :] - 2.0 * portable.matmul(p[i : i + 1024], grid.T), tries, axis=1
+            )[:, :tries]
             for i in range(0, len(p), 1024)
         ]
     )

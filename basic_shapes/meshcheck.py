@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from basic_shapes import portable
 from basic_shapes.geometry import twice_area_squared
 
 MAX_COORDINATE = 1e9
@@ -81,7 +82,7 @@ def bbox_diagonal(vertices: np.ndarray) -> float:
     """Length of the axis-aligned bounding box's diagonal of (V, 3) vertices: the unit of
     relative distances and areas."""
     v = np.asarray(vertices, np.float64)
-    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    return portable.norm(v.max(axis=0) - v.min(axis=0))
 
 
 def repeated_vertex(faces: np.ndarray) -> np.ndarray:

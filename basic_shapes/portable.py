@@ -47,9 +47,15 @@ cos = _elementwise(math.cos)
 
 
 def norm(x) -> float:
-    """Euclidean length of a 1-D vector, summed in index order (``np.linalg.norm`` of a
-    vector is a BLAS dot product)."""
-    return math.sqrt(math.fsum(float(v) * float(v) for v in np.ravel(x)))
+    """Euclidean length of a 1-D vector: squares added in index order in float64, no FMA.
+    ``np.linalg.norm`` of a vector is a BLAS dot product, whose bits follow the CPU's kernel
+    (OpenBLAS ``SkylakeX`` and ``Prescott`` differ from ``Haswell``); for 3-vectors this sum
+    is the ``Haswell`` kernel's, bit for bit, so the versions recorded on such a host keep
+    their bytes."""
+    total = 0.0
+    for v in np.ravel(np.asarray(x, dtype=np.float64)):
+        total += float(v) * float(v)
+    return math.sqrt(total)
 
 
 def matmul(a, b) -> np.ndarray:
@@ -68,6 +74,34 @@ def matmul(a, b) -> np.ndarray:
             np.ascontiguousarray(a, np.float64), np.ascontiguousarray(b2, np.float64), out
         )
     return out[:, 0] if vector else out
+
+
+def solve(a, b) -> np.ndarray:
+    """x with ``a[i] @ x[i] = b[i]`` for stacked square systems, a (n, m, m) and b (n, m),
+    float64: Gaussian elimination with partial pivoting in elementwise arithmetic (LAPACK's
+    ``np.linalg.solve`` runs on BLAS kernels). A singular system's row of x is NaN."""
+    a = np.array(a, dtype=np.float64)
+    x = np.array(b, dtype=np.float64)
+    n, m = x.shape
+    if a.shape != (n, m, m):
+        raise ValueError(f"solve: shapes {a.shape} and {x.shape} do not match")
+    rows = np.arange(n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for col in range(m):
+            pivot = col + np.argmax(np.abs(a[:, col:, col]), axis=1)
+            for arr in (a, x):
+                top = arr[rows, col].copy()
+                arr[rows, col] = arr[rows, pivot]
+                arr[rows, pivot] = top
+            for r in range(col + 1, m):
+                f = a[:, r, col] / a[:, col, col]
+                a[:, r, col:] -= f[:, None] * a[:, col, col:]
+                x[:, r] -= f * x[:, col]
+        for col in range(m - 1, -1, -1):
+            for c in range(col + 1, m):
+                x[:, col] -= a[:, col, c] * x[:, c]
+            x[:, col] /= a[:, col, col]
+    return x
 
 
 def complex_parts(b) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from basic_shapes import analytic, meshlab_bounds, primitives
+from basic_shapes import analytic, meshlab_bounds, portable, primitives
 from basic_shapes.geometry import twice_area_squared
 from basic_shapes.meshcheck import bbox_diagonal
 
@@ -178,7 +178,7 @@ def _one_sided_subset(samples: meshlab_bounds.SampleBounds, mesh, radius: float)
 def in_wavelengths(relative: float, scale) -> float:
     """A distance relative to the bbox diagonal of extents ``scale``, in wavelengths at the
     top frequency of the default band."""
-    return relative * float(np.linalg.norm(scale)) * TOP_FREQUENCY_HZ / analytic.C0
+    return relative * portable.norm(scale) * TOP_FREQUENCY_HZ / analytic.C0
 
 
 def _one_sided(ms, sampled: int, target: int, radius: float) -> float:

@@ -2,11 +2,14 @@
 
 ``tiny-v3`` is a slice of everything a version holds: objects of every class, OOD meshes of
 every remesher, labels. It is built here in fresh processes, once natively and once under an
-emulated foreign CPU (numpy's AVX-512 loops off, OpenBLAS's Haswell kernels on one thread,
-numba compiling for a generic x86-64, a different worker count and memory layout), and both
-builds must equal the committed manifest (benchmark/manifests/tiny-v3.json) in every hash.
+emulated foreign CPU (numpy's AVX-512 loops off, OpenBLAS's generic Prescott kernels on one
+thread, numba compiling for a generic x86-64, a different worker count and memory layout), and
+both builds must equal the committed manifest (benchmark/manifests/tiny-v3.json) in every hash.
 The old code failed exactly this: its scales came from numpy's exp, whose AVX-512 loop
-rounds differently, and its labels from BLAS.
+rounds differently, and its labels from BLAS; later its distances from a BLAS dot product
+(the bbox diagonal), which the Haswell kernel of the recording EPYC sums in another order
+than an Intel AVX-512 host's SkylakeX kernel or Prescott (the foreign CPU was Haswell then,
+the recording host's own kernel, so it could not see that).
 
 Then the release path: pack the build, serve it on the loopback address, fetch it, and
 refuse corrupted and foreign archives in one line with nothing left behind.
@@ -38,7 +41,7 @@ TINY = "tiny-v3"
 FOREIGN_CPU = {
     "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "
     "AVX512_SPR",
-    "OPENBLAS_CORETYPE": "Haswell",
+    "OPENBLAS_CORETYPE": "Prescott",  # neither the recording host's kernel nor an AVX-512 one
     "OPENBLAS_NUM_THREADS": "1",
     "NUMBA_CPU_NAME": "generic",
 }
