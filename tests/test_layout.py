@@ -159,6 +159,70 @@ def test_geometry_has_one_home():
     assert not bad, "\n".join(bad)
 
 
+# Calls whose last bits follow the host CPU: BLAS (kernel by CPU model and thread count) and
+# numpy 1.26's float64 loops that switch to SVML on AVX-512 hosts (basic_shapes/portable.py).
+CPU_DEPENDENT = {"dot", "vdot", "inner", "matmul", "tensordot", "linalg"} | {
+    "exp", "expm1", "log", "log1p", "log2", "log10", "power", "tan", "arctan", "arctan2",
+    "arcsin", "arccos", "sinh", "cosh", "tanh", "cbrt",
+}  # fmt: skip
+# files that may use them: what they compute is never stored in a dataset
+NOT_STORED = {
+    "basic_shapes/portable.py": "defines the portable replacements",
+    "basic_shapes/blender.py": "its @ is Blender's mathutils (vertices rebuild: test_rebuild)",
+    "radar_sim/exact.py": "exact references for tests and perf, never labels",
+    "radar_sim/cli.py": "plots in dB",
+    "radar_sim/plot.py": "plots in dB",
+    "radar_sim/config.py": "np.exp only in the numpy-FFT transform of the old xband-v1/v2",
+}
+
+
+def _cpu_dependent_calls(tree) -> list[tuple[int, str]]:
+    """(line, what) for each @, ``x.dot(...)`` and ``np.<CPU_DEPENDENT>`` use; a row-wise
+    ``np.linalg.norm(..., axis=...)`` is elementwise arithmetic and passes."""
+    found = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.BinOp) and isinstance(n.op, ast.MatMult):
+            found.append((n.lineno, "@"))
+        elif isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute):
+            chain, f = [n.func.attr], n.func.value
+            while isinstance(f, ast.Attribute):
+                chain.append(f.attr)
+                f = f.value
+            if isinstance(f, ast.Name):
+                chain.append(f.id)
+            chain.reverse()
+            name = ".".join(chain)
+            rowwise = name == "np.linalg.norm" and any(k.arg == "axis" for k in n.keywords)
+            numpy = chain[0] == "np" and len(chain) > 1 and chain[1] in CPU_DEPENDENT
+            if (numpy and not rowwise) or (chain[-1] == "dot" and chain[0] != "np"):
+                found.append((n.lineno, name))
+    return found
+
+
+def test_stored_numbers_do_not_follow_the_cpu():
+    """The generator and the labeller compute what a dataset stores with basic_shapes.portable,
+    never BLAS or numpy's SVML loops, whose bits differ from one CPU to the next (a BLAS dot
+    product in a bounding-box diagonal made demo-v3 unrebuildable on an Intel AVX-512 host)."""
+    bad = []
+    for package in ("basic_shapes", "radar_sim"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            if rel in NOT_STORED:
+                continue
+            bad += [
+                f"{rel}:{k}: {what}"
+                for k, what in _cpu_dependent_calls(ast.parse(path.read_text()))
+            ]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_cpu_check_sees_blas_and_svml():
+    code = "a @ b\nnp.linalg.norm(v)\nnp.exp(x)\nx.dot(y)\nnp.linalg.norm(v, axis=1)\nnp.sin(x)\n"
+    assert [w for _, w in _cpu_dependent_calls(ast.parse(code))] == [
+        "@", "np.linalg.norm", "np.exp", "x.dot",
+    ]  # fmt: skip
+
+
 # Imports every script in the folder argv[1] in one process, without running their main.
 _IMPORT_SCRIPTS = """
 import importlib.util, pathlib, sys
