@@ -11,9 +11,11 @@ Two things in the scientific stack round differently from one machine to the nex
 
 Code that computes stored numbers (scales, meshes, labels) calls these instead: the C
 library's functions element by element (``math``: one glibc, the same bits on every x86-64
-host), and matrix products summed in one fixed order (compiled, no fast-math, so the
-compiler may vectorize across outputs but never reorders a sum). ``tests/test_rebuild.py``
-builds a slice of a dataset under an emulated foreign CPU and compares every hash.
+host), vector lengths and small linear systems in plain elementwise arithmetic, and matrix
+products summed in one fixed order (compiled, no fast-math, so the compiler may vectorize
+across outputs but never reorders a sum). ``tests/test_rebuild.py`` builds a slice of a
+dataset under an emulated foreign CPU and compares every hash; ``tests/test_layout.py`` keeps
+BLAS and SVML-switching calls out of the code that stores numbers.
 """
 
 from __future__ import annotations
