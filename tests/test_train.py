@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -207,6 +208,82 @@ def test_train_cli_writes_checkpoint_and_results(data_dir, tmp_path, capsys):
     assert results["seeds"]["train"] == 0 and results["metrics"]["n_objects"] == 3
     assert "training" not in results  # the fixture has no val split: no curve to record
     assert "direct-ideal: checkpoint in" in capsys.readouterr().out
+    assert sorted(os.listdir(tmp_path / "ck")) == ["config.json", "model.pt"]  # no resume.pt
+
+
+class Killed(Exception):
+    pass
+
+
+def killer(at: int):
+    """A ``log`` that stops the run at its ``at``-th epoch line, before that epoch is saved."""
+    lines = []
+
+    def log(line):
+        lines.append(line)
+        if len(lines) == at:
+            raise Killed(line)
+
+    return log
+
+
+def test_resume_state_restores_the_random_state_and_ignores_other_files(tmp_path):
+    from benchmark.training.resume import Resume
+    from benchmark.training.train import make_optimizer
+
+    task = torch.nn.Linear(2, 2)
+    opt = make_optimizer(task, 1e-3, 0.0)
+    path = tmp_path / "resume.pt"
+    torch.manual_seed(0)
+    torch.rand(3)
+    Resume(path, {"run": 1}).save("train", 1, 5, [{"loss": 1.0}], None, task, opt, last=True)
+    expected = torch.rand(4)
+    torch.manual_seed(123)
+    assert Resume(path, {"run": 2}).restore("train", task, opt) == (0, 0, [], None)
+    assert Resume(path, {"run": 1}).restore("pretrain", task, opt) == (0, 0, [], None)
+    assert Resume(path, {"run": 1}).restore("train", task, opt) == (1, 5, [{"loss": 1.0}], None)
+    assert torch.equal(torch.rand(4), expected)  # dropout and sampling continue as they would
+    path.write_bytes(path.read_bytes()[:100])  # truncated: start afresh
+    assert Resume(path, {"run": 1}).restore("train", task, opt) == (0, 0, [], None)
+
+
+@pytest.mark.parametrize(
+    "embedding,regime,kills",
+    [
+        ("graph", "basic", [3, 2]),  # twice in training
+        ("token", "classification", [2, 2]),  # in pretraining, then in training
+        ("direct", "autoencoder", [3]),  # at training's first epoch, pretraining finished
+    ],
+)
+def test_a_killed_run_continues_to_the_same_bytes(tmp_path, monkeypatch, embedding, regime, kills):
+    """A run killed between epochs and started again with its state file ends with the
+    weights and the history of one uninterrupted run; a state of another config is ignored."""
+    from benchmark.training import resume
+
+    monkeypatch.setattr(resume, "EVERY_S", 0.0)  # keep every epoch
+    d = make_dataset(
+        tmp_path / "v", objects_per_class=4, n_test_per_class=1, n_val_per_class=1, grid=(3, 2, 8)
+    )
+    cfg = TrainConfig(
+        **{**TINY, "epochs": 4, "pretrain_epochs": 2}, embedding=embedding, regime=regime
+    )
+    state = tmp_path / "ck" / resume.FILE
+    with BenchmarkData(d) as data:
+        whole, whole_cfg = train(cfg, data, progress=False)
+        other, _ = train(TrainConfig(**{**asdict(cfg), "seed": 1}), data, progress=False)
+        for at in kills:
+            with pytest.raises(Killed):
+                train(cfg, data, progress=False, log=killer(at), resume=state)
+            assert state.is_file()
+        again, again_cfg = train(cfg, data, progress=False, resume=state)
+        # the state is cfg's: a run of another seed on the same file starts afresh
+        fresh, _ = train(
+            TrainConfig(**{**asdict(cfg), "seed": 1}), data, progress=False, resume=state
+        )
+    assert states_equal(whole, again) and states_equal(other, fresh)
+    assert not states_equal(whole, other)
+    assert again_cfg["history"] == whole_cfg["history"]
+    assert again_cfg["selection"] == whole_cfg["selection"]
 
 
 @pytest.mark.parametrize(

@@ -169,6 +169,7 @@ def run_row(
     log=None,
 ) -> dict:
     """Train (in-process or under torchrun) and evaluate one (row, seed); return its record."""
+    from benchmark.training import resume
     from benchmark.training.models.checkpoint import save_checkpoint
     from benchmark.training.train import evaluate_checkpoint, train
 
@@ -209,8 +210,10 @@ def run_row(
                 device=shared["device"],
                 progress=progress,
                 log=log,
+                resume=ckpt / resume.FILE,
             )
         save_checkpoint(ckpt, model, config)
+        (ckpt / resume.FILE).unlink(missing_ok=True)
         train_seconds = config["train_seconds"]
     results_path, predictions_path = row_files(out, cfg.name, cfg.seed)
     results = evaluate_checkpoint(

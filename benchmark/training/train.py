@@ -51,6 +51,7 @@ from benchmark.training.models import (
     featurize,
 )
 from benchmark.training.models.features import MeshFeatures
+from benchmark.training.resume import Resume
 
 REGIMES = ("basic", "ideal", "classification", "autoencoder")
 PRETRAINED = ("classification", "autoencoder")
@@ -403,6 +404,8 @@ def fit(
     val: list[Example] | None = None,
     patience: int | None = None,
     log=None,
+    resume: Resume | None = None,
+    phase: str = "train",
 ) -> list[dict]:
     """AdamW with linear warm-up, gradient clipping at 1; returns the mean loss and
     statistics of every epoch, and its learning rate.
@@ -413,7 +416,8 @@ def fit(
     checkpoint is selected on the validation split, never on test, and its record is marked
     ``selected``. Without, all ``epochs`` run with a cosine decay and the last is kept.
     ``log`` (a callable taking one line) reports each finished epoch where no progress bar
-    can be shown (pool workers of ``benchmark reproduce``)."""
+    can be shown (pool workers of ``benchmark reproduce``). With ``resume``, the run continues
+    from the state its ``phase`` was saved in and keeps saving it (``resume.Resume``)."""
     distributed = torch.distributed.is_available() and torch.distributed.is_initialized()
     rank = torch.distributed.get_rank() if distributed else 0
     world = torch.distributed.get_world_size() if distributed else 1
@@ -431,12 +435,21 @@ def fit(
     steps_per_epoch = len(epoch_batches(examples, groups, batch_size, 0, seed, rank, world))
     total = max(1, epochs * steps_per_epoch)
     warm = max(1, min(total // 20, steps_per_epoch))
-    halvings = 0 if val else None
-    history = []
-    best = None
-    bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
+    resume = resume or Resume(None)
+    start, step, history, best = resume.restore(phase, task, opt)
+    halvings, stop = (0 if val else None), False
+    if val and history:
+        state = plateau([r["val_mse"] for r in history], patience)
+        halvings, stop = state["halvings"], state["stop"]
+    bar = tqdm(
+        range(start, start if stop else epochs),
+        initial=start,
+        total=epochs,
+        desc=desc,
+        unit="epoch",
+        disable=not progress or rank != 0,
+    )
     t0 = time.perf_counter()
-    step = 0
     for epoch in bar:
         sums: dict[str, float] = {}
         batches = epoch_batches(examples, groups, batch_size, epoch, seed, rank, world)
@@ -473,9 +486,12 @@ def fit(
             )
         if val:
             state = plateau([r["val_mse"] for r in history], patience)
-            if state["stop"]:
-                break
-            halvings = state["halvings"]
+            halvings, stop = state["halvings"], state["stop"]
+        if rank == 0:
+            last = stop or epoch + 1 == epochs
+            resume.save(phase, epoch + 1, step, history, best, task, opt, last)
+        if stop:
+            break
     if best is not None:
         task.load_state_dict(best[2])
         history[best[1]]["selected"] = True
@@ -536,11 +552,14 @@ def train(
     device: str | torch.device = "cpu",
     progress: bool = True,
     log=None,
+    resume: str | os.PathLike | None = None,
 ) -> tuple[MeshSimulator, dict]:
     """Train one (embedding, regime); return the model (eval mode) and its checkpoint config.
 
     ``corpus`` = (meshes, class names) overrides the configured pretraining corpus (lets
-    several runs share one); ``cache`` shares featurized meshes between runs.
+    several runs share one); ``cache`` shares featurized meshes between runs. ``resume``: a
+    state file that lets a killed run continue between epochs (``resume.Resume``; the caller
+    deletes it once the checkpoint is saved).
     """
     device = torch.device(device)
     cache = cache or FeatureCache()
@@ -553,8 +572,11 @@ def train(
     kwargs = cfg.model_kwargs(n_outputs, scale_bins.n)
     model = build_model(**kwargs)
     history: dict[str, list] = {}
-    t0 = time.perf_counter()
-    if cfg.regime in PRETRAINED:
+    key = {**identity, "train": asdict(cfg), "torch": [torch.__version__, torch.get_num_threads()]}
+    state = Resume(resume, key)
+    if cfg.regime in PRETRAINED and "pretrain" in state.finished:
+        history["pretrain"] = state.finished["pretrain"]  # its weights are in the train state
+    elif cfg.regime in PRETRAINED:
         meshes, names = corpus if corpus is not None else corpus_meshes(cfg, progress)
         key = (cfg.shapenet, cfg.pretrain_meshes, cfg.corpus_seed, cfg.pretrain_max_faces)
         examples = corpus_examples(meshes, cache, key)
@@ -577,7 +599,10 @@ def train(
             device=device,
             progress=progress,
             log=log,
+            resume=state,
+            phase="pretrain",
         )
+        state.finished["pretrain"] = history["pretrain"]
     examples, groups = benchmark_examples(
         data, cfg.regime, REGISTRY[cfg.embedding].needs, scale_bins, cache, progress
     )
@@ -603,6 +628,7 @@ def train(
         val=val,
         patience=cfg.patience,
         log=log,
+        resume=state,
     )
     model.to("cpu").eval()
     config = {
@@ -615,7 +641,7 @@ def train(
         "train": asdict(cfg),
         "history": history,
         "selection": selection(history["train"], cfg.patience),
-        "train_seconds": time.perf_counter() - t0,
+        "train_seconds": state.seconds(),
         **identity,
     }
     return model, config

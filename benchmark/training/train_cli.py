@@ -8,11 +8,13 @@ from __future__ import annotations
 import argparse
 import os
 from dataclasses import fields
+from pathlib import Path
 
 import torch
 
 from basic_shapes.infra import FlagError, add_quiet_flag, number, separate_outputs
 from benchmark.scoring.data import BenchmarkData
+from benchmark.training import resume
 from benchmark.training.models import EMBEDDINGS
 from benchmark.training.train import (
     BOUNDS,
@@ -28,7 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``benchmark train``: one per ``TrainConfig`` field, plus I/O."""
     parser.add_argument("--data", required=True, help="directory of labelled shards")
     parser.add_argument(
-        "--out", required=True, help="checkpoint directory to write (model.pt + config.json)"
+        "--out",
+        required=True,
+        help="checkpoint directory to write (model.pt + config.json); while training it holds "
+        "resume.pt, from which the same command continues a killed run",
     )
     parser.add_argument(
         "--results", help="also evaluate on the test split and write this results JSON"
@@ -116,11 +121,18 @@ def run(args: argparse.Namespace) -> None:
         device = check_device(args.device)
     try:
         with BenchmarkData(args.data) as data:
-            model, config = train(cfg, data, device=device, progress=not args.quiet)
+            model, config = train(
+                cfg,
+                data,
+                device=device,
+                progress=not args.quiet,
+                resume=Path(args.out, resume.FILE),
+            )
     except ShardError as exc:
         raise SystemExit(f"benchmark train: {exc}") from None
     if rank == 0:
         save_checkpoint(args.out, model, config)
+        Path(args.out, resume.FILE).unlink(missing_ok=True)
         print(
             f"{cfg.name}: checkpoint in {args.out} "
             f"({config['train_seconds']:.1f} s, final train loss "
