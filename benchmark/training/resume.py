@@ -4,10 +4,11 @@ reboot) continues where it stopped and ends with the same bytes as one uninterru
 ``benchmark train`` and ``benchmark reproduce`` keep it as ``resume.pt`` beside the checkpoint
 and delete it once the checkpoint is written. It holds, for the phase in progress
 (``pretrain`` or ``train``): the epochs done, the step, the history, the best epoch's weights,
-the task's weights, the optimizer's state and torch's random state; and the histories of the
-phases already finished. Loading it unpickles nothing (``torch.load(weights_only=True)``). A
-state saved under another ``key`` (another config, dataset or torch) or one that does not load
-is ignored, and the run starts from its first epoch.
+the task's weights, the optimizer's state and torch's CPU random state (no model draws random
+numbers in training today; dropout would); and the histories of the phases already
+finished. Loading it unpickles nothing (``torch.load(weights_only=True)``). A state saved under
+another ``key`` (another config, dataset, torch or thread count) or one that does not load is
+ignored, and the run starts from its first epoch.
 """
 
 from __future__ import annotations
