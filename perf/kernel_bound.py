@@ -234,11 +234,11 @@ def main(argv=None) -> int:
             }
             if "baseline" in digests:
                 row["bit_identical_to_baseline"] = digests["baseline"] == digests["current"]
-            for name, out in outputs.items():
-                ref = outputs["current"]
-                row.setdefault("max_difference_to_current", {})[name] = float(
-                    np.abs(out - ref).max() / np.abs(ref).max()
-                )
+            ref = outputs["current"]
+            row["max_difference_to_current"] = {
+                name: float(np.abs(out - ref).max() / np.abs(ref).max())
+                for name, out in outputs.items()
+            }
             for name, timings in runs.items():
                 row[name] = {key: float(np.median([t[key] for t in timings])) for key in timings[0]}
                 row[name]["repeats"] = timings
