@@ -8,8 +8,10 @@ RESULTS_DIR: a `benchmark reproduce --out` folder (or a committed copy: per-seed
 and checkpoint config.json only, e.g. docs/results/hidden-cpu-v3-seeds); DATA_DIR: the dataset
 they were scored on. For n seeds it uses seeds 0..n-1 of every row, up to the largest n that
 every row has finished, through the same code as `benchmark report --seeds 0,..,n-1` (so each
-line equals that table's findings). Writes JSON, prints a table and, with --figure, plots the
-half-widths against the seeds with the ±3 dB² line.
+line equals that table's findings). Writes JSON (with each row's per-seed Simple and Complex
+MSE), prints a table and, with --figure, plots the half-widths against the seeds with the
+±3 dB² line beside each row's per-seed Simple and Complex MSE: a row whose Complex MSE scatters
+over the seeds while its Simple MSE does not is the row that keeps a half-width wide.
 """
 
 from __future__ import annotations
@@ -59,13 +61,24 @@ def progress(records: dict, first: int) -> list[dict]:
     return out
 
 
-def plot(steps: list[dict], path: Path) -> None:
+def per_seed(records: dict, n: int) -> dict:
+    """Each row's Simple and Complex MSE of seeds 0..n-1, in seed order (rows as in the table)."""
+    return {
+        row: {
+            m: [r[s]["results"]["metrics"][m] for s in range(n)]
+            for m in ("simple_mse", "complex_mse")
+        }
+        for row, r in records.items()
+    }
+
+
+def plot(steps: list[dict], spread: dict, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 4.5), width_ratios=(1, 1.1))
     for i, claim in enumerate(f["claim"] for f in steps[0]["findings"]):
         ns = [s["seeds"] for s in steps]
         hw = [s["findings"][i]["max_complex_half_width"] for s in steps]
@@ -77,6 +90,13 @@ def plot(steps: list[dict], path: Path) -> None:
     ax.set_ylim(bottom=0)
     ax.legend(fontsize=8)
     ax.set_title("The paper's findings: interval width against seeds")
+    for y, values in enumerate(spread.values()):
+        for m, colour in (("simple_mse", "0.5"), ("complex_mse", "C3")):
+            bx.plot(values[m], [y] * len(values[m]), "|", ms=12, color=colour)
+    bx.set_yticks(range(len(spread)), list(spread))
+    bx.invert_yaxis()
+    bx.set_xlabel("MSE of one training seed (dB²)")
+    bx.set_title(f"Each row's {steps[-1]['seeds']} seeds: Simple MSE (grey), Complex MSE (red)")
     fig.tight_layout()
     save_png(fig, path)
 
@@ -96,6 +116,7 @@ def main() -> None:
     steps = progress(records, args.first)
     if not steps:
         raise SystemExit(f"{args.results}: fewer than {args.first} seeds in some row")
+    spread = per_seed(records, steps[-1]["seeds"])
     write_json(
         args.out,
         {
@@ -103,10 +124,11 @@ def main() -> None:
             "dataset": fingerprints,
             "rows": sorted(records),
             "steps": steps,
+            "per_seed": spread,
         },
     )
     if args.figure:
-        plot(steps, args.figure)
+        plot(steps, spread, args.figure)
     print(f"{'seeds':>5}  finding (largest Complex MSE half-width dB², seeds for ±3, verdict)")
     for s in steps:
         cells = [
