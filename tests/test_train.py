@@ -638,6 +638,67 @@ def test_findings_plan_the_seeds_for_three_db2():
     assert embed["complex_seeds_for_3"] == max(c["seeds_for_3"] for c in complex_)
 
 
+def test_rows_with_more_seeds_are_averaged_over_their_own_and_the_table_says_so():
+    """A row given more seeds (where its seeds spread most) keeps them all: its comparisons
+    use each row's own seed count, the table names each row's seeds and each comparison of
+    rows with different counts says them."""
+    from benchmark.reproduction.report import render_markdown, table_rows
+    from benchmark.scoring.metrics import ood_keys
+    from benchmark.scoring.uncertainty import paired_seeds
+
+    rng = np.random.default_rng(11)
+    n, cls = 30, np.arange(30) % 3
+    hard = rng.gamma(2.0, 10.0, n)
+
+    def runs(seeds: range, spread: float) -> dict:
+        out = {}
+        for seed in seeds:
+            offset = rng.normal(0, spread)
+            errs = {
+                m: hard + offset + rng.normal(0, 1, n)
+                for m in ("simple_mse", "complex_mse", "variation_mse", *ood_keys())
+            }
+            metrics = {m: float(v.mean()) for m, v in errs.items() if ":" not in m}
+            po = {m: v.tolist() for m, v in errs.items()}
+            out[seed] = {
+                "train_seconds": 1.0,
+                "results": {
+                    "metrics": {**metrics, "no_skill": False, "per_class": {}},
+                    "model": {"params": 5},
+                    "speed": {"ms_per_mesh": 1.0},
+                    "per_object": {"object_id": list(range(n)), "class_index": cls.tolist(), **po},
+                },
+            }
+        return out
+
+    records = {"direct-basic": runs(range(6), 4.0), "graph-basic": runs(range(3), 1.0)}
+    rows = table_rows(records)
+    assert [r["seeds"] for r in rows] == [list(range(6)), [0, 1, 2]]
+    (embed,) = [f for f in findings(rows) if f["claim"].startswith("graph and token")]
+    (c,) = [c for c in embed["comparisons"] if c["metric"] == "complex_mse"]
+    per_seed = {
+        name: [run["results"]["per_object"]["complex_mse"] for run in records[name].values()]
+        for name in records
+    }
+    want = paired_seeds(per_seed["graph-basic"], per_seed["direct-basic"], cls)
+    assert c["half_width"] == pytest.approx(want["half_width"]) and want["seeds"] == [3, 6]
+    table = {
+        **{k: None for k in ("command", "hardware", "timing")},
+        "preset": "t",
+        "dataset": {"description": "d", "fingerprint": "f"},
+        "seeds": list(range(6)),
+        "references": {},
+        "rows": rows,
+        "findings": [embed],
+    }
+    md = render_markdown(table)
+    assert "each row's training seeds (direct-basic 0-5; graph-basic 0-2)" in md
+    lines = [x for x in md.splitlines() if x.startswith("  - graph-basic < direct-basic")]
+    assert len(lines) == 3 and all(", 3 vs 6 seeds): " in x for x in lines), lines
+    rows[0]["seeds"] = [0, 1, 2]
+    assert "the training seeds [0, 1, 2, 3, 4, 5]" in render_markdown(table)
+
+
 def test_rows_average_seeds_per_object_with_std_and_interval():
     from benchmark.reproduction.report import table_rows
     from benchmark.scoring.uncertainty import interval

@@ -590,8 +590,8 @@ def render_markdown(table: dict) -> str:
         _provenance(table),
         "",
         f"MSE in dB² on T = 20 log10 max(|profile|, 1e-4), predictions clipped at the same "
-        f"-80 dB floor. Model rows: mean ± std across the training seeds "
-        f"{table['seeds']} [95% interval of the seed-mean: bootstrap over test objects, "
+        f"-80 dB floor. Model rows: mean ± std across {_seeds_text(table)} "
+        f"[95% interval of the seed-mean: bootstrap over test objects, "
         f"stratified by class]. `†` marks no skill (not better than the training mean by a "
         f"paired 95% interval, in most seeds). Skill: 1 - Complex MSE / Complex MSE of the "
         f"strongest reference; Δ: the paired difference to it with its 95% interval.",
@@ -633,6 +633,7 @@ def render_markdown(table: dict) -> str:
     lines += ["", "## The paper's findings on this table", ""]
     if not table["findings"]:
         lines.append(table.get("no_findings", NO_FINDINGS))
+    n_seeds = {r["name"]: len(r["seeds"]) for r in table["rows"]}
     for f in table["findings"]:
         mark = f["verdict"] or ("not decided" if f["of"] else "not tested") + " (rows missing)"
         notes = (
@@ -656,10 +657,33 @@ def render_markdown(table: dict) -> str:
         for c in f["comparisons"]:
             lines.append(
                 f"  - {c['better']} < {c['than']} on {c['metric']}: Δ {c['diff']:+.2f} "
-                f"[{c['ci'][0]:+.2f}, {c['ci'][1]:+.2f}] (±{c['half_width']:.2f}): "
-                f"{c['verdict']}{_seeds_note(c)}"
+                f"[{c['ci'][0]:+.2f}, {c['ci'][1]:+.2f}] (±{c['half_width']:.2f}"
+                f"{_unequal(c, n_seeds)}): {c['verdict']}{_seeds_note(c)}"
             )
     return "\n".join(lines) + "\n"
+
+
+def _seeds_text(table: dict) -> str:
+    """The training seeds the rows average: one list, or each row's where they differ
+    (more seeds where a row's seeds spread most)."""
+    lists = {tuple(r["seeds"]) for r in table["rows"]}
+    if len(lists) <= 1:
+        return f"the training seeds {table['seeds']}"
+    each = "; ".join(f"{r['name']} {_span(r['seeds'])}" for r in table["rows"])
+    return f"each row's training seeds ({each})"
+
+
+def _span(seeds: list[int]) -> str:
+    """'0-16' for a run of consecutive seeds, else the list."""
+    if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ",".join(map(str, seeds))
+
+
+def _unequal(c: dict, n_seeds: dict) -> str:
+    """', 17 vs 33 seeds' where the two rows have different seed counts."""
+    a, b = n_seeds[c["better"]], n_seeds[c["than"]]
+    return f", {a} vs {b} seeds" if a != b else ""
 
 
 def _seeds_note(c: dict) -> str:
