@@ -82,13 +82,17 @@ def plot(steps: list[dict], spread: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 4.5), width_ratios=(1, 1.1))
     for i, claim in enumerate(f["claim"] for f in steps[0]["findings"]):
         ns = [s["seeds"] for s in steps]
         hw = [s["findings"][i]["max_complex_half_width"] for s in steps]
         ax.plot(ns, hw, marker="o", label=claim.split(" (")[0].replace(" on all three metrics", ""))
-    ax.set_xticks([s["seeds"] for s in steps])
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, nbins=16))
+    common = min(steps[-1]["seeds_per_row"].values())
+    if common < steps[-1]["seeds"]:
+        ax.axvline(common, color="0.6", lw=1, ls=":", label=f"every row's seeds end ({common})")
     ax.axhline(TARGET, color="k", ls="--", lw=1, label="±3 dB² asked")
     ax.set_xlabel("training seeds per row (a row with fewer keeps all its own)")
     ax.set_ylabel("largest paired 95% half-width,\nComplex MSE (dB²)")

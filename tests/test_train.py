@@ -695,6 +695,11 @@ def test_rows_with_more_seeds_are_averaged_over_their_own_and_the_table_says_so(
     assert "each row's training seeds (direct-basic 0-5; graph-basic 0-2)" in md
     lines = [x for x in md.splitlines() if x.startswith("  - graph-basic < direct-basic")]
     assert len(lines) == 3 and all(", 3 vs 6 seeds): " in x for x in lines), lines
+    # the plan for ±3 dB² (equal seeds per row) is shown only while a Complex pair is wider
+    for width, shown in ((3.1, True), (2.9, False)):
+        comps = [{**x, "half_width": width} for x in embed["comparisons"]]
+        table["findings"] = [{**embed, "complex_seeds_for_3": 20, "comparisons": comps}]
+        assert ("would need 20 seeds per row" in render_markdown(table)) == shown, width
     rows[0]["seeds"] = [0, 1, 2]
     assert "the training seeds [0, 1, 2, 3, 4, 5]" in render_markdown(table)
 
