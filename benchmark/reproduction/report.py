@@ -643,7 +643,7 @@ def render_markdown(table: dict) -> str:
         )
         need = f.get("complex_seeds_for_3")
         wide = any(c["metric"] == "complex_mse" and c["half_width"] > 3 for c in f["comparisons"])
-        if need is not None and wide:  # not once every pair is there (with its own seeds)
+        if need is not None and wide:  # the equal-seeds plan, while a Complex pair is wider
             notes.append(
                 "±3 dB² on every Complex MSE pair needs more test objects, not seeds"
                 if need == "objects"

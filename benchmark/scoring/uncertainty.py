@@ -143,8 +143,8 @@ def paired_seeds(a, b, strata, n_boot: int = N_BOOT, seed: int = SEED) -> dict |
     freedom from the seed terms: with 3 seeds a model's seed spread is known poorly, and
     the interval says so. A bootstrap over 3 seeds instead covered a known difference 76%
     of the time; this interval 95-98%, with unequal seed counts and spreads too
-    (tests/test_uncertainty.py). With one seed per model the
-    seed terms are unknown: the result is ``paired``'s, and ``seeds`` says so."""
+    (tests/test_uncertainty.py). With one seed per model the seed terms are unknown: the
+    result is ``paired``'s, and ``seeds`` says so."""
     a, b = np.atleast_2d(np.asarray(a, np.float64)), np.atleast_2d(np.asarray(b, np.float64))
     d = np.nanmean(a, axis=0) - np.nanmean(b, axis=0)
     if np.all(np.isnan(d)):
