@@ -45,8 +45,8 @@ def progress(records: dict, first: int) -> list[dict]:
     out = []
     for n in range(first, max(have.values()) + 1):
         subset = {row: {s: r[s] for s in range(min(n, have[row]))} for row, r in records.items()}
-        entry = {"seeds": n, "seeds_per_row": {row: len(r) for row, r in subset.items()}}
-        entry["findings"] = []
+        per_row = {row: len(r) for row, r in subset.items()}
+        entry = {"seeds": n, "seeds_per_row": per_row, "findings": []}
         for f in report.findings(report.table_rows(subset)):
             if f["verdict"] is None:  # its rows are not in this folder
                 continue
@@ -124,7 +124,7 @@ def main() -> None:
         fingerprints = {"mesh": data.fingerprint, "label": data.label_fingerprint}
     steps = progress(records, args.first)
     if not steps:
-        raise SystemExit(f"{args.results}: fewer than {args.first} seeds in some row")
+        raise SystemExit(f"{args.results}: fewer than {args.first} seeds in every row")
     spread = per_seed(records)
     write_json(
         args.out,
