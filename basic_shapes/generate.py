@@ -333,9 +333,10 @@ def generate(
                 _record_config(out, cfg)
             for path, _ in tasks:  # only our own leftovers: never other files in the directory
                 Path(path + ".tmp").unlink(missing_ok=True)
-            if progress:
-                print(plan_text(cfg, worker_threads(client), scheduler), flush=True)
             cfg_json = cfg.to_dict()
+            if progress:
+                meshes_planned = _mesh_count(tasks, cfg_json)
+                print(plan_text(cfg, meshes_planned, worker_threads(client), scheduler), flush=True)
             with _bar(todo, cfg_json, progress) as bar:
                 jobs = ((path, (path, plans, cfg_json)) for path, plans in todo)
                 try:
@@ -355,10 +356,9 @@ def generate(
     }
 
 
-def plan_text(cfg: GenerateConfig, threads: int, scheduler: str | None) -> str:
+def plan_text(cfg: GenerateConfig, meshes: int, threads: int, scheduler: str | None) -> str:
     """One line saying what a run will do, printed before it starts (a run can take days)."""
     objects = len(cfg.classes) * cfg.objects_per_class
-    meshes = objects * (cfg.variants + 1)
     shards = -(-objects // cfg.objects_per_shard)
     where = (
         f"the cluster at {scheduler} ({threads} worker thread(s))"
@@ -366,7 +366,13 @@ def plan_text(cfg: GenerateConfig, threads: int, scheduler: str | None) -> str:
         else f"{threads} local worker(s)"
     )
     hours = meshes / (MESHES_PER_SECOND_PER_WORKER * threads) / 3600
-    eta = f"{hours:.1f} h" if hours >= 1 else f"{max(1, round(hours * 60))} min"
+    eta = (
+        f"{hours:.1f} h"
+        if hours >= 1
+        else f"{round(hours * 60)} min"
+        if hours >= 1 / 60
+        else "under a minute"
+    )
     return (
         f"generate: {objects} objects ({len(cfg.classes)} classes x {cfg.objects_per_class}), "
         f"{meshes} meshes, {shards} shards on {where}; about {eta} if nothing is done yet "
@@ -374,17 +380,23 @@ def plan_text(cfg: GenerateConfig, threads: int, scheduler: str | None) -> str:
     )
 
 
-def _bar(todo, cfg_json, progress):
-    """The job's tqdm bar on stderr, advanced by meshes (OOD meshes of test objects included)."""
-    from tqdm import tqdm
-
+def _mesh_count(tasks, cfg_json) -> int:
+    """Meshes the shards of ``tasks`` hold: each object's variants + 1, and the OOD meshes of
+    test objects."""
     ood = {
         c: cfg_json.get("ood_variants_per_remesher", 0) * _ood_remeshers(c, cfg_json)
         for c in cfg_json["classes"]
     }
-    total = sum(
+    return sum(
         cfg_json["variants"] + 1 + ood[p.class_name] * (p.split == "test")
-        for _, ps in todo
+        for _, ps in tasks
         for p in ps
     )
+
+
+def _bar(todo, cfg_json, progress):
+    """The job's tqdm bar on stderr, advanced by meshes (OOD meshes of test objects included)."""
+    from tqdm import tqdm
+
+    total = _mesh_count(todo, cfg_json)
     return tqdm(total=total, unit="mesh", disable=not progress, desc="generate")

@@ -22,8 +22,8 @@ EPILOG = """examples:
   benchmark reproduce --preset tiny --out out/tiny
   benchmark report --preset tiny --data out/tiny/data --out out/tiny
   benchmark dataset --list
-  benchmark dataset cpu-v1 --data data/cpu-v1
-  benchmark dataset cpu-v1 --data heldout/cpu-v1 --secret-seed-file ~/secret
+  benchmark dataset cpu-v3 --data data/cpu-v3
+  benchmark dataset cpu-v3 --data heldout/cpu-v3 --secret-seed-file ~/secret
   benchmark export-onnx out/tiny/checkpoints/graph-basic/seed-0 --out graph-basic.onnx
   benchmark weights --out out/tiny --pack tiny-weights.tar
   benchmark weights --out rescore --from URL --manifest docs/results/cpu-v2/weights.json"""

@@ -21,7 +21,7 @@ EPILOG = """examples:
       --entries leaderboard/entries --name "my-model" --link https://example.org/paper
   leaderboard seed --from out/reproduce/results --data out/reproduce/data \\
       --entries leaderboard/entries
-  leaderboard evaluate-model model.onnx --data heldout/tiny-v1 --entries leaderboard/entries \\
+  leaderboard evaluate-model model.onnx --data heldout/tiny-v3 --entries leaderboard/entries \\
       --name "my-model" --link https://example.org/paper
   leaderboard simulator --data data/bs --entries leaderboard/entries
   leaderboard render --out site/

@@ -147,7 +147,7 @@ def example(models: list[dict]) -> bytes:
     s = rows[0]["sample"]
     physics = np.array(s["physics_db"])
     vmax = float(physics.max())
-    extent = [s["range_m"][0], s["range_m"][-1], s["aspect_deg"][-1], s["aspect_deg"][0]]
+    extent = [s["range_m"][0], s["range_m"][-1], s["aspect_deg"][0], s["aspect_deg"][-1]]
     fig, axes = plt.subplots(
         len(rows), 3, figsize=(10, 2.6 * len(rows) + 0.6), squeeze=False, layout="constrained"
     )
@@ -169,12 +169,13 @@ def example(models: list[dict]) -> bytes:
                 vmin=vmax - DB_RANGE,
                 vmax=vmax,
                 interpolation="nearest",
+                origin="lower",  # aspect upwards, as radar-sim plot draws it
             )
-            ax.set_title(titles[c] if c == 0 else f"{literal(e['name'])}: {titles[c]}", fontsize=9)
+            ax.set_title(titles[c] if c == 0 else f"{literal(e['name'])}\n{titles[c]}", fontsize=9)
             ax.set_xlabel("range (m)", fontsize=8)
             ax.set_ylabel("aspect (deg)", fontsize=8)
             ax.tick_params(labelsize=7)
-    fig.colorbar(im, ax=axes, shrink=0.8, label="dB")
+    fig.colorbar(im, ax=axes, shrink=0.8, extend="min", label=f"dB (the top {DB_RANGE:g} dB)")
     fig.suptitle(
         f"object {s['object_id']} ({literal(s['class'])}), roll {s['roll_deg']:g}°", fontsize=10
     )

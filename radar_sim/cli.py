@@ -177,12 +177,13 @@ def cmd_rcs(args) -> None:
     text = " x ".join(f"{e:.4g}" for e in extent)
     print(
         f"# {args.meshfile}: {len(faces)} faces, units {args.units} (extent {text} m), "
-        f"mode {mode}, roll {args.roll:g} deg"
+        f"mode {mode}, roll {args.roll:g} deg; VV, physical optics without edge diffraction"
     )
     warning = size_warning(extent, args.freq.min() * 1e9, args.freq.max() * 1e9, args.units)
     if warning:
-        print(f"# warning: {warning}")
-        print(f"radar-sim: warning: {args.meshfile}: {warning}", file=sys.stderr)
+        print(f"# warning: {warning}")  # kept with the numbers where they are redirected
+        if not sys.stdout.isatty():
+            print(f"radar-sim: warning: {args.meshfile}: {warning}", file=sys.stderr)
     print(f"# RCS in dBsm: {CONVENTION}")
     print("aspect_deg " + " ".join(f"{f:>10.4g}GHz" for f in args.freq))
     with np.errstate(divide="ignore"):
@@ -223,7 +224,7 @@ def dataset_signature(
                 radar.coordinates,
                 radar.response(k),
                 radar.frequency_response(k),
-                f"{title}, stored label, VV",
+                f"{title}: its stored label, VV",
             )
         params = s.object_params()[k]
         try:
@@ -241,7 +242,7 @@ def dataset_signature(
         name = "simple mesh" if variant == 0 else f"variant {variant}"
         try:
             return simulated_signature(
-                *by_variant[variant], cfg, mode, f"{title}, physics on its {name}", channel
+                *by_variant[variant], cfg, mode, f"{title}: physics on its {name}", channel
             )
         except MeshError as exc:  # name the shard and the mesh, not only --data
             raise ShardError(f"{path}: object {obj['id']} variant {variant}: {exc}") from None
@@ -252,7 +253,7 @@ def dataset_signature(
         faces,
         cfg,
         object_mode(obj["class"], mode),
-        f"{title}, label on its {len(faces)}-face simulation mesh",
+        f"{title}: its label, the primitive on a {len(faces)}-face simulation mesh",
         channel,
     )
 
@@ -265,7 +266,7 @@ def simulated_signature(vertices, faces, config, mode: str, title: str, channel:
     if channel not in channels:
         raise SystemExit(
             f"config {config.name} has no {channel} channel (it computes {','.join(channels)}; "
-            "HH and HV need a polarimetric config, xband-v2 or later)"
+            "HH and HV need a polarimetric config: add --config xband-v3, the newest)"
         )
     result = simulate(vertices, faces, config, mode=mode)
     coords = {n: getattr(result, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
@@ -277,7 +278,7 @@ def simulated_signature(vertices, faces, config, mode: str, title: str, channel:
         coords,
         profiles,
         response,
-        f"{title}, simulated ({result.mode}, config {config.name}, {channel})",
+        f"{title} ({result.mode}, config {config.name}, {channel})",
     )
 
 

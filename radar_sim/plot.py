@@ -90,7 +90,7 @@ def plot_signature(
     ax.set_thetamin(float(aspect_deg.min()))
     ax.set_thetamax(float(aspect_deg.max()))
     ax.set_ylim(np.ceil(rcs.max() + 5) - DYNAMIC_RANGE_DB, np.ceil(rcs.max() + 5))
-    ax.set_title(f"RCS (dBsm) vs aspect at {shown}", pad=18)
+    ax.set_title(f"RCS (dBsm) vs aspect, roll {shown_roll:.4g} deg, at {shown}", pad=18)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -293,6 +293,29 @@ def test_predictions_in_linear_magnitude_are_refused(data, tmp_path):
     )
 
 
+def test_a_constant_zero_db_prediction_is_scored(data, tmp_path):
+    """np.zeros, the first predictor one tries, is dB of one value (not a linear-magnitude
+    slip): scored, Simple MSE the mean square of the simple meshes' labels."""
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.evaluate import evaluate
+    from benchmark.scoring.protocol import write_predictions
+
+    with BenchmarkData(data) as d:
+        rows = d.mesh_rows("test")
+        pred = tmp_path / "zeros.h5"
+        write_predictions(
+            pred,
+            d.fingerprint,
+            d.meshes["uid"][rows],
+            np.zeros((len(rows), *d.target_shape), np.float32),
+            label_fingerprint=d.label_fingerprint,
+        )
+        objects = np.unique(d.meshes["object"][rows])
+        expected = np.mean([np.mean(d.target(int(o)).astype(np.float64) ** 2) for o in objects])
+    result = evaluate(data, predictions=pred, progress=False)
+    assert result["metrics"]["simple_mse"] == pytest.approx(expected, rel=1e-6)
+
+
 LIGHT_CORE = ("numpy", "numpy.libs", "h5py", "h5py.libs", "tqdm")
 
 

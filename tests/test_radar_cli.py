@@ -143,7 +143,7 @@ def test_plot_uses_stored_labels(tmp_path):
 
     data = write_dataset(tmp_path / "data", n_objects=1)
     _, _, simulated, title = dataset_signature(data, 0, "xband-v1")
-    assert "label on its 12-face simulation mesh" in title  # a cube: the box itself
+    assert "its label, the primitive on a 12-face simulation mesh" in title  # a cube: the box
     main(["label", "--data", str(data), "--workers", "1", "--frequency-response"])
     coords, profiles, response, title = dataset_signature(data, 0, "xband-v1")
     assert "stored label" in title

@@ -345,8 +345,10 @@ class Predictions:
         if bad.any():
             self._fail(f"non-finite prediction for mesh_uid {uids[np.flatnonzero(bad)[0]]}")
         # a dB response always has bins far below 0 dB (the -80 dB floor); a row without one
-        # is linear magnitude |A| (or intensity), the most common unit slip
-        linear = (out.reshape(len(out), -1) >= 0).all(axis=1)
+        # is linear magnitude |A| (or intensity), the most common unit slip. A constant row
+        # (a trivial predictor, np.zeros) is dB of one value, not a slip.
+        flat = out.reshape(len(out), -1)
+        linear = (flat >= 0).all(axis=1) & (flat.max(axis=1) > flat.min(axis=1))
         if linear.any():
             self._fail(
                 f"every predicted value for mesh_uid {uids[np.flatnonzero(linear)[0]]} "

@@ -456,6 +456,13 @@ def run(args) -> int:
                 else "no manifest recorded"
             )
             print(f"{v.name:13s} {v.grid():42s} {recorded}\n{'':13s} {v.summary}")
+        newest: dict[str, str] = {}
+        for name in VERSIONS:  # registered oldest first
+            newest[name.rsplit("-v", 1)[0]] = name
+        print(
+            f"\nnewest of each: {', '.join(newest.values())}; the older ones stay buildable "
+            "(committed tables and board entries rest on them: docs/RESULTS.md names each one's)"
+        )
         return 0
     if not args.data:
         raise VersionError(
