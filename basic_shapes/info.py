@@ -153,7 +153,9 @@ def figure(directory: str | Path, out: str | Path) -> None:
         row[2].hist(list(scales.T), bins=12, label=["x", "y", "z"], histtype="step", lw=1.5)
         row[2].set_xlabel("bbox extent (m)")
         row[2].legend(fontsize=8, frameon=False)
-        row[0].set_ylabel(f"{name}\n({d.objects} objects)", fontsize=11)
+        row[0].set_ylabel(f"{name} ({d.objects} objects)\nmeshes", fontsize=11)
+        row[1].set_ylabel("meshes")
+        row[2].set_ylabel("objects")
     fig.suptitle(f"{Path(directory).name}: meshes and objects per class", fontsize=12)
     fig.tight_layout()
     save_png(fig, out)
@@ -172,13 +174,14 @@ def _log_histograms(ax, values: dict, xlabel: str) -> None:
     lo, hi = positive.min(), positive.max()
     bins = np.geomspace(lo, hi * 1.001, 20) if hi > lo else np.array([lo * 0.9, hi * 1.1])
     for kind, v in present.items():
+        zeros = int(np.sum(v <= 0))  # no place on a log axis: counted in the legend
         ax.hist(
             v[v > 0],
             bins=bins,
             histtype="step",
             lw=1.5,
             color=COLOURS[kind],
-            label=f"{kind} ({len(v)})",
+            label=f"{kind} ({len(v)}" + (f"; {zeros} at 0, not drawn)" if zeros else ")"),
         )
     ax.set_xscale("log")
     ax.xaxis.set_minor_formatter(NullFormatter())  # decades only: no overlap
