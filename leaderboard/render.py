@@ -655,10 +655,10 @@ def markdown(groups: list[dict]) -> str:
     out = [
         "# Basic Shapes leaderboard",
         "",
-        "The ranked track comes first: ONNX models the board ran itself on a held-out build "
-        "(labels never published), with speed measured and parameters counted by the board. "
-        "Then the self-scored track: predictions on a public test split, each verified by "
-        "re-scoring it against the dataset. MSE in dB² "
+        "The ranked track (first, where the board has one): ONNX models the board ran itself "
+        "on a held-out build (labels never published), with speed measured and parameters "
+        "counted by the board. The self-scored track: predictions on a public test split, each "
+        "verified by re-scoring it against the dataset. MSE in dB² "
         "with 95% intervals (bootstrap over test objects), lower is better. Reference rows are "
         "computed by the harness and stand where they score, marked ref, without a rank. A "
         "model that does not beat the training-set mean by a paired 95% interval is flagged "

@@ -242,7 +242,7 @@ def dataset_signature(
         name = "simple mesh" if variant == 0 else f"variant {variant}"
         try:
             return simulated_signature(
-                *by_variant[variant], cfg, mode, f"{title}: physics on its {name}", channel
+                *by_variant[variant], cfg, mode, f"{title}: simulated on its {name}", channel
             )
         except MeshError as exc:  # name the shard and the mesh, not only --data
             raise ShardError(f"{path}: object {obj['id']} variant {variant}: {exc}") from None

@@ -694,6 +694,14 @@ def _seeds_note(c: dict) -> str:
     return "; ±3 needs more test objects" if n is None else f"; ±3 at {n} seeds"
 
 
+REGIME_KEY = {
+    "basic": "basic (no pretraining)",
+    "classification": "classification pretraining",
+    "autoencoder": "autoencoder pretraining",
+    "ideal": "ideal (trained on complex meshes too)",
+}
+
+
 def plot(rows: list[dict], path: Path, title: str, references: dict | None = None) -> None:
     """Speed against error (``scoring.plotting``): one point per row, coloured by embedding,
     shaped by regime, with its interval; the references as dashed lines."""
@@ -719,6 +727,7 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
         {k: v.get("complex_mse") for k, v in (references or {}).items()},
         title=title,
         xlabel="ms per mesh (inference, including featurization; log scale)",
+        marker_key={REGIME_KEY[k]: m for k, m in markers.items()},
     )
     with atomic_path(path) as tmp:
         tmp.write_bytes(plotting.png(fig))

@@ -18,6 +18,7 @@ import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from matplotlib.lines import Line2D
 from matplotlib.ticker import (
     FormatStrFormatter,
     LogFormatter,
@@ -79,11 +80,13 @@ def speed_vs_error(
     title: str | None = None,
     xlabel: str = "ms per mesh (log scale; lower is faster)",
     front: list[tuple[float, float]] | None = None,
+    marker_key: dict[str, str] | None = None,
 ):
     """The figure of ms per mesh (log) against Complex MSE (symlog, from 0 = the physics):
     ``references`` name -> Complex MSE as dashed lines (they cost nothing to run: a model
     must be below them), ``simulator`` (ms, MSE) as a star, ``front`` (the Pareto front's
-    points, fastest first) as a step line."""
+    points, fastest first) as a step line, ``marker_key`` (what each marker means -> marker)
+    as a legend."""
     references = {k: v for k, v in (references or {}).items() if v is not None}
     n_labels = len(points) + len(references) + (simulator is not None) + bool(front)
     line_in = LINE * FONT_PT / 72
@@ -145,6 +148,12 @@ def speed_vs_error(
     if title:
         ax.set_title(title, fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
+    if marker_key:
+        handles = [
+            Line2D([], [], ls="", marker=m, color="0.35", mfc="none", label=k)
+            for k, m in marker_key.items()
+        ]
+        ax.legend(handles=handles, fontsize=7, loc="best", framealpha=0.8)
     _label_column(ax, labels, line_in / axes_h)
     return fig
 
