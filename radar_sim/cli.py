@@ -24,6 +24,7 @@ from basic_shapes.infra import (
     separate_outputs,
 )
 from basic_shapes.shards import Shard, ShardError, find_object
+from radar_sim.config import NEWEST
 from radar_sim.field import CHANNELS
 from radar_sim.label import MODES, LabelError, LabelRequest, label_directory, parse_mesh_labels
 from radar_sim.meshio import UNITS, load_mesh
@@ -207,7 +208,7 @@ def dataset_signature(
     otherwise computed as ``radar-sim label`` does (the primitive on its simulation mesh).
     With ``variant``: the physics on that representation mesh (0 = simple), simulated. Both
     simulate with ``config``, by default the config the dataset was labelled with (so the
-    plot is its label), xband-v1 for an unlabelled dataset.
+    plot is its label), NEWEST for an unlabelled dataset.
     """
     from basic_shapes.analytic import simulation_mesh, solid_for
     from radar_sim import MeshError, RadarConfig
@@ -229,7 +230,7 @@ def dataset_signature(
         params = s.object_params()[k]
         try:
             stored = None if config or radar is None else radar.config
-            cfg = RadarConfig(**stored) if stored else load_config(config or "xband-v1")
+            cfg = RadarConfig(**stored) if stored else load_config(config or NEWEST)
         except (TypeError, ValueError) as exc:
             raise ShardError(f"{path}: stored radar config: {exc}") from None
     if variant is not None:
@@ -266,7 +267,7 @@ def simulated_signature(vertices, faces, config, mode: str, title: str, channel:
     if channel not in channels:
         raise SystemExit(
             f"config {config.name} has no {channel} channel (it computes {','.join(channels)}; "
-            "HH and HV need a polarimetric config: add --config xband-v3, the newest)"
+            f"HH and HV need a polarimetric config: add --config {NEWEST}, the newest)"
         )
     result = simulate(vertices, faces, config, mode=mode)
     coords = {n: getattr(result, n) for n in ("aspect_deg", "roll_deg", "range_m", "frequency_hz")}
@@ -309,7 +310,7 @@ def cmd_plot(args) -> None:
             signature = simulated_signature(
                 vertices,
                 faces,
-                load_config(args.config or "xband-v1"),
+                load_config(args.config or NEWEST),
                 args.mode,
                 Path(args.meshfile).name,
                 args.channel,
@@ -350,9 +351,9 @@ def build_parser() -> ArgumentParser:
     )
     q.add_argument(
         "--config",
-        default="xband-v1",
-        help="config name or JSON file (default %(default)s: PO, VV; xband-v3, the newest: HH, "
-        "VV and HV with edge diffraction, the v3 dataset versions' labels)",
+        default=NEWEST,
+        help="config name or JSON file (default %(default)s, the newest: HH, VV and HV with edge "
+        "diffraction, the v3 dataset versions' labels; xband-v1: PO, VV only)",
     )
     add_cluster_flags(q, "worker processes, one thread each")
     add_quiet_flag(q)
@@ -430,7 +431,7 @@ def build_parser() -> ArgumentParser:
         "--config",
         default=None,
         help="config name or JSON file for simulation (default: the one the dataset was "
-        "labelled with; xband-v1 for a mesh file or an unlabelled dataset)",
+        f"labelled with; {NEWEST} for a mesh file or an unlabelled dataset)",
     )
     q.add_argument("--units", choices=UNITS, default="m", help="units of a mesh file (default m)")
     q.add_argument("--mode", choices=MODES, default="auto", help="physics (default auto)")

@@ -261,6 +261,9 @@ NAMED = {
         transform="portable-dft",
     ),
 }
+NEWEST = "xband-v3"
+"""The default of ``simulate`` and of ``radar-sim label`` / ``plot``: the physics of the current
+dataset versions (older names stay, for the versions recorded with them)."""
 
 
 @dataclass
@@ -289,12 +292,12 @@ def simulate(
     *,
     tol: float = DEFAULT_TOL,
 ) -> RadarResult:
-    """Simulate a mesh (metres) on the grid of ``config`` (default "xband-v1").
+    """Simulate a mesh (metres) on the grid of ``config`` (default NEWEST).
 
     Raises MeshError if the mesh is invalid or extends beyond the range window, saying
     "millimetres" when its radius exceeds 100 m and a factor 1000 would make it fit.
     """
-    config = config or RadarConfig.named("xband-v1")
+    config = config or RadarConfig.named(NEWEST)
     mesh = prepare(vertices, faces)
     limit = config.max_radius_m
     if mesh.radius > limit:

@@ -246,8 +246,8 @@ def test_very_small_and_very_large_objects(size, freq):
 
 def test_objects_must_fit_the_range_window():
     v, f = box((3.0, 3.0, 3.0))  # radius 2.6 m > 1.97 m
-    with pytest.raises(MeshError, match="beyond the ±1.971 m range window of 'xband-v1'$"):
-        simulate(v, f)
+    with pytest.raises(MeshError, match="beyond the ±1.971 m range window of 'xband-v3'$"):
+        simulate(v, f)  # the default config: radar_sim.config.NEWEST
     monostatic_field(v, f, [1e10], UP)  # no window there
 
 

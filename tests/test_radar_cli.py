@@ -144,7 +144,10 @@ def test_plot_uses_stored_labels(tmp_path):
     data = write_dataset(tmp_path / "data", n_objects=1)
     _, _, simulated, title = dataset_signature(data, 0, "xband-v1")
     assert "its label, the primitive on a 12-face simulation mesh" in title  # a cube: the box
-    main(["label", "--data", str(data), "--workers", "1", "--frequency-response"])
+    main(
+        ["label", "--data", str(data), "--workers", "1", "--frequency-response"]
+        + ["--config", "xband-v1"]
+    )
     coords, profiles, response, title = dataset_signature(data, 0, "xband-v1")
     assert "stored label" in title
     with h5py.File(data / "shard-00000.h5") as f:
@@ -156,6 +159,17 @@ def test_plot_uses_stored_labels(tmp_path):
     np.testing.assert_array_equal(coords["aspect_deg"], config.aspect_deg)
     main(["plot", "--data", str(data), "--object", "0", "--out", str(tmp_path / "o0.png")])
     _check_png(tmp_path / "o0.png")
+
+
+def test_label_defaults_to_the_newest_config(tmp_path):
+    """Without --config a dataset gets the physics of the current dataset versions: three
+    channels with edge diffraction, not xband-v1's VV-only PO."""
+    data = write_dataset(tmp_path / "data", n_objects=1)
+    main(["label", "--data", str(data), "--workers", "1"])
+    with Shard(data / "shard-00000.h5") as s:
+        stored = s.radar.config
+    assert stored["name"] == "xband-v3" and stored["channels"] == "HH,VV,HV"
+    assert stored["edges"] == "mec"
 
 
 def test_plot_defaults_to_the_labelling_config_in_every_channel(tmp_path):
