@@ -488,12 +488,13 @@ def plateau_table(rows: list[dict]) -> list[str]:
         "",
         "### Training to the plateau",
         "",
-        "Epochs to the best validation epoch, per seed (the checkpoint holds that epoch); "
+        "The best validation epoch, per seed (the checkpoint holds that epoch; the plateau where "
+        "the run was not capped); "
         "capped: runs the epoch cap ended while the validation error was still improving "
         "(a best epoch within the last `patience` epochs). Validation curves: "
         "`training_curves.png`.",
         "",
-        "| Row | Epochs to plateau (per seed) | Capped |",
+        "| Row | Best epoch (per seed) | Capped |",
         "|---|---|---:|",
     ]
     for r in rows:
@@ -546,7 +547,8 @@ def oracle_lines(oracle: dict | None) -> list[str]:
         "|---|---:|---:|---:|---:|---:|",
         "| oracle | " + _metric_cells(oracle, "", seeds=False) + " |",
     ]
-    for m, p in oracle["vs_class_scale_nn"].items():
+    vs = oracle["vs_class_scale_nn"]
+    for m, p in sorted(vs.items(), key=lambda kv: METRIC_NAMES.index(kv[0])):
         lines.append(
             f"| oracle - class-scale-nn, {m.replace('_', ' ')} | Δ {p['diff']:+.1f} "
             f"[{p['ci'][0]:+.1f}, {p['ci'][1]:+.1f}]: {p['verdict']} | | | | |"
@@ -579,6 +581,12 @@ def _provenance(table: dict) -> str:
 
 
 def render_markdown(table: dict) -> str:
+    """table.md from the table, the same text from memory or from table.json (whose keys are
+    sorted): the references in their schema order."""
+    from benchmark.scoring.schema import REFERENCE_NAMES
+
+    refs = table["references"]
+    table = {**table, "references": {n: refs[n] for n in REFERENCE_NAMES if n in refs}}
     lines = [
         f"# Basic Shapes reproduction: preset `{table['preset']}`",
         "",
