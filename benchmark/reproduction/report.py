@@ -562,9 +562,9 @@ def _provenance(table: dict) -> str:
     if t is None:
         return (
             "Rebuilt by `benchmark report` from the per-seed results (nothing trained or "
-            "predicted). ms / mesh: `predict` over the test split (first seed) as its "
-            "results record it; each row's `speed.hardware` in table.json names the machine "
-            "and whether it was timed alone. Train s: from the checkpoints' config.json "
+            "predicted). ms / mesh: `predict` (first seed) as its results record it; each "
+            "row's `speed.hardware` in table.json names the machine and whether, and on how "
+            "many meshes, it was timed alone. Train s: from the checkpoints' config.json "
             "where they were kept."
         )
     return (
@@ -576,7 +576,7 @@ def _provenance(table: dict) -> str:
         f"{_num(t['rows_s'])} s, {t['jobs']} job(s) x "
         f"{t['threads_per_job']} thread(s)). ms / mesh: `predict` (first seed) timed with no "
         f"other job of this run on the CPU, on a sample of the test meshes stratified by "
-        f"face count (its size is in each row's `speed.hardware` in table.json)."
+        f"face count (its size, and the passes, in each row's `speed.hardware` in table.json)."
     )
 
 
