@@ -335,8 +335,7 @@ def generate(
                 Path(path + ".tmp").unlink(missing_ok=True)
             cfg_json = cfg.to_dict()
             if progress:
-                meshes_planned = _mesh_count(tasks, cfg_json)
-                print(plan_text(cfg, meshes_planned, worker_threads(client), scheduler), flush=True)
+                print(plan_text(cfg, tasks, worker_threads(client), scheduler), flush=True)
             with _bar(todo, cfg_json, progress) as bar:
                 jobs = ((path, (path, plans, cfg_json)) for path, plans in todo)
                 try:
@@ -356,10 +355,13 @@ def generate(
     }
 
 
-def plan_text(cfg: GenerateConfig, meshes: int, threads: int, scheduler: str | None) -> str:
-    """One line saying what a run will do, printed before it starts (a run can take days)."""
-    objects = len(cfg.classes) * cfg.objects_per_class
-    shards = -(-objects // cfg.objects_per_shard)
+def plan_text(cfg: GenerateConfig, tasks: list, threads: int, scheduler: str | None) -> str:
+    """One line saying what a run will do, printed before it starts (a run can take days):
+    the shards of ``tasks`` (all of the dataset's, or the slice asked for)."""
+    objects = sum(len(plans) for _, plans in tasks)
+    meshes = _mesh_count(tasks, cfg.to_dict())
+    every = -(-len(cfg.classes) * cfg.objects_per_class // cfg.objects_per_shard)
+    shards = f"{len(tasks)} shards" if len(tasks) == every else f"{len(tasks)} of {every} shards"
     where = (
         f"the cluster at {scheduler} ({threads} worker thread(s))"
         if scheduler
@@ -367,15 +369,15 @@ def plan_text(cfg: GenerateConfig, meshes: int, threads: int, scheduler: str | N
     )
     hours = meshes / (MESHES_PER_SECOND_PER_WORKER * threads) / 3600
     eta = (
-        f"{hours:.1f} h"
+        f"about {hours:.1f} h"
         if hours >= 1
-        else f"{round(hours * 60)} min"
+        else f"about {round(hours * 60)} min"
         if hours >= 1 / 60
         else "under a minute"
     )
     return (
-        f"generate: {objects} objects ({len(cfg.classes)} classes x {cfg.objects_per_class}), "
-        f"{meshes} meshes, {shards} shards on {where}; about {eta} if nothing is done yet "
+        f"generate: {objects} objects ({', '.join(cfg.classes)}), {meshes} meshes, {shards} "
+        f"on {where}; {eta} if nothing is done yet "
         f"(at {MESHES_PER_SECOND_PER_WORKER:.0f} meshes/s per worker)"
     )
 

@@ -1,4 +1,4 @@
-"""Template: a PyTorch model exported to the board's ONNX contract (docs/SUBMITTING.md, section 3).
+"""Template: a PyTorch model exported to the board's ONNX contract (docs/SUBMITTING.md, section 2).
 
 Copy this file, replace ``TinyMeshModel`` by your model, keep ``forward``'s signature: one mesh
 per call, inputs named as the contract names them (here ``vertices``, ``faces``, ``scale_m``;

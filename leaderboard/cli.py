@@ -256,7 +256,10 @@ def run(args) -> None:
             warn=lambda msg: print(f"leaderboard render: warning: {msg}", file=sys.stderr),
             progress=not args.quiet,
         )
-        print(f"rendered {len(files)} files into {args.out}/ (open {args.out / 'index.html'})")
+        print(
+            f"rendered {len(files)} files into {args.out}/ from the entries in {args.entries}/ "
+            f"(open {args.out / 'index.html'})"
+        )
     elif args.command == "serve":
         from leaderboard.serve import serve
 

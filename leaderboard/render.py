@@ -333,7 +333,8 @@ def describe(dataset: dict, heldout: bool = False) -> str:
         )
     return (
         head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
-        f"test objects, {dataset['test_meshes']} test meshes"
+        f"test objects, {dataset['test_meshes']} simple and complex test meshes (and any "
+        f"out-of-distribution ones)"
     )
 
 
@@ -342,7 +343,8 @@ def describe_heldout(dataset: dict, v) -> str:
 
     split = (
         f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} test objects, "
-        f"{dataset['test_meshes']} test meshes"
+        f"{dataset['test_meshes']} simple and complex test meshes (and any out-of-distribution "
+        f"ones)"
     )
     if v is None:
         return (
@@ -397,7 +399,7 @@ def simulator_note(sim: dict | None) -> str:
     if sim is None:
         return (
             "No physics simulator point for this dataset yet "
-            "(run `leaderboard simulator --data DIR`)."
+            "(run: leaderboard simulator --data DIR)."
         )
     how = sim.get("complex_mse_source", "")
     return (

@@ -182,9 +182,8 @@ def cmd_rcs(args) -> None:
     )
     warning = size_warning(extent, args.freq.min() * 1e9, args.freq.max() * 1e9, args.units)
     if warning:
-        print(f"# warning: {warning}")  # kept with the numbers where they are redirected
-        if not sys.stdout.isatty():
-            print(f"radar-sim: warning: {args.meshfile}: {warning}", file=sys.stderr)
+        print(f"# warning: {warning}")
+        print(f"radar-sim: warning: {args.meshfile}: {warning}", file=sys.stderr)
     print(f"# RCS in dBsm: {CONVENTION}")
     print("aspect_deg " + " ".join(f"{f:>10.4g}GHz" for f in args.freq))
     with np.errstate(divide="ignore"):

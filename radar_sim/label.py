@@ -243,7 +243,8 @@ def plan_shard(path: Path, request: LabelRequest, overwrite: bool) -> ShardPlan 
                 raise LabelError(
                     f"{path}: already labelled, with different radar "
                     f"{' and '.join(differ)} (stored options: "
-                    f"{json.dumps(stored['options'])}); pass --overwrite to relabel"
+                    f"{json.dumps(stored['options'])}); to finish it as it was, pass --config "
+                    f"{stored['config'].get('name')} and those options; to relabel, --overwrite"
                 )
         objs, names, n_faces = s.objects(), s.class_names, s.mesh_table()["n_faces"]
         params, rows = s.object_params(), select_mesh_rows(s, request.mesh_labels)

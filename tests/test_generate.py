@@ -231,3 +231,23 @@ def test_info_show_export(dataset, tmp_path):
     m = trimesh.load(files[3])
     assert m.volume == pytest.approx(trimesh.Trimesh(v, f).volume, rel=1e-6)
     assert json.loads((dataset / "dataset.json").read_text())["seed"] == 5
+
+
+def test_the_plan_line_counts_what_is_written(tmp_path, capsys):
+    """The line printed before a run counts the meshes (OOD ones included) and the shards it
+    will write, here a slice of the dataset: the written shard holds exactly that."""
+    import re
+
+    from basic_shapes.generate import generate
+
+    cfg = GenerateConfig(
+        classes=("cube",), objects_per_class=20, variants=1, objects_per_shard=10, seed=5
+    )
+    generate(tmp_path / "d", cfg, workers=0, shards=[1])
+    plan = capsys.readouterr().out.splitlines()[0]
+    found = re.search(r"(\d+) objects \(cube\), (\d+) meshes, 1 of 2 shards", plan)
+    assert found, plan
+    with Shard(tmp_path / "d" / "shard-00001.h5") as s:
+        objects = len(s.objects()["id"])
+        assert int(found[1]) == objects
+        assert int(found[2]) == len(s.mesh_table()["n_faces"]) > 2 * objects  # OOD meshes too

@@ -316,6 +316,26 @@ def test_a_constant_zero_db_prediction_is_scored(data, tmp_path):
     assert result["metrics"]["simple_mse"] == pytest.approx(expected, rel=1e-6)
 
 
+def test_a_model_returning_linear_values_is_named_not_its_scratch_file(data):
+    """The refusal names the model (its predictions went to a deleted temporary file)."""
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.evaluate import evaluate
+    from benchmark.scoring.protocol import PredictionsError
+
+    with BenchmarkData(data) as d:
+        target_shape = d.target_shape
+
+    class Linear:
+        name = "linear-model"
+
+        def predict(self, batch):
+            shape = (len(batch["scale_m"]), *target_shape)
+            return np.random.default_rng(0).random(shape).astype(np.float32)
+
+    with pytest.raises(PredictionsError, match="^linear-model's predict output: .* linear"):
+        evaluate(data, model=Linear(), progress=False)
+
+
 LIGHT_CORE = ("numpy", "numpy.libs", "h5py", "h5py.libs", "tqdm")
 
 

@@ -735,7 +735,9 @@ def plot(rows: list[dict], path: Path, title: str, references: dict | None = Non
         {k: v.get("complex_mse") for k, v in (references or {}).items()},
         title=title,
         xlabel="ms per mesh (inference, including featurization; log scale)",
-        marker_key={REGIME_KEY[k]: m for k, m in markers.items()},
+        marker_key={
+            REGIME_KEY[k]: m for k, m in markers.items() if k in {r["regime"] for r in rows}
+        },
     )
     with atomic_path(path) as tmp:
         tmp.write_bytes(plotting.png(fig))

@@ -23,6 +23,7 @@ from benchmark.scoring.protocol import (
     Model,
     ModelError,
     Predictions,
+    PredictionsError,
     PredictionsWriter,
     check_prediction,
     make_results,
@@ -154,8 +155,14 @@ def evaluate(
                 )
                 ms = predict_test_split(model, data, path, batch_size, who, progress)
                 speed = speed_block(ms)
-                with Predictions(path, data) as preds:
-                    metrics = score(data, preds, per_object=True)
+                try:
+                    with Predictions(path, data) as preds:
+                        metrics = score(data, preds, per_object=True)
+                except PredictionsError as exc:  # name the model, not a scratch file
+                    if write_predictions:
+                        raise
+                    named = str(exc).replace(str(path), f"{who}'s predict output")
+                    raise PredictionsError(named) from None
         else:
             overrides["name"] = overrides.get("name") or Path(predictions).stem
             with Predictions(predictions, data) as preds:
@@ -282,7 +289,7 @@ class Evaluator:
         )
 
     def eval(self, input_dict: dict) -> dict:
-        from benchmark.scoring.protocol import PredictionsError, write_predictions
+        from benchmark.scoring.protocol import write_predictions
 
         missing = {"mesh_uid", "target_db"} - set(input_dict)
         if missing:

@@ -92,7 +92,8 @@ def speed_vs_error(
     line_in = LINE * FONT_PT / 72
     axes_h = max(AXES_IN[1], n_labels * line_in + 0.1)
     width = MARGIN_IN["left"] + AXES_IN[0] + MARGIN_IN["right"]
-    height = MARGIN_IN["bottom"] + axes_h + MARGIN_IN["top"]
+    key_in = 0.25 if marker_key else 0.0  # a row above the axes for the marker key
+    height = MARGIN_IN["bottom"] + axes_h + MARGIN_IN["top"] + key_in
     fig = plt.figure(figsize=(width, height))
     ax = fig.add_axes(
         (
@@ -146,14 +147,22 @@ def speed_vs_error(
     ax.set_xlabel(xlabel)
     ax.set_ylabel("Complex MSE (dB², 95% interval; symlog)")
     if title:
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title, fontsize=10, pad=6 + 72 * key_in)
     ax.grid(True, which="both", alpha=0.3)
-    if marker_key:
+    if marker_key:  # above the axes: inside it would cover points or reference lines
         handles = [
-            Line2D([], [], ls="", marker=m, color="0.35", mfc="none", label=k)
-            for k, m in marker_key.items()
+            Line2D([], [], ls="", marker=m, color="0.35", label=k) for k, m in marker_key.items()
         ]
-        ax.legend(handles=handles, fontsize=7, loc="best", framealpha=0.8)
+        ax.legend(
+            handles=handles,
+            fontsize=7,
+            loc="lower center",
+            bbox_to_anchor=(0.5, 1.0),
+            ncol=len(handles),
+            frameon=False,
+            handletextpad=0.2,
+            columnspacing=1.0,
+        )
     _label_column(ax, labels, line_in / axes_h)
     return fig
 
