@@ -165,12 +165,14 @@ def _log_histograms(ax, values: dict, xlabel: str) -> None:
     """Step histograms of positive values on shared log-spaced bins, one per mesh kind."""
     from matplotlib.ticker import NullFormatter
 
-    present = {k: np.asarray(v) for k, v in values.items() if len(v) and np.any(np.asarray(v) > 0)}
-    if not present:
-        ax.text(0.5, 0.5, "none", ha="center", va="center", transform=ax.transAxes)
+    present = {k: np.asarray(v) for k, v in values.items() if len(v)}
+    positive = np.concatenate([v[v > 0] for v in present.values()] or [np.zeros(0)])
+    if not len(positive):
+        counts = ", ".join(f"{k}: {len(v)}" for k, v in present.items())
+        text = f"all 0 ({counts})" if present else "none"
+        ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes)
         ax.set_xlabel(xlabel)
         return
-    positive = np.concatenate([v[v > 0] for v in present.values()])
     lo, hi = positive.min(), positive.max()
     bins = np.geomspace(lo, hi * 1.001, 20) if hi > lo else np.array([lo * 0.9, hi * 1.1])
     for kind, v in present.items():

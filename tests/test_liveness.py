@@ -141,7 +141,7 @@ def test_losing_every_worker_fails_within_the_timeout(scheduler, monkeypatch):
 def test_ctrl_c_during_label_prints_one_line(tmp_path):
     """SIGINT to the whole process group, as a terminal sends it, while the Dask workers run."""
     data = write_dataset(tmp_path / "data", n_objects=12, objects_per_shard=12)
-    sidecar = data / ".labels" / "shard-00000"  # xband-v1: the large objects take seconds
+    sidecar = data / ".labels" / "shard-00000"  # the default config: large objects take seconds
     proc = subprocess.Popen(
         [
             sys.executable,

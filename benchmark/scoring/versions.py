@@ -457,7 +457,7 @@ def run(args) -> int:
             )
             print(f"{v.name:13s} {v.grid():42s} {recorded}\n{'':13s} {v.summary}")
         newest: dict[str, str] = {}
-        for name in VERSIONS:  # registered oldest first
+        for name in sorted(VERSIONS, key=lambda n: int(n.rsplit("-v", 1)[1])):
             newest[name.rsplit("-v", 1)[0]] = name
         print(
             f"\nnewest of each: {', '.join(newest.values())}; the older ones stay buildable "
