@@ -436,6 +436,8 @@ def load_json(
     else:
         what = what or "JSON text"
         raw = source.encode() if isinstance(source, str) else bytes(source)
+    if raw.startswith(b"\x89HDF\r\n\x1a\n"):  # the usual slip: two files' places swapped
+        raise error(f"{what}: an HDF5 file, not JSON")
     if len(raw) > max_bytes:
         raise error(f"{what}: larger than the {max_bytes} bytes allowed")
     depth = json_depth(raw)

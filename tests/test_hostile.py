@@ -449,6 +449,11 @@ def test_3_malformed_results_json_is_refused(ws, tmp_path, text, phrase):
     submit_refuses(ws, _results(ws, tmp_path, text=text), ws["pred"], phrase)
 
 
+def test_3_swapped_files_are_named_for_what_they_are(ws):
+    """The predictions file where the results JSON goes: said to be HDF5, not 'too large'."""
+    submit_refuses(ws, ws["pred"], ws["pred"], "an HDF5 file, not JSON")
+
+
 def test_3_duplicate_check_covers_the_content(ws, tmp_path):
     copy = tmp_path / "copy.h5"
     shutil.copyfile(ws["pred"], copy)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import sys
 import time
 from dataclasses import asdict, fields
@@ -31,8 +32,6 @@ runs go first."""
 TIMED_ALONE = "timed alone"
 TIMING_MESHES = 480
 """Test meshes (about) that ``time_alone`` times per row."""
-TIMING_PASSES = 3
-"""Passes over them; the fastest counts (other processes only ever add time)."""
 _WORKER: dict = {}
 
 
@@ -334,33 +333,36 @@ def run_jobs(
             for cfg in todo:
                 done(cfg, run_row(cfg, data_dir, out, preset, _WORKER, nproc, progress))
         firsts = [(c, records[c.name][c.seed]) for c in cfgs if c.seed == first_seed]
-        time_alone(out, data_dir, firsts, threads, progress=progress)
+        time_alone(out, data_dir, firsts, threads, preset.timing_passes, progress=progress)
     finally:
         torch.set_num_threads(previous)
         _WORKER.clear()
 
 
-def _mark_timed_alone(
-    out: Path, cfg, record: dict, ms_per_mesh: float, threads: int, sample: int
-) -> None:
-    """Store a speed measured with no other job of this run on the CPU, and say so and on
-    how many meshes."""
+def _mark_timed_alone(out: Path, cfg, record: dict, ms_per_mesh: float, threads: int, how: str):
+    """Store a speed measured with no other job of this run on the CPU, and say so and
+    ``how``."""
     from benchmark.scoring.evaluate import speed_block
     from benchmark.scoring.protocol import write_results
 
     speed = speed_block(ms_per_mesh, threads)
-    speed["hardware"] += f"; {TIMED_ALONE} on {sample} test meshes, fastest of {TIMING_PASSES}"
+    speed["hardware"] += f"; {TIMED_ALONE} {how}"
     record["results"]["speed"] = speed
     write_results(row_files(out, cfg.name, cfg.seed)[0], record["results"])
 
 
 def time_alone(
-    out: Path, data_dir: Path, jobs: list[tuple], threads: int, progress: bool = True
+    out: Path,
+    data_dir: Path,
+    jobs: list[tuple],
+    threads: int,
+    passes: int = 3,
+    progress: bool = True,
 ) -> None:
-    """Time the first seed of every row not yet timed alone: ``predict`` in the harness's
-    batches, one row at a time, after a warm-up batch, the fastest of TIMING_PASSES passes
-    (an evaluation's own pass measures whatever else shared the CPU); I/O excluded, as in
-    the harness.
+    """Time the first seed of every row not yet timed so: ``predict`` in the harness's
+    batches, one row at a time, after a warm-up batch, the fastest of ``passes`` passes
+    (other processes only ever add time; an evaluation's own pass measures whatever shared
+    the CPU); I/O excluded, as in the harness.
 
     Timed on TIMING_MESHES meshes, every k-th batch of the face-count order (cost grows with
     the faces, so this is a sample stratified by cost): all 2,850 test meshes of cpu-v1 would
@@ -373,11 +375,7 @@ def time_alone(
     from benchmark.scoring.protocol import scored_mesh_rows
     from benchmark.training.models.checkpoint import CheckpointModel
 
-    todo = [
-        (cfg, r)
-        for cfg, r in jobs
-        if f"fastest of {TIMING_PASSES}" not in (r["results"]["speed"].get("hardware") or "")
-    ]
+    todo = [(cfg, r) for cfg, r in jobs if not _timed(r, passes)]
     if not todo:
         return
     device = "cuda" if torch.cuda.is_available() else "cpu"
@@ -386,16 +384,23 @@ def time_alone(
         step = max(1, len(chunks) * 16 // TIMING_MESHES)
         batches = [data.batch(chunk) for chunk in chunks[step // 2 :: step]]
     n = sum(len(b["faces"]) for b in batches)
+    how = f"on {n} test meshes, fastest of {passes} pass(es) after a warm-up"
     for cfg, record in tqdm(todo, desc="timing", unit="row", disable=not progress):
         model = CheckpointModel(checkpoint_dir(out, cfg.name, cfg.seed), device=device)
         model.predict(batches[0])
         fastest = math.inf
-        for _ in range(TIMING_PASSES):
+        for _ in range(passes):
             t0 = time.perf_counter()
             for batch in batches:
                 model.predict(batch)
             fastest = min(fastest, time.perf_counter() - t0)
-        _mark_timed_alone(out, cfg, record, 1000.0 * fastest / n, threads, sample=n)
+        _mark_timed_alone(out, cfg, record, 1000.0 * fastest / n, threads, how)
+
+
+def _timed(record: dict, passes: int) -> bool:
+    """Timed alone with at least ``passes`` passes (older records: one pass)."""
+    found = re.search(r"fastest of (\d+) pass", record["results"]["speed"].get("hardware") or "")
+    return found is not None and int(found[1]) >= passes
 
 
 def publish_row(out: Path, name: str, seeds: list[int]) -> None:
