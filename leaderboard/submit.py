@@ -191,7 +191,10 @@ def submit(
             diffs = compare(results["metrics"], rescored)
             if diffs:
                 more = f" (and {len(diffs) - 1} more differences)" if len(diffs) > 1 else ""
-                raise SubmissionError(f"{results_path}: {diffs[0]}{more}")
+                raise SubmissionError(
+                    f"{results_path}: {diffs[0]}{more}; submit the results written with this "
+                    f"predictions file, unrounded (benchmark evaluate --predictions)"
+                )
             pred_sha = file_sha256(predictions_path)
             content_sha = preds.content_sha256()
             _check_duplicate(entries_dir, predictions_path, pred_sha, content_sha)  # fail early
