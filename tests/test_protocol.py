@@ -264,6 +264,15 @@ def test_malformed_predictions_give_one_line_errors(data_dir, model_run, tmp_pat
     assert str(err.value).startswith(str(bad)) and "\n" not in str(err.value)
 
 
+def test_writing_a_non_finite_prediction_is_refused_and_leaves_no_file(tmp_path):
+    target = np.zeros((3, 2, 2, 5), np.float32)
+    target[1, 0, 1, 2] = np.inf
+    path = tmp_path / "p.h5"
+    with pytest.raises(PredictionsError, match=r"p.h5: non-finite prediction for mesh_uid 11$"):
+        write_predictions(path, "f" * 64, np.array([10, 11, 12]), target, label_fingerprint="l")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_non_hdf5_and_linked_datasets_are_refused(data_dir, model_run, tmp_path):
     text = tmp_path / "preds.h5"
     text.write_text("mesh_uid,target\n")

@@ -222,8 +222,14 @@ class PredictionsWriter:
             )
         if self.filled + k > self.n:
             raise PredictionsError(f"{self.path}: more than the declared {self.n} rows written")
+        rows = np.asarray(target_db, np.float32)
+        bad = ~np.isfinite(rows).reshape(k, -1).all(axis=1)
+        if bad.any():  # refused here, not only when scored
+            raise PredictionsError(
+                f"{self.path}: non-finite prediction for mesh_uid {uids[np.flatnonzero(bad)[0]]}"
+            )
         self.uid[self.filled : self.filled + k] = np.asarray(uids, np.int64)
-        self.target[self.filled : self.filled + k] = np.asarray(target_db, np.float32)
+        self.target[self.filled : self.filled + k] = rows
         self.filled += k
 
     def __exit__(self, exc_type, exc, tb) -> None:
