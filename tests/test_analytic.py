@@ -171,7 +171,10 @@ def test_json_rule_and_bad_input():
         analytic.surface_distance(analytic.solid_for("cube", (1, 1, 1)), np.zeros(3))
 
 
-@pytest.mark.parametrize("kind", analytic.KINDS)
+@pytest.mark.parametrize(
+    "kind",  # the torus (off by default; 30 s here) runs in the slow set
+    [pytest.param(k, marks=pytest.mark.slow) if k == "torus" else k for k in analytic.KINDS],
+)
 def test_blender_primitives_lie_on_the_analytic_surface(kind):
     from basic_shapes import blender
 

@@ -196,7 +196,13 @@ def test_params_record_what_was_done(objects):
     assert len(resolutions) > 5  # curved variants vary segments and rings
 
 
-@pytest.mark.parametrize("name", sorted(primitives.PRIMITIVES))
+@pytest.mark.parametrize(
+    "name",  # the torus (off by default; 30 s here) runs in the slow set
+    [
+        pytest.param(n, marks=pytest.mark.slow) if n == "torus" else n
+        for n in sorted(primitives.PRIMITIVES)
+    ],
+)
 def test_every_registered_primitive_builds_and_verifies(name):
     spec = primitives.PRIMITIVES[name]
     meshes = blender.object_meshes(name, SCALE, 3, 3)
