@@ -20,7 +20,12 @@ import numpy as np
 from basic_shapes.infra import atomic_path, load_json
 from benchmark.reproduction.presets import PRESETS, PRETRAINING, ROWS
 from benchmark.reproduction.runner import checkpoint_dir, row_files
-from benchmark.scoring.schema import METRIC_NAMES, OOD_METRIC_NAMES, PEAK_METRIC_NAMES
+from benchmark.scoring.schema import (
+    METRIC_NAMES,
+    OOD_METRIC_NAMES,
+    PEAK_METRIC_NAMES,
+    REFERENCE_NAMES,
+)
 from benchmark.training.models import FACE_EMBEDDINGS, REGISTRY
 from benchmark.training.models.checkpoint import CONFIG_MAX_BYTES, number, plateau_record
 
@@ -583,8 +588,6 @@ def _provenance(table: dict) -> str:
 def render_markdown(table: dict) -> str:
     """table.md from the table, the same text from memory or from table.json (whose keys are
     sorted): the references in their schema order."""
-    from benchmark.scoring.schema import REFERENCE_NAMES
-
     refs = table["references"]
     table = {**table, "references": {n: refs[n] for n in REFERENCE_NAMES if n in refs}}
     lines = [

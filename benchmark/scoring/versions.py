@@ -456,9 +456,8 @@ def run(args) -> int:
                 else "no manifest recorded"
             )
             print(f"{v.name:13s} {v.grid():42s} {recorded}\n{'':13s} {v.summary}")
-        newest: dict[str, str] = {}
-        for name in sorted(VERSIONS, key=lambda n: int(n.rsplit("-v", 1)[1])):
-            newest[name.rsplit("-v", 1)[0]] = name
+        by_number = sorted(VERSIONS, key=lambda n: int(n.rsplit("-v", 1)[1]))
+        newest = {n.rsplit("-v", 1)[0]: n for n in by_number}  # the last of each family wins
         print(
             f"\nnewest of each: {', '.join(newest.values())}; the older ones stay buildable "
             "(committed tables and board entries rest on them: docs/RESULTS.md names each one's)"
