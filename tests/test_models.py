@@ -176,6 +176,23 @@ def test_aggregator_reads_the_full_encoders_cls_row(n_layers):
         torch.testing.assert_close(agg(emb, mask), full, atol=1e-5, rtol=1e-5)
 
 
+def test_aggregator_predicts_with_the_arithmetic_it_trained_with():
+    """Prediction does not take torch's fast inference path (its full attention matrices ran
+    a GPU out of memory at the paper's size): eval without grad gives the training-mode
+    output bit for bit, and torch's global fast-path switch is left as it was."""
+    from benchmark.training.models.aggregator import Aggregator
+
+    torch.manual_seed(0)
+    agg = Aggregator(64, 3, n_heads=4)
+    emb = torch.randn(4, 50, 64)
+    mask = torch.arange(50)[None] < torch.tensor([[50], [40], [30], [20]])
+    with torch.no_grad():
+        trained = agg.train()(emb, mask)
+        predicted = agg.eval()(emb, mask)
+    assert torch.equal(predicted, trained)
+    assert torch.backends.mha.get_fastpath_enabled()
+
+
 def test_graph_node_features_are_the_projected_concatenation():
     """The folded one-hot sum is the projection of the concatenated token embeddings."""
     from benchmark.training.models.features import TOKEN_GROUPS

@@ -126,9 +126,10 @@ PRESETS = {
             pretrain_lr=3e-4,
         ),
         launcher="torchrun",
-        expected="estimated (not measured) 3-4 hours of training and evaluation on one "
-        "H100-class GPU, divided roughly by N with torchrun on N GPUs; generating and "
-        "labelling the 300,000 meshes is about 30 CPU-minutes (a Dask cluster)",
+        expected="about 12 hours on one H200 GPU with every run at the epoch cap (measured "
+        "per step: docs/RESULTS.md), less where runs plateau, divided roughly by N with "
+        "torchrun on N GPUs; generating and labelling the 300,000 meshes is about 2.4 "
+        "CPU-hours (a Dask cluster)",
     ),
 }
 

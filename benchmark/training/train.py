@@ -17,7 +17,8 @@ the Simple MSE on the validation split (``plateau``: the learning rate is halved
 best epoch is ``patience // 2`` epochs old, training stops when it is ``patience`` epochs
 old, ``epochs`` is the cap) and the checkpoint is the best epoch (``fit``; without val
 objects, all ``epochs`` with a cosine decay, and the last epoch); the test split is never
-looked at. Runs are deterministic for a seed and a thread count on one machine. Under
+looked at. Runs are deterministic for a seed and a thread count on one CPU machine (on a GPU
+they are not: memory-efficient attention's backward, docs/RESULTS.md). Under
 ``torchrun`` (``WORLD_SIZE`` > 1, joined by ``benchmark.training.train_cli``) the loss module is
 wrapped in DistributedDataParallel and every epoch's objects are sharded with a
 DistributedSampler; rank 0's val MSE decides for all ranks; rank 0 writes the checkpoint.
