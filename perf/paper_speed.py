@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import hashlib
 import json
 import math
 import time
@@ -394,6 +395,7 @@ def main() -> None:
             "device": str(device),
             "torch": torch.__version__,
             "set": source,
+            "set_sha256": hashlib.sha256(Path(args.set).read_bytes()).hexdigest(),
             "corpus_s_per_mesh": corpus_s,
             "rows": measured,
             "preset": preset_hours(measured, corpus_s),
