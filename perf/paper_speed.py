@@ -33,6 +33,7 @@ Writes perf/results/paper_speed.json (``--out``) and prints a table.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import hashlib
 import json
@@ -40,11 +41,12 @@ import math
 import time
 from dataclasses import replace
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import torch
 
-from basic_shapes.generate import plan_objects
+from basic_shapes.generate import _mesh_count, plan_objects
 from basic_shapes.infra import atomic_path, hardware
 from benchmark.reproduction.presets import PRESETS, ROWS
 from benchmark.reproduction.runner import row_config
@@ -70,7 +72,6 @@ from benchmark.training.train import (
 )
 
 PRESET = PRESETS["paper"]
-OOD_PER_TEST_OBJECT = 9  # three validated remeshers x three meshes (docs/DATASETS.md)
 
 
 # --- the timing set (here) --------------------------------------------------------------------
@@ -162,10 +163,11 @@ def seconds_per_step(task, examples, groups, steps: int, lr: float, device) -> f
 
 def seconds_per_mesh(model, examples: list[Example], device) -> float:
     """Prediction as validation and evaluation run it (batches of similar face count)."""
-    validation_mse(model, examples[: PRESET.train["batch_size"]], 32, device)  # warm-up
+    size = PRESET.train["batch_size"]
+    validation_mse(model, examples[:size], size, device)  # warm-up
     _sync(device)
     t0 = time.perf_counter()
-    validation_mse(model, examples, PRESET.train["batch_size"], device)
+    validation_mse(model, examples, size, device)
     _sync(device)
     return (time.perf_counter() - t0) / len(examples)
 
@@ -200,7 +202,7 @@ def measure_row(embedding: str, regime: str, path: str, corpus, steps: int, devi
     _peak(device)
     out["train_step_s"] = seconds_per_step(task, examples, groups, steps, cfg.lr, device)
     out["train_peak_gib"] = _peak(device)
-    complex_ = [e for k, e in enumerate(examples) if k not in set(simple)]
+    complex_ = [e for k, e in enumerate(examples) if k not in frozenset(simple)]
     out["predict_simple_s"] = seconds_per_mesh(model, [examples[k] for k in simple], device)
     out["predict_complex_s"] = seconds_per_mesh(model, complex_, device)
     trained_on = np.concatenate(groups)
@@ -209,32 +211,16 @@ def measure_row(embedding: str, regime: str, path: str, corpus, steps: int, devi
     return {k: v for k, v in out.items() if v is not None}
 
 
-def _aggregate(agg, emb: torch.Tensor, mask: torch.Tensor, fast: bool) -> torch.Tensor:
-    """``Aggregator.forward`` with torch's fast inference path allowed (as before
-    ``aggregator._inner_path``) or not (as now)."""
-    from benchmark.training.models.aggregator import _cls_only
-
-    torch.backends.mha.set_fastpath_enabled(fast)
-    try:
-        x = torch.cat([agg.cls.expand(len(emb), -1, -1), emb], 1)
-        pad = torch.cat([mask.new_zeros(len(mask), 1), ~mask], 1)
-        *inner, last = agg.encoder.layers
-        for layer in inner:
-            x = layer(x, src_key_padding_mask=pad)
-        return agg.norm(_cls_only(last, x, pad))
-    finally:
-        torch.backends.mha.set_fastpath_enabled(True)
-
-
 def aggregator_probe(device: torch.device, batch: int = 32, faces: int = 4000) -> list[dict]:
     """The paper preset's aggregator alone on ``batch`` meshes of 3,000-``faces`` faces: time
-    (second of two calls) and peak memory of prediction with and without torch's fast
-    inference path, and of a training step; the largest difference of the predictions."""
-    from benchmark.training.models.aggregator import Aggregator
+    (second of two calls) and peak memory of prediction with torch's fast inference path (the
+    aggregator before ``aggregator._inner_path``) and without (now), and of a training step;
+    the largest difference of the outputs from the first."""
+    from benchmark.training.models import aggregator
 
     t = PRESET.train
     torch.manual_seed(0)
-    agg = Aggregator(t["dim"], t["agg_layers"], t["n_heads"]).to(device)
+    agg = aggregator.Aggregator(t["dim"], t["agg_layers"], t["n_heads"]).to(device)
     emb = torch.randn(batch, faces, t["dim"], device=device)
     lengths = torch.linspace(3000, faces, batch, device=device)
     mask = torch.arange(faces, device=device)[None, :] < lengths[:, None]
@@ -244,8 +230,10 @@ def aggregator_probe(device: torch.device, batch: int = 32, faces: int = 4000) -
         for _ in range(2):
             _peak(device)
             t0 = time.perf_counter()
-            with torch.set_grad_enabled(train):
-                y = _aggregate(agg, emb, mask, fast)
+            before = (contextlib.nullcontext if fast else aggregator._inner_path,)
+            with mock.patch.object(aggregator, "_inner_path", *before):  # fast: as before
+                with torch.set_grad_enabled(train):
+                    y = agg(emb, mask)
                 if train:
                     y.sum().backward()
             _sync(device)
@@ -268,23 +256,23 @@ def preset_hours(rows: list[dict], corpus_s_per_mesh: float) -> dict:
     cap (validation once per epoch on the val objects' simple meshes), pretraining where the
     row has it, evaluation of the test objects' 100 meshes + OOD, the corpus built once."""
     t = PRESET.train
-    plans = plan_objects(get_version(PRESET.dataset).generator())
+    generator = get_version(PRESET.dataset).generator()
+    plans = plan_objects(generator)
     split = {s: sum(p.split == s for p in plans) for s in ("train", "val", "test")}
-    steps = math.ceil(split["train"] / t["batch_size"])
+    steps = math.ceil(split["train"] / t["batch_size"])  # = len(epoch_batches) at 2,400
     pre_steps = math.ceil(t["pretrain_meshes"] / t["batch_size"])
-    meshes = 1 + get_version(PRESET.dataset).variants
+    test = [p for p in plans if p.split == "test"]
+    complex_meshes = _mesh_count([(None, test)], generator.to_dict()) - len(test)  # + OOD
     per_row = {}
     for r in rows:
         epoch = steps * r["train_step_s"] + split["val"] * r["predict_simple_s"]
         pre = t["pretrain_epochs"] * pre_steps * r.get("pretrain_step_s", 0.0)
-        test = split["test"] * (
-            r["predict_simple_s"] + (meshes - 1 + OOD_PER_TEST_OBJECT) * r["predict_complex_s"]
-        )
+        evaluate = len(test) * r["predict_simple_s"] + complex_meshes * r["predict_complex_s"]
         per_row[r["row"]] = {
             "epoch_s": epoch,
             "pretrain_s": pre,
-            "evaluate_s": test,
-            "seed_s_at_cap": t["epochs"] * epoch + pre + test,
+            "evaluate_s": evaluate,
+            "seed_s_at_cap": t["epochs"] * epoch + pre + evaluate,
         }
     seeds = len(PRESET.seeds)
     corpus = corpus_s_per_mesh * t["pretrain_meshes"]
@@ -312,7 +300,7 @@ def table(rows: list[dict], hours: dict) -> str:
         mem = (
             f"{r['train_peak_gib']:.1f}, {r['predict_peak_gib']:.1f}"
             if "train_peak_gib" in r
-            else f"{r['peak_memory_gib']:.1f} (both)"
+            else f"{r['peak_memory_gib']:.1f} (both)"  # the first version: one peak for both
             if "peak_memory_gib" in r
             else "-"
         )
@@ -374,17 +362,29 @@ def main() -> None:
     from benchmark.training.train import corpus_meshes
 
     rows = [(e, r) for e, r in ROWS if not args.rows or f"{e}-{r}" in args.rows.split(",")]
+    run = {
+        "device": str(device),
+        "gpu": hardware()["gpu"],
+        "torch": torch.__version__,
+        "steps": args.steps,
+        "corpus": args.corpus,
+        "set_sha256": hashlib.sha256(Path(args.set).read_bytes()).hexdigest(),
+    }
     kept = json.loads(Path(args.out).read_text()) if Path(args.out).exists() else {}
-    source = str(np.load(args.set)["source"])
-    if "rows" in kept and (kept["set"], kept["device"]) != (source, str(device)):
-        raise SystemExit(f"paper_speed: {args.out} holds another set or device; move it away")
+    if "rows" in kept and kept.get("run") != run:
+        raise SystemExit(
+            f"paper_speed: {args.out} holds rows of another run (GPU, torch, --steps, --corpus "
+            "or set); give another --out"
+        )
     measured = kept.get("rows", [])  # a cut-off run continues with the rows it lacks
-    cfg = row_config(PRESET, FACE_EMBEDDINGS[0], "classification", 0, None)
-    t0 = time.perf_counter()
-    corpus = corpus_meshes(replace(cfg, pretrain_meshes=args.corpus))
-    corpus_s = kept.get("corpus_s_per_mesh", (time.perf_counter() - t0) / args.corpus)
-    done = {r["row"] for r in measured}
-    for e, r in [(e, r) for e, r in rows if f"{e}-{r}" not in done]:
+    todo = [(e, r) for e, r in rows if f"{e}-{r}" not in {m["row"] for m in measured}]
+    corpus, corpus_s = None, kept.get("corpus_s_per_mesh")
+    if any(r in ("classification", "autoencoder") for _, r in todo) or corpus_s is None:
+        cfg = row_config(PRESET, FACE_EMBEDDINGS[0], "classification", 0, None)
+        t0 = time.perf_counter()
+        corpus = corpus_meshes(replace(cfg, pretrain_meshes=args.corpus))
+        corpus_s = corpus_s or (time.perf_counter() - t0) / args.corpus
+    for e, r in todo:
         measured.append(measure_row(e, r, args.set, corpus, args.steps, device))
         print(json.dumps(measured[-1]), flush=True)
         record = {
@@ -394,8 +394,8 @@ def main() -> None:
             "machine": hardware(),
             "device": str(device),
             "torch": torch.__version__,
-            "set": source,
-            "set_sha256": hashlib.sha256(Path(args.set).read_bytes()).hexdigest(),
+            "set": str(np.load(args.set)["source"]),
+            "run": run,
             "corpus_s_per_mesh": corpus_s,
             "rows": measured,
             "preset": preset_hours(measured, corpus_s),

@@ -176,10 +176,20 @@ def test_aggregator_reads_the_full_encoders_cls_row(n_layers):
         torch.testing.assert_close(agg(emb, mask), full, atol=1e-5, rtol=1e-5)
 
 
+FUSED = "aten::_transformer_encoder_layer_fwd"  # torch's fused inference path
+
+
+def _ops(run) -> set[str]:
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+        run()
+    return {e.key for e in prof.key_averages()}
+
+
 def test_aggregator_predicts_with_the_arithmetic_it_trained_with():
-    """Prediction does not take torch's fast inference path (its full attention matrices ran
-    a GPU out of memory at the paper's size): eval without grad gives the training-mode
-    output bit for bit, and torch's global fast-path switch is left as it was."""
+    """Prediction does not take torch's fused inference path, which torch takes for a bare
+    layer (its full attention matrices took 62 GiB of GPU at the paper's size): eval without
+    grad gives the training-mode output bit for bit, and torch's global fast-path switch is
+    left as it was."""
     from benchmark.training.models.aggregator import Aggregator
 
     torch.manual_seed(0)
@@ -188,7 +198,10 @@ def test_aggregator_predicts_with_the_arithmetic_it_trained_with():
     mask = torch.arange(50)[None] < torch.tensor([[50], [40], [30], [20]])
     with torch.no_grad():
         trained = agg.train()(emb, mask)
-        predicted = agg.eval()(emb, mask)
+        agg.eval()
+        assert FUSED in _ops(lambda: agg.encoder.layers[0](emb, src_key_padding_mask=~mask))
+        assert FUSED not in _ops(lambda: agg(emb, mask))
+        predicted = agg(emb, mask)
     assert torch.equal(predicted, trained)
     assert torch.backends.mha.get_fastpath_enabled()
 

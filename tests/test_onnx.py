@@ -452,6 +452,19 @@ def test_a_malformed_or_foreign_file_is_refused_in_one_line(case, problem, tmp_p
     assert not (tmp_path / "e").exists()
 
 
+def test_an_aggregator_of_several_layers_exports():
+    """The exporter has no ONNX form of torch's fused inference path, which eval without grad
+    took in every aggregator layer but the last (before ``aggregator._inner_path``)."""
+    from benchmark.training.models.aggregator import Aggregator
+
+    agg = Aggregator(32, 3, n_heads=4).eval()
+    emb, mask = torch.randn(1, 20, 32), torch.ones(1, 20, dtype=torch.bool)
+    buf = io.BytesIO()
+    with torch.no_grad():
+        torch.onnx.export(agg, (emb, mask), buf, dynamo=False)
+    assert buf.getvalue()
+
+
 def test_parameters_are_counted_from_the_graph(tmp_path):
     weights = numpy_helper.from_array(np.ones((10, 20), np.float32), "w")
     bias = helper.make_tensor("b", TensorProto.FLOAT, [5], [1.0] * 5)

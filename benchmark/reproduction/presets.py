@@ -92,7 +92,7 @@ PRESETS = {
         workers=None,
         jobs=2,
         train=dict(SMALL_MODEL, **PLATEAU, batch_size=8),
-        expected="about 10 minutes on 2 CPU cores",
+        expected="about 5 minutes on 2 CPU cores",
         seeds=(0,),
         findings=False,
     ),
@@ -126,10 +126,11 @@ PRESETS = {
             pretrain_lr=3e-4,
         ),
         launcher="torchrun",
-        expected="about 12 hours on one H200 GPU with every run at the epoch cap (measured "
-        "per step: docs/RESULTS.md), less where runs plateau, divided roughly by N with "
-        "torchrun on N GPUs; generating and labelling the 300,000 meshes is about 2.4 "
-        "CPU-hours (a Dask cluster)",
+        expected="12 hours on one H200 GPU for the 13 rows measured with every run at the "
+        "epoch cap (docs/RESULTS.md: less where runs plateau, more with the other 4 rows), "
+        "and 18 GB of predictions per run; under torchrun each row trains on N GPUs (DDP); "
+        "generating and labelling the 300,000 meshes is an estimated 2.4 CPU-hours (a Dask "
+        "cluster)",
     ),
 }
 
