@@ -917,3 +917,16 @@ def test_rows_timed_with_fewer_passes_are_timed_again():
     assert _timed(record(f"{cpu}; timed alone on 57 test meshes, fastest of 3 pass(es)"), 3)
     assert _timed(record(f"{cpu}; timed alone on 57 test meshes, fastest of 3 pass(es)"), 1)
     assert not _timed(record(None), 1)
+
+
+def test_reproduce_warns_when_the_predictions_will_not_fit(tmp_path, capsys):
+    """The paper preset writes 18 GB of predictions per run: said at the start, against the
+    real free space of the output folder (an exabyte never fits, a byte always does)."""
+    from benchmark.reproduction.reproduce import _warn_disk
+
+    _warn_disk(tmp_path, 1, 1)
+    assert capsys.readouterr().err == ""
+    _warn_disk(tmp_path, 1000, 10**15)
+    err = capsys.readouterr().err
+    assert err.startswith("benchmark reproduce: warning: 1000 run(s) will write about ")
+    assert f"({10**15 / 1e9:.2f} GB each)" in err and str(tmp_path) in err

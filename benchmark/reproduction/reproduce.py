@@ -14,8 +14,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import shutil
+import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from basic_shapes.infra import add_quiet_flag, hardware, number
 from benchmark.reproduction import report, runner
@@ -89,11 +93,26 @@ def _command(args: argparse.Namespace) -> str:
     return command
 
 
+def _warn_disk(out: Path, runs: int, per_run: int) -> None:
+    """Say at the start when the runs' predictions files (float32, every test mesh) will not
+    fit: the paper preset writes 18 GB per run. A full disk stops the run with a one-line
+    error and the same command resumes it."""
+    free = shutil.disk_usage(out).free
+    if runs * per_run > free:
+        print(
+            f"benchmark reproduce: warning: {runs} run(s) will write about "
+            f"{runs * per_run / 1e9:.1f} GB of predictions ({per_run / 1e9:.2f} GB each) and "
+            f"{out} has {free / 1e9:.1f} GB free",
+            file=sys.stderr,
+        )
+
+
 def run(args: argparse.Namespace) -> None:
     """``benchmark reproduce``: dataset -> corpus -> every (row, seed) -> table, JSON, plot."""
     import torch
 
     from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.protocol import scored_mesh_rows
 
     t_start = time.perf_counter()
     preset = PRESETS[args.preset]
@@ -112,6 +131,7 @@ def run(args: argparse.Namespace) -> None:
     with BenchmarkData(data_dir) as data:
         dataset = report.dataset_info(data, data_dir)
         ref_scorers, ref_rows, oracle = report.reference_rows(data)
+        per_run = 4 * len(scored_mesh_rows(data)) * int(np.prod(data.target_shape))
     fingerprint = dataset["fingerprint"]
     cfgs = [runner.row_config(preset, e, r, s, args.shapenet) for e, r in rows for s in seeds]
     if args.overwrite:  # retrain: a run whose checkpoint config is gone trains again
@@ -124,6 +144,7 @@ def run(args: argparse.Namespace) -> None:
     if corpus[0]:
         timing["corpus_s"] = time.perf_counter() - t0
     todo, records = runner.resume(cfgs, out, fingerprint, args.overwrite)
+    _warn_disk(out, len(todo), per_run)
     t_rows = time.perf_counter()
 
     def write(with_plot: bool = False) -> None:
