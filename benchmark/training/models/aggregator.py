@@ -44,10 +44,11 @@ class Aggregator(nn.Module):
 @contextlib.contextmanager
 def _inner_path():
     """Without grad, ``nn.TransformerEncoderLayer`` takes a fast path that forms every head's
-    full attention matrix when a padding mask is given: predicting 32 meshes of 4,000 faces
-    with the paper preset's aggregator (6 layers, width 256, 8 heads) peaked at 61.8 GiB on an
-    H200, against 1.1 GiB (and 174 instead of 280 ms) through ``scaled_dot_product_attention``
-    as in training (perf/paper_speed.py, ``aggregator_probe``)."""
+    full attention matrix when a padding mask is given: predicting 32 meshes of 3,000-4,000
+    faces with the paper preset's aggregator (6 layers, width 256, 8 heads) peaked at 61.8 GiB
+    on an H200, against 1.1 GiB (and 174 instead of 280 ms) through
+    ``scaled_dot_product_attention`` as in training (perf/results/paper_speed.json,
+    ``aggregator_probe``; ``perf/paper_speed.py --probe``)."""
     enabled = torch.backends.mha.get_fastpath_enabled()
     torch.backends.mha.set_fastpath_enabled(False)
     try:
