@@ -930,3 +930,16 @@ def test_reproduce_warns_when_the_predictions_will_not_fit(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("benchmark reproduce: warning: 1000 run(s) will write about ")
     assert f"({10**15 / 1e9:.2f} GB each)" in err and str(tmp_path) in err
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the warning is for machines without one")
+def test_reproduce_warns_that_the_paper_preset_needs_a_gpu(tmp_path, capsys):
+    """Said before anything is built (paper-v3 alone is hours of CPU)."""
+    with pytest.raises(SystemExit) as exc:
+        benchmark_main(
+            ["reproduce", "--preset", "paper", "--data", str(tmp_path / "none"), "--out",
+             str(tmp_path / "out"), "--quiet"]
+        )  # fmt: skip
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("benchmark reproduce: warning: the paper preset is sized for GPUs")
+    assert str(tmp_path / "none") in str(exc.value.code)
