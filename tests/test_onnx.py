@@ -453,8 +453,8 @@ def test_a_malformed_or_foreign_file_is_refused_in_one_line(case, problem, tmp_p
 
 
 def test_an_aggregator_of_several_layers_exports():
-    """The exporter has no ONNX form of torch's fused inference path, which eval without grad
-    took in every aggregator layer but the last (before ``aggregator._inner_path``)."""
+    """Torch's exporter has no ONNX form of its fused inference path, which an aggregator
+    exported on its own took in every layer but the last (before ``aggregator._inner_path``)."""
     from benchmark.training.models.aggregator import Aggregator
 
     agg = Aggregator(32, 3, n_heads=4).eval()
