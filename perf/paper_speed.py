@@ -202,7 +202,8 @@ def measure_row(embedding: str, regime: str, path: str, corpus, steps: int, devi
     _peak(device)
     out["train_step_s"] = seconds_per_step(task, examples, groups, steps, cfg.lr, device)
     out["train_peak_gib"] = _peak(device)
-    complex_ = [e for k, e in enumerate(examples) if k not in frozenset(simple)]
+    first = set(simple)
+    complex_ = [e for k, e in enumerate(examples) if k not in first]
     out["predict_simple_s"] = seconds_per_mesh(model, [examples[k] for k in simple], device)
     out["predict_complex_s"] = seconds_per_mesh(model, complex_, device)
     trained_on = np.concatenate(groups)
