@@ -103,19 +103,25 @@ def test_rebuild_under_a_foreign_cpu_matches_the_manifest(tmp_path):
     assert report["matches_recorded"] is True, report["differences"]
 
 
-def test_check_names_the_altered_mesh(tiny, tmp_path):
-    """One vertex moved by one float32 ulp (fingerprint kept): --check names shard, object,
-    variant and that the vertices differ, exit 1, one line on stderr."""
+@pytest.fixture
+def altered(tiny, tmp_path) -> Path:
+    """TINY with one vertex of object 2, variant 1 in shard 0 moved by one float32 ulp (its
+    stored fingerprint kept)."""
     data = tmp_path / "altered"
     shutil.copytree(tiny, data)
-    shard = data / "shard-00000.h5"
-    with h5py.File(shard, "r+") as f:
+    with h5py.File(data / "shard-00000.h5", "r+") as f:
         oi, var = f["meshes/object_index"][()], f["meshes/variant"][()]
         row = int(np.flatnonzero((oi == 2) & (var == 1))[0])
         start = int(f["meshes/vertex_offset"][row])
         v = f["meshes/vertices"][start]
         f["meshes/vertices"][start] = np.nextafter(v, np.float32(np.inf))
-    proc = dataset_cli(TINY, "--check", "--data", str(data))
+    return data
+
+
+def test_check_names_the_altered_mesh(altered):
+    """--check names shard, object, variant and that the vertices differ, exit 1, one line on
+    stderr."""
+    proc = dataset_cli(TINY, "--check", "--data", str(altered))
     assert proc.returncode == 1
     error = proc.stderr.strip()
     assert error.count("\n") == 0
@@ -124,6 +130,22 @@ def test_check_names_the_altered_mesh(tiny, tmp_path):
     report = json.loads(proc.stdout)
     assert report["matches_recorded"] is False
     assert any("stored fingerprints" in d for d in report["differences"])
+
+
+def test_a_folded_manifest_names_the_altered_object(tiny, altered):
+    """Above PER_MESH_LIMIT meshes a manifest keeps one hash over each object's meshes: the
+    build it was made from still matches it, and the altered vertex is named by its object."""
+    full = mf.build(tiny, TINY)
+    assert mf.fold_meshes(full) is full  # tiny is far below the limit
+    folded = json.loads(mf.dumps(mf.fold_meshes(full, limit=0)))
+    objects = [o for s in folded["shards"] for o in s["objects"]]
+    assert all(set(o["meshes"]) == {"count", "hash"} for o in objects)
+    assert len(mf.dumps(folded)) < len(mf.dumps(full)) / 2
+    assert mf.differences(folded, full) == []
+    found = mf.differences(folded, mf.build(altered, TINY))
+    object_id = folded["shards"][0]["objects"][2]["id"]
+    assert found[0].startswith(f"shard-00000.h5 object {object_id}: meshes differ")
+    assert not any("variant" in d for d in found)
 
 
 def test_check_names_an_altered_label(tiny, tmp_path):

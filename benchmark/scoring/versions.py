@@ -473,7 +473,7 @@ def run(args) -> int:
 
         return heldout.run(args, version)
     if args.record:
-        found = mf.build(args.data, version.name, stack())
+        found = mf.fold_meshes(mf.build(args.data, version.name, stack()))
         with atomic_path(version.manifest_path) as tmp:
             tmp.write_text(mf.dumps(found))
         print(
