@@ -41,6 +41,7 @@ VERTEX_TERM_COST = 8.0  # one moment update per vertex / one multiply-add of the
 DIRECT_COST = 30.0  # one direct phasor and multiply-add / one of the contraction
 MOMENT_EPS = facet.EPS / 16  # Taylor remainder of a vertex phasor in the binned sums
 MOMENT_BUDGET = 64 << 20  # bytes of moments (or contraction matrix) held at a time
+SETUP_CHUNK = 1 << 14  # faces per step of the per-mesh set-up (area vectors)
 MIN_PLAUSIBLE_HZ = 1e6  # physical optics on a mesh below 1 MHz: GHz given as Hz
 
 
@@ -202,7 +203,15 @@ class _Geometry:
         self.v_in_order = np.ascontiguousarray(mesh.vertices)
         self.v = np.ascontiguousarray(self.v_in_order[order])
         self.f = np.ascontiguousarray(self.local[faces])  # int32: half the traffic
-        self.area, self.area_lo = facet.area_vectors_split(self.v_in_order[faces])
+        # by chunks of faces: the double-double arithmetic's temporaries stay in the cache
+        # (1.06 against 0.52 µs per face at 500k and 130k faces in one piece); every step is
+        # elementwise, so the chunks give the same bytes
+        chunks = range(0, max(len(faces), 1), SETUP_CHUNK)
+        parts = [
+            facet.area_vectors_split(self.v_in_order[faces[i : i + SETUP_CHUNK]]) for i in chunks
+        ]
+        self.area = np.concatenate([hi for hi, _ in parts])
+        self.area_lo = np.concatenate([lo for _, lo in parts])
         self.area_split = np.concatenate(facet.split(self.area), axis=1)  # (F, 6)
         self.two_sided = not mesh.closed
         self._mesh = mesh

@@ -146,10 +146,12 @@ def _phasors(s, k, two_dk, re, im, tab, par):
 
 
 @njit(cache=True)
-def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, work, tab, par):
+def _add_series(row, k, k_hi, two_dk, tol, proj, s0, s1, s2, work, coef, tab, par):
     """Near-specular facet: e^{j2k s_mid} Σ_n (2/√π) P (2jk)^n h_n(σ_lo, σ_hi)/(n+2)! · k,
     truncated where (2k_max d)^N (N+1)/(N+2)! <= tol/2 (at most 16 terms). ``work``: scratch
-    rows (``first_bounce``), row 4 holding k²."""
+    rows (``first_bounce``), row 4 holding k²; ``coef``: _SERIES_N scratch numbers. Both, and
+    k_hi = max(k), come from the caller: an allocation and a pass over k per facet were a fifth
+    of this function's time, and these facets grow as the square of the face count."""
     if s0 > s1:
         s0, s1 = s1, s0
     if s1 > s2:
@@ -158,8 +160,8 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, work, tab, par):
         s0, s1 = s1, s0
     lo = s0 - s1
     hi = s2 - s1
-    x = 2.0 * k.max() * (hi - lo)
-    coef = np.empty(_SERIES_N)  # real parts of (2/√π) P 2^n h_n/(n+2)!, sign of j^n in
+    x = 2.0 * k_hi * (hi - lo)
+    # coef: real parts of (2/√π) P 2^n h_n/(n+2)!, sign of j^n in
     h = 1.0
     lo_pow = 1.0
     fact = 2.0
@@ -203,13 +205,13 @@ def _add_series(row, k, two_dk, tol, proj, s0, s1, s2, work, tab, par):
 
 
 @njit(cache=True)
-def _add_pair_tan(row, k, two_dk, tol, d, e, g, si, sj, work, tab, par):
+def _add_pair_tan(row, k, k_lo, k_hi, two_dk, tol, d, e, g, si, sj, work, tab, par):
     """The k⁰⁺ part of a near pair: −j e D T(kg) (e^{j2ks_i} + e^{j2ks_j}), T = tan(y)/y
-    truncated where TAN_m (k_max g)^{2m}/(k_min e) <= tol/2 (at most 8 terms). ``work``:
+    truncated where TAN_m (k_hi g)^{2m}/(k_lo e) <= tol/2 (at most 8 terms). ``work``:
     scratch rows (``first_bounce``)."""
     n_tan = len(_TAN)
-    y2_max = (k.max() * g) ** 2
-    bound = 1.0 / abs(k.min() * e)
+    y2_max = (k_hi * g) ** 2
+    bound = 1.0 / abs(k_lo * e)
     terms = n_tan
     for m in range(1, n_tan):
         bound *= y2_max
@@ -345,6 +347,8 @@ def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
     r = np.empty((BLOCK, 3))
     r_split = np.empty((BLOCK, 6))
     scratch = np.empty((7, len(k)))  # phasors (4 rows), k², Horner sums (2 rows)
+    coef = np.empty(_SERIES_N)
+    touched = np.empty(n_v, dtype=np.uint8)  # a vertex given a weight in this block
     for n in range(len(k)):
         scratch[4, n] = k[n] * k[n]
     cap = 64
@@ -362,6 +366,7 @@ def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
             for e in range(BLOCK):
                 s[i, e] = x0 * r[e, 0] + x1 * r[e, 1] + x2 * r[e, 2]
                 w[i, e] = 0.0
+            touched[i] = 0
         for f in range(n_f):
             i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
             for e in range(nd):
@@ -388,10 +393,11 @@ def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
                     w[i0, e] += q * b
                     w[i1, e] += q * c
                     w[i2, e] += q * a
+                    touched[i0] = touched[i1] = touched[i2] = 1
                     continue
                 row = out[d0 + e]
                 if (2.0 * k_hi * d_max) ** 16 * _SERIES_NEXT <= tol:
-                    _add_series(row, k, two_dk, tol, p, s0, s1, s2, scratch, tab, par)
+                    _add_series(row, k, k_hi, two_dk, tol, p, s0, s1, s2, scratch, coef, tab, par)
                     continue
                 d_min = min(aa, bb, cc)
                 ke = k_lo * d_max
@@ -418,7 +424,10 @@ def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
                     w[pi_, e] += 0.5 * dd
                     w[pj, e] += 0.5 * dd
                     w[pm, e] -= dd
-                    _add_pair_tan(row, k, two_dk, tol, dd, gap, g, si, sj, scratch, tab, par)
+                    touched[pi_] = touched[pj] = touched[pm] = 1
+                    _add_pair_tan(
+                        row, k, k_lo, k_hi, two_dk, tol, dd, gap, g, si, sj, scratch, tab, par
+                    )
                     continue
                 if n_st == cap:
                     cap *= 2
@@ -434,14 +443,19 @@ def first_bounce(mesh, grid, bins, dirs, blocked, mom, out):  # noqa: C901
                 st_val[n_st, 2] = s1
                 st_val[n_st, 3] = s2
                 n_st += 1
-        # each lane's weights in the mesh's own vertex order (one cache line per vertex; kept
-        # in the positions' memory, which is not read again in this block), then per lane its
+        # each lane's weights in the mesh's own vertex order (one cache line per vertex, read
+        # only for a vertex that got a weight: the others' are still 0.0; kept in the
+        # positions' memory, which is not read again in this block), then per lane its
         # weighted vertices in that order, without a branch per vertex, and their moments
         w_in_order = s.reshape(BLOCK, n_v)
         for i in range(n_v):
             j = local[i]
-            for e in range(BLOCK):
-                w_in_order[e, i] = w[j, e]
+            if touched[j]:
+                for e in range(BLOCK):
+                    w_in_order[e, i] = w[j, e]
+            else:
+                for e in range(BLOCK):
+                    w_in_order[e, i] = 0.0
         for e in range(nd):
             r0, r1, r2 = r[e, 0], r[e, 1], r[e, 2]
             w_e = w_in_order[e]
