@@ -267,6 +267,20 @@ def test_qem_falls_back_where_the_simple_rims_are_out_of_tolerance():
     assert all(max(m.hausdorff, m.primitive_distance) <= tol for m in qem)
 
 
+@pytest.mark.slow  # a real Blender mesh and ~100 MeshLab tries: CI's slow set
+def test_qem_decimates_a_denser_remesh_where_the_dense_one_is_out_of_tolerance():
+    """paper-v3's test object 1783, a cylinder 0.25 x 1.53 m across: its 6,000-face dense
+    remesh stands off the sharp ends of the ellipse by more than the tolerance (so did the
+    isotropic fallback's), and the whole build stopped there. Its qem meshes now decimate a
+    remesh of twice the faces, each within tolerance, and record it."""
+    qem, tol = _ood_of("cylinder", (0.2468877639972278, 1.5331030527405716, 1.2010272831892335),
+                       1351985838302578427, "qem")  # fmt: skip
+    assert len(qem) == 3 and qem[0].params["attempt"] >= 3 * remesh.MAX_ATTEMPTS
+    assert all(m.params["dense_faces"] == 2 * remesh.DENSE_FACES for m in qem)
+    assert not any("dense_source" in m.params for m in qem)
+    assert all(max(m.hausdorff, m.primitive_distance) <= tol for m in qem)
+
+
 @pytest.mark.slow  # a real Blender mesh and ~70 MeshLab tries: CI's slow set
 def test_isotropic_finds_a_narrow_window_of_target_counts():
     """A flat test ellipsoid (drawn by a held-out build's seed): coarse isotropic remeshes miss
