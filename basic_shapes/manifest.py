@@ -121,7 +121,8 @@ def build(
 def fold_meshes(manifest: dict, limit: int = PER_MESH_LIMIT) -> dict:
     """``manifest`` with each object's per-mesh entries folded into their count and one hash
     when it holds more than ``limit`` meshes (unchanged otherwise)."""
-    if sum(len(o["meshes"]) for s in manifest["shards"] for o in s["objects"]) <= limit:
+    meshes = [o["meshes"] for s in manifest["shards"] for o in s["objects"]]
+    if sum(m["count"] if isinstance(m, dict) else len(m) for m in meshes) <= limit:
         return manifest
     shards = [
         {**s, "objects": [{**o, "meshes": _folded(o["meshes"])} for o in s["objects"]]}
@@ -205,8 +206,8 @@ def _object_differences(obj: str, oe: dict, of: dict) -> list[str]:
 
 
 def _mesh_differences(obj: str, expected: list | dict, found: list | dict) -> list[str]:
-    if isinstance(expected, dict):  # folded: one hash over the object's meshes
-        found = _folded(found)
+    if isinstance(expected, dict) or isinstance(found, dict):  # folded: one hash for them all
+        expected, found = _folded(expected), _folded(found)
         if found == expected:
             return []
         return [

@@ -42,7 +42,8 @@ from basic_shapes.meshlab_child import MeshLabChild
 from basic_shapes.shards import OOD_REMESHERS, MeshRecord, ood_variant
 
 MAX_ATTEMPTS = 32
-"""Tries per OOD mesh before giving up (each try draws new parameters)."""
+"""Tries per round of an OOD mesh (each try draws new parameters); a round after the first runs
+only where the one before found nothing (``_ood_meshes``)."""
 
 FACE_RANGE = {
     "cube": (12, 4000),
@@ -171,14 +172,16 @@ def _ood_meshes(obj: _Object, per_remesher: int) -> list[MeshRecord]:
             if mesh is None and name == "qem":
                 # The dense remesh itself beyond the tolerance: on the sharp ends of a strongly
                 # elliptic cylinder (paper-v3's object 1783, 0.25 x 1.53 m across, radius of
-                # curvature 2 cm) its 4 cm edges stand 6 mm off the surface. Decimate a remesh
-                # of twice the faces (only then, so every mesh made before stays as it was).
+                # curvature 2 cm, 4 cm edges) it lies 0.00448 of the diagonal from the surface,
+                # the tolerance 0.00428. Decimate a remesh of twice the faces (0.00173), this
+                # and every later qem mesh of the object (only here, so every mesh made before
+                # stays as it was).
                 source["qem"] = _dense(solid, *source["isotropic"], child, 2 * DENSE_FACES)
                 dense_source = None  # the simple mesh again
                 tries = range(3 * MAX_ATTEMPTS, 4 * MAX_ATTEMPTS)
                 mesh = _first_accepted(obj, name, variant, tries, rejected, escalate=False)
             if mesh is not None and dense_source is not None:
-                mesh.params["dense_source"] = dense_source  # this and every later qem mesh
+                mesh.params["dense_source"] = dense_source  # until a later round resets it
             if mesh is None:
                 raise RuntimeError(
                     f"{solid.kind} seed {obj.seed}: {name} mesh {k} failed "
@@ -410,8 +413,8 @@ def _isotropic(solid, source, params, rng, child):
 
 
 def _dense(solid, vertices, faces, child, target=DENSE_FACES):
-    """The dense isotropic remesh ``qem`` decimates (one per object, or two): its vertices,
-    faces and the triangle count it was made for."""
+    """The dense isotropic remesh ``qem`` decimates (one per object, remade by a later round of
+    tries): its vertices, faces and the triangle count it was made for."""
     v, f = _remesh(
         solid, vertices, faces, _edge_for(_area(vertices, faces), target), 6, True, child
     )

@@ -133,19 +133,23 @@ def test_check_names_the_altered_mesh(altered):
 
 
 def test_a_folded_manifest_names_the_altered_object(tiny, altered):
-    """Above PER_MESH_LIMIT meshes a manifest keeps one hash over each object's meshes: the
-    build it was made from still matches it, and the altered vertex is named by its object."""
+    """Above PER_MESH_LIMIT meshes a manifest keeps one hash over each object's meshes: a
+    fresh manifest of the same build matches it from either side, and the altered vertex is
+    named by its object."""
     full = mf.build(tiny, TINY)
     assert mf.fold_meshes(full) is full  # tiny is far below the limit
     folded = json.loads(mf.dumps(mf.fold_meshes(full, limit=0)))
+    assert mf.fold_meshes(folded, limit=0) == folded  # folding twice changes nothing
     objects = [o for s in folded["shards"] for o in s["objects"]]
     assert all(set(o["meshes"]) == {"count", "hash"} for o in objects)
     assert len(mf.dumps(folded)) < len(mf.dumps(full)) / 2
-    assert mf.differences(folded, full) == []
+    again = mf.build(tiny, TINY)
+    assert mf.differences(folded, again) == [] and mf.differences(again, folded) == []
     found = mf.differences(folded, mf.build(altered, TINY))
     object_id = folded["shards"][0]["objects"][2]["id"]
     assert found[0].startswith(f"shard-00000.h5 object {object_id}: meshes differ")
     assert not any("variant" in d for d in found)
+    assert mf.differences(mf.build(altered, TINY), folded)[0] == found[0]
 
 
 def test_check_names_an_altered_label(tiny, tmp_path):
