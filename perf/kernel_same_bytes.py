@@ -17,7 +17,6 @@ prints a table; exit 1 if any case differs.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 import tempfile
 from pathlib import Path
@@ -30,15 +29,11 @@ from basic_shapes.infra import hardware, write_json
 from radar_sim import field, scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kernel_bound import load_baseline
+from kernel_bound import digest, load_baseline
 from radar_kernel import mesh_for
 
 RESULTS = Path(__file__).parent / "results"
 AXES = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, 0, -1], [0.6, 0.8, 0]], float)
-
-
-def digest(a: np.ndarray) -> str:
-    return hashlib.sha256(np.ascontiguousarray(a, dtype=np.complex128).tobytes()).hexdigest()
 
 
 def plate(n: int = 21):
