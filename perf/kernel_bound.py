@@ -25,7 +25,11 @@ The bounds, measured on this core in this run:
   the contraction as one BLAS zgemm of the same shape (no zero skipping).
 
 Reported: time / flop bound, time / work floor, ns per face per direction, the contraction
-with the portable product and with BLAS, the load average around each mesh. With
+with the portable product and with BLAS, the load average around each mesh, and the facets the
+kernel evaluates by its exact near-specular series (``po_kernel._add_series``): their number
+per direction (the kernel's rule applied in numpy) and their share of the time, that number
+times the CPU time of one call on a sample of those very facets. Their number grows as the
+square of the face count, so they are what makes the cost per face rise with the mesh. With
 ``--baseline REV``, ``radar_sim`` and ``basic_shapes.portable`` at REV (read with git archive)
 are timed in the same run, interleaved with the working tree's code, and the two outputs are
 compared bit for bit (sha256 of the complex128 array). With ``--tol T``, the working tree's
@@ -55,11 +59,12 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from numba import njit  # noqa: E402
 
 import radar_sim  # noqa: E402
 from basic_shapes.infra import atomic_path, hardware  # noqa: E402
+from radar_sim import facet, po_kernel, scene  # noqa: E402
 from radar_sim import field as current_field  # noqa: E402
-from radar_sim import po_kernel, scene  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from radar_kernel import lit_counts, mesh_for  # noqa: E402
@@ -67,6 +72,7 @@ from radar_kernel import lit_counts, mesh_for  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results"
 FLOOR_DIRECTIONS = 32
+SERIES_SAMPLE = 4096
 
 
 def load_baseline(rev: str, tmp: Path):
@@ -162,6 +168,58 @@ def work_floor(mesh, k, n_dirs: int, lit_vertices: int) -> dict:
     }
 
 
+def series_facets(mesh, k, dirs, tol) -> tuple[int, np.ndarray]:
+    """Σ over directions of the lit facets that ``po_kernel.first_bounce`` evaluates by its
+    near-specular series (its classification, in numpy), and up to SERIES_SAMPLE of them as
+    rows (P, s0, s1, s2)."""
+    phase_error = current_field._Moments(k, mesh.radius, len(mesh.vertices)).phase_error
+    area = facet.area_vectors(mesh.vertices[mesh.faces])
+    v, f = mesh.vertices, mesh.faces
+    k_lo, k_hi = float(k.min()), float(k.max())
+    count, sample = 0, []
+    for r in dirs:
+        p = area[:, 0] * r[0] + area[:, 1] * r[1] + area[:, 2] * r[2]
+        s = v[:, 0] * r[0] + v[:, 1] * r[1] + v[:, 2] * r[2]
+        lit = p > 0
+        s0, s1, s2 = (s[f[lit, i]] for i in range(3))
+        a, b, c = s0 - s1, s1 - s2, s2 - s0
+        abc = a * b * c
+        d_max = np.maximum(np.maximum(np.abs(a), np.abs(b)), np.abs(c))
+        weights = (abc != 0) & (d_max * phase_error <= tol * k_lo**2 * np.abs(abc))
+        series = ~weights & ((2 * k_hi * d_max) ** 16 * po_kernel._SERIES_NEXT <= tol)
+        count += int(series.sum())
+        if sum(map(len, sample)) < SERIES_SAMPLE:
+            sample.append(np.stack([p[lit], s0, s1, s2], axis=1)[series])
+    rows = np.concatenate(sample)[:SERIES_SAMPLE] if sample else np.zeros((0, 4))
+    return count, np.ascontiguousarray(rows)
+
+
+@njit
+def _series_calls(rows, k, tol, work, coef, tab, par):
+    row = np.zeros(len(k), dtype=np.complex128)
+    two_dk = 2.0 * (k[-1] - k[0]) / (len(k) - 1)
+    for p, s0, s1, s2 in rows:
+        po_kernel._add_series(row, k, k.max(), two_dk, tol, p, s0, s1, s2, work, coef, tab, par)
+    return row
+
+
+def series_call_s(rows: np.ndarray, k, tol) -> float:
+    """CPU seconds of one ``po_kernel._add_series`` call, the mean over ``rows`` (repeated
+    to at least 10⁵ calls) on the uniform grid ``k``."""
+    if len(rows) == 0:
+        return 0.0
+    work = np.empty((7, len(k)))
+    work[4] = k * k
+    coef = np.empty(po_kernel._SERIES_N)
+    args = (k, tol, work, coef, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS)
+    _series_calls(rows[:2], *args)  # compile
+    reps = -(-100_000 // len(rows))
+    t0 = time.process_time()
+    for _ in range(reps):
+        _series_calls(rows, *args)
+    return (time.process_time() - t0) / (reps * len(rows))
+
+
 def measure(field_module, tol, mesh, k, dirs, rates: list) -> tuple[dict, np.ndarray]:
     rates.append(dgemm_fma_rate())
     timer = PartTimer(field_module)
@@ -224,12 +282,20 @@ def main(argv=None) -> int:
                     digests.setdefault(name, digest(out))
                     outputs.setdefault(name, out)
             lit_f, lit_v = lit_counts(mesh, dirs)
+            n_series, sample = series_facets(mesh, k, dirs, current_field.DEFAULT_TOL)
+            call_s = series_call_s(sample, k, current_field.DEFAULT_TOL)
             row = {
                 "faces": len(mesh.faces),
                 "vertices": len(mesh.vertices),
                 "lit_facet_directions": lit_f,
                 "lit_vertex_directions": lit_v,
                 "work_floor": work_floor(mesh, k, len(dirs), lit_v),
+                "series_facets_per_direction": n_series / len(dirs),
+                "series_call_ns": call_s * 1e9,
+                "series_ns_per_face_direction": n_series
+                * call_s
+                / (len(mesh.faces) * len(dirs))
+                * 1e9,
                 "sha256": digests,
             }
             if "baseline" in digests:
@@ -287,7 +353,7 @@ def main(argv=None) -> int:
     head = (
         f"{'faces':>8} {'code':>9} {'total s':>8} {'kernel':>7} {'contr.':>7} "
         f"{'BLAS':>6} {'flop bd':>7} {'x bound':>7} {'floor':>6} {'x floor':>7} "
-        f"{'ns/f/dir':>8} {'same bits':>9} {'max diff':>8}"
+        f"{'ns/f/dir':>8} {'series/dir':>10} {'series ns':>9} {'same bits':>9} {'max diff':>8}"
     )
     print(head)
     for row in rows:
@@ -299,15 +365,18 @@ def main(argv=None) -> int:
                 f"{r['contract_s']:7.3f} {row['work_floor']['contraction_blas_s']:6.3f} "
                 f"{row['flop_bound_s']:7.3f} {r['over_flop_bound']:7.2f} "
                 f"{row['work_floor']['floor_s']:6.3f} {r['over_work_floor']:7.2f} "
-                f"{r['ns_per_face_direction']:8.2f} {'-' if same is None else str(same):>9} "
+                f"{r['ns_per_face_direction']:8.2f} {row['series_facets_per_direction']:10.1f} "
+                f"{row['series_ns_per_face_direction']:9.2f} "
+                f"{'-' if same is None else str(same):>9} "
                 f"{row['max_difference_to_current'][name]:8.1e}"
             )
     print(
         "kernel: po_kernel.first_bounce; contr.: the contraction (portable fixed-order "
         "product); BLAS: the same contraction as one zgemm; flop bd: (4 n_k per lit vertex + "
         "10 per lit facet) multiply-adds at the dgemm rate; floor: phasor + M moment updates "
-        "per lit vertex in cache + the BLAS contraction; max diff: largest |output - "
-        "current's| / largest |current's|"
+        "per lit vertex in cache + the BLAS contraction; series/dir: facets per direction "
+        "taking the near-specular series; series ns: their time per face and direction (count "
+        "x one call's time); max diff: largest |output - current's| / largest |current's|"
     )
     return 0
 
