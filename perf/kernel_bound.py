@@ -28,8 +28,9 @@ Reported: time / flop bound, time / work floor, ns per face per direction, the c
 with the portable product and with BLAS, the load average around each mesh, and the facets the
 kernel evaluates by its exact near-specular series (``po_kernel._add_series``): their number
 per direction (the kernel's rule applied in numpy) and their share of the time, that number
-times the CPU time of one call on a sample of those very facets. Their number grows as the
-square of the face count, so they are what makes the cost per face rise with the mesh. With
+times the CPU time of one call on a sample of those very facets (the first SERIES_SAMPLE met).
+Their number grows nearly as the square of the face count (docs/RADAR.md, "All of the rise
+is the series facets"). The counts assume a closed mesh (no facet lit from behind). With
 ``--baseline REV``, ``radar_sim`` and ``basic_shapes.portable`` at REV (read with git archive)
 are timed in the same run, interleaved with the working tree's code, and the two outputs are
 compared bit for bit (sha256 of the complex128 array). With ``--tol T``, the working tree's
@@ -195,9 +196,8 @@ def series_facets(mesh, k, dirs, tol) -> tuple[int, np.ndarray]:
 
 
 @njit
-def _series_calls(rows, k, tol, work, coef, tab, par):
+def _series_calls(rows, k, two_dk, tol, work, coef, tab, par):
     row = np.zeros(len(k), dtype=np.complex128)
-    two_dk = 2.0 * (k[-1] - k[0]) / (len(k) - 1)
     for p, s0, s1, s2 in rows:
         po_kernel._add_series(row, k, k.max(), two_dk, tol, p, s0, s1, s2, work, coef, tab, par)
     return row
@@ -205,13 +205,14 @@ def _series_calls(rows, k, tol, work, coef, tab, par):
 
 def series_call_s(rows: np.ndarray, k, tol) -> float:
     """CPU seconds of one ``po_kernel._add_series`` call, the mean over ``rows`` (repeated
-    to at least 10⁵ calls) on the uniform grid ``k``."""
+    to at least 10⁵ calls) on the grid ``k``."""
     if len(rows) == 0:
         return 0.0
     work = np.empty((7, len(k)))
     work[4] = k * k
     coef = np.empty(po_kernel._SERIES_N)
-    args = (k, tol, work, coef, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS)
+    two_dk = 2.0 * current_field._uniform_step(k)
+    args = (k, two_dk, tol, work, coef, po_kernel.CIS_TABLE, po_kernel.CIS_PARAMS)
     _series_calls(rows[:2], *args)  # compile
     reps = -(-100_000 // len(rows))
     t0 = time.process_time()
@@ -283,7 +284,7 @@ def main(argv=None) -> int:
                     outputs.setdefault(name, out)
             lit_f, lit_v = lit_counts(mesh, dirs)
             n_series, sample = series_facets(mesh, k, dirs, current_field.DEFAULT_TOL)
-            call_s = series_call_s(sample, k, current_field.DEFAULT_TOL)
+            series_s = n_series * series_call_s(sample, k, current_field.DEFAULT_TOL)
             row = {
                 "faces": len(mesh.faces),
                 "vertices": len(mesh.vertices),
@@ -291,11 +292,8 @@ def main(argv=None) -> int:
                 "lit_vertex_directions": lit_v,
                 "work_floor": work_floor(mesh, k, len(dirs), lit_v),
                 "series_facets_per_direction": n_series / len(dirs),
-                "series_call_ns": call_s * 1e9,
-                "series_ns_per_face_direction": n_series
-                * call_s
-                / (len(mesh.faces) * len(dirs))
-                * 1e9,
+                "series_call_ns": series_s / max(n_series, 1) * 1e9,
+                "series_ns_per_face_direction": series_s / (len(mesh.faces) * len(dirs)) * 1e9,
                 "sha256": digests,
             }
             if "baseline" in digests:
