@@ -185,11 +185,29 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
                 return out
         if not out and se["label_fingerprint"] != sf["label_fingerprint"]:
             out.append(f"{where}: label fingerprint differs (radar config or simulation rule)")
+    out += _config_differences(expected.get("config"), found.get("config"))
     if not out:
         for kind in ("mesh", "label"):
             if expected["fingerprints"].get(kind) != found["fingerprints"].get(kind):
                 out.append(f"{kind} fingerprint differs")
     return out[:limit]
+
+
+def _config_differences(expected: dict | None, found: dict | None) -> list[str]:
+    """dataset.json against the recorded one, the toolkit's version aside (a rebuild by a
+    later release of the same recipe is the same dataset)."""
+    if expected is None:
+        return []
+    if found is None:
+        return ["dataset.json is missing"]
+    keys = sorted(
+        k
+        for k in set(expected) | set(found)
+        if k != "toolkit_version" and expected.get(k) != found.get(k)
+    )
+    return [
+        f"dataset.json differs: {k} is {found.get(k)!r}, recorded {expected.get(k)!r}" for k in keys
+    ]
 
 
 def _object_differences(obj: str, oe: dict, of: dict) -> list[str]:

@@ -323,13 +323,20 @@ def describe(dataset: dict, heldout: bool = False) -> str:
         if v
         else "not a registered dataset version. "
     )
-    recorded, found = v.fingerprints.get("mesh") if v else None, dataset.get("fingerprint")
-    if recorded and found and found != recorded:
+    recorded = v.fingerprints if v else {}
+    found = {"mesh": dataset.get("fingerprint"), "label": dataset.get("label_fingerprint")}
+    if recorded.get("mesh") and found["mesh"] and found["mesh"] != recorded["mesh"]:
         head += (
-            f"Scored on an earlier build of {v.name} (mesh {found[:8]}..., "
+            f"Scored on an earlier build of {v.name} (mesh {found['mesh'][:8]}..., "
             f"made before dataset bytes were machine-independent; the recorded build is "
-            f"{recorded[:8]}...): its numbers re-score only where that build comes back "
+            f"{recorded['mesh'][:8]}...): its numbers re-score only where that build comes back "
             f"(docs/RESULTS.md, Status). "
+        )
+    elif recorded.get("label") and found["label"] and found["label"] != recorded["label"]:
+        head += (
+            f"Scored on labels that are NOT {v.name}'s recorded ones (label "
+            f"{found['label'][:8]}..., recorded {recorded['label'][:8]}...): relabelled or "
+            f"edited; its numbers re-score only against those labels. "
         )
     return (
         head + f"Test split: {', '.join(dataset['classes'])}; {dataset['test_objects']} "
@@ -375,7 +382,8 @@ TRACK_NOTES = {
     ),
     "public": (
         "Self-scored track: scored from predictions files on the public test split, whose "
-        "labels ship with the dataset (an answer key scores perfectly here), so it is not "
+        "labels ship with the dataset (the labels themselves are refused, a perturbed copy "
+        "would score near perfectly), so it is not "
         "ranked with the held-out track. The metrics are re-scored; speeds and parameter "
         "counts are the submitter's."
     ),

@@ -49,6 +49,9 @@ from leaderboard.store import (
 # an edit at the fifth significant digit is refused.
 REL_TOL = 1e-5
 ABS_TOL = 1e-6  # dB^2
+# Simple and Complex MSE both at or below this are the test labels handed back (the physics
+# simulator itself scores about 25 dB² against the analytic object's labels): refused.
+ANSWER_KEY_MSE = 1e-6  # dB^2
 
 
 class SubmissionError(ValueError):
@@ -66,44 +69,64 @@ def _refuse(path, exc: BaseException) -> SubmissionError:
 
 
 def compare(claimed: dict, rescored: dict) -> list[str]:
-    """Human-readable differences between claimed and re-scored metrics (empty if they agree)."""
-
-    def close(a, b) -> bool:
-        if a is None or b is None:
-            return a is b
-        return abs(a - b) <= ABS_TOL + REL_TOL * abs(b)
-
+    """Human-readable differences between claimed and re-scored metrics (empty if they agree).
+    The paper's metrics and the classes must be claimed; every value claimed besides them
+    (intervals, OOD and peak metrics, per class and per remesher, references, the no-skill
+    test) must be the re-score's as well: a results file cannot carry a number the board's
+    re-score would not give."""
     diffs = [
-        f"claimed {k} {claimed.get(k)!r} differs from the re-score {rescored[k]!r}"
-        for k in METRIC_NAMES
-        if not close(claimed.get(k), rescored[k])
+        f"claimed {k} is missing (the re-score is {rescored[k]!r})"
+        for k in (*METRIC_NAMES, "no_skill")
+        if claimed.get(k) is None
     ]
-    if claimed.get("no_skill") != rescored["no_skill"]:
-        diffs.append(
-            f"claimed no_skill {claimed.get('no_skill')} differs from the re-score "
-            f"{rescored['no_skill']}"
-        )
-    cl, rs = claimed["per_class"], rescored["per_class"]
-    if set(cl) != set(rs):
-        diffs.append(
-            f"claimed per_class classes {sorted(cl)} differ from the re-score's {sorted(rs)}"
-        )
-    else:
-        diffs += [
-            f"claimed per_class.{c}.{k} {cl[c].get(k)!r} differs from the re-score {rs[c][k]!r}"
-            for c in sorted(cl)
-            for k in METRIC_NAMES
-            if not close(cl[c].get(k), rs[c][k])
+    cl, rs = claimed.get("per_class"), rescored["per_class"]
+    if not isinstance(cl, dict) or set(cl) != set(rs):
+        names = sorted(cl) if isinstance(cl, dict) else cl
+        diffs.append(f"claimed per_class classes {names} differ from the re-score's {sorted(rs)}")
+    return diffs + _differences(claimed, rescored, "")
+
+
+def _differences(claimed, rescored, where: str) -> list[str]:
+    """Where the claimed value ``claimed`` (at key path ``where``) differs from ``rescored``:
+    numbers within ABS_TOL + REL_TOL·|re-score|, anything else equal."""
+    if isinstance(claimed, dict) and isinstance(rescored, dict):
+        out = []
+        for key, value in claimed.items():
+            path = f"{where}.{key}" if where else str(key)
+            if key not in rescored:
+                out.append(f"claimed {path} is not a metric the re-score gives")
+            else:
+                out += _differences(value, rescored[key], path)
+        return out
+    if isinstance(claimed, list) and isinstance(rescored, list) and len(claimed) == len(rescored):
+        return [
+            d
+            for i, (c, r) in enumerate(zip(claimed, rescored))
+            for d in _differences(c, r, f"{where}[{i}]")
         ]
-    return diffs
+    if _number(claimed) and _number(rescored):
+        if abs(claimed - rescored) <= ABS_TOL + REL_TOL * abs(rescored):
+            return []
+    elif claimed == rescored and type(claimed) is type(rescored):
+        return []
+    return [f"claimed {where} {claimed!r} differs from the re-score {rescored!r}"]
 
 
-def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> str | None:
-    """The registered version (``benchmark.scoring.versions``) the dataset is, by its generator
-    and radar configs (read once). A held-out build is refused: the ranked track scores only
-    models the board runs (``leaderboard evaluate-model``), so no predictions file, the true
-    labels included, can enter it. A dataset that is no version is refused unless
-    ``unregistered`` (a private board: its entries say so and the site lists them apart)."""
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def dataset_version(
+    data_dir: str | os.PathLike, fingerprints: tuple[str, str], unregistered: bool = False
+) -> str | None:
+    """The registered version (``benchmark.scoring.versions``) the dataset is: built by its
+    recipe (generator and radar configs, read once) with its public seed, and, where the
+    version has a manifest, with its recorded (mesh, label) ``fingerprints``. A held-out build
+    is refused: the ranked track scores only models the board runs (``leaderboard
+    evaluate-model``), so no predictions file, the true labels included, can enter it. A
+    dataset that is no version, or a version's recipe whose bytes are not the recorded ones
+    (relabelled or edited, however consistently), is refused unless ``unregistered`` (a
+    private board: its entries say so and the site lists them apart)."""
     from benchmark.scoring import heldout
 
     try:
@@ -116,10 +139,20 @@ def dataset_version(data_dir: str | os.PathLike, unregistered: bool = False) -> 
             f"accepts only ONNX models run by the board (leaderboard evaluate-model MODEL.onnx), "
             f"never a predictions file"
         )
-    if follows is not None:
+    recorded = follows[0].fingerprints if follows is not None else {}
+    expected = (recorded.get("mesh"), recorded.get("label"))
+    if follows is not None and (not recorded or expected == tuple(fingerprints)):
         return follows[0].name
     if unregistered:
         return None
+    if follows is not None:
+        raise SubmissionError(
+            f"{data_dir}: follows {follows[0].name}'s recipe, but its fingerprints (mesh "
+            f"{fingerprints[0][:8]}..., label {fingerprints[1][:8]}...) are not the recorded "
+            f"ones (mesh {expected[0][:8]}..., label {expected[1][:8]}...): benchmark dataset "
+            f"{follows[0].name} --check --data DIR says where it differs; pass --unregistered "
+            f"for a private board"
+        )
     raise SubmissionError(
         f"{data_dir}: not a registered dataset version (benchmark dataset --list names them; "
         f"build one with benchmark dataset NAME --data DIR); pass --unregistered for a "
@@ -167,7 +200,7 @@ def submit(
     except (OSError, ValueError) as exc:
         raise _refuse(data_dir, exc) from None
     with data:  # opened once: the checks, the re-score and the entry's records all read it
-        version = dataset_version(data_dir, unregistered)
+        version = dataset_version(data_dir, (fingerprint, labels), unregistered)
         if results["dataset_fingerprint"] != fingerprint:
             raise SubmissionError(
                 f"{results_path}: dataset fingerprint {results['dataset_fingerprint'][:16]}..."
@@ -188,6 +221,12 @@ def submit(
                 rescored = score(data, preds)
             except (OSError, ValueError) as exc:
                 raise _refuse(predictions_path, exc) from None
+            if max(rescored["simple_mse"], rescored["complex_mse"]) <= ANSWER_KEY_MSE:
+                raise SubmissionError(
+                    f"{predictions_path}: these predictions are the test labels themselves "
+                    f"(Simple and Complex MSE {rescored['complex_mse']:.1e} dB²): an answer key, "
+                    f"not a model"
+                )
             diffs = compare(results["metrics"], rescored)
             if diffs:
                 more = f" (and {len(diffs) - 1} more differences)" if len(diffs) > 1 else ""

@@ -313,6 +313,12 @@ TAMPERS = {
         "claimed per_class.sphere.complex_mse",
     ),
     "no-skill": (lambda r: r["metrics"].__setitem__("no_skill", True), "claimed no_skill"),
+    # every claimed number is re-scored, not only the paper's three
+    "ood": (lambda r: r["metrics"].__setitem__("ood_complex_mse", 100.0), "ood_complex_mse"),
+    "interval": (
+        lambda r: r["metrics"].__setitem__("complex_mse_ci", [1.0, 2.0]),
+        "claimed complex_mse_ci",
+    ),
     "fingerprint": (lambda r: r.__setitem__("dataset_fingerprint", "ab" * 32), "another dataset"),
     "labels": (lambda r: r.__setitem__("label_fingerprint", "ab" * 32), "belongs to other labels"),
     "no-metrics": (lambda r: r.pop("metrics"), "results.json"),
@@ -347,6 +353,18 @@ def test_tampered_results_are_refused(case, data, submission, tmp_path):
     entries = tmp_path / "entries"
     msg = refused("submit", bad, "--predictions", pred, "--data", data, "--entries", entries)
     assert phrase in msg and str(bad) in msg, msg
+    assert not entries.exists()
+
+
+def test_the_answer_key_is_refused(data, tmp_path):
+    """The test labels handed back as predictions are no model: refused, whatever the
+    results claim."""
+    exact = {c: (0.0, 0.0) for c in OFFSETS}
+    pred = write_predictions(tmp_path / "key.h5", data, offsets=exact)
+    results = write_results(tmp_path / "results.json", data, pred)
+    entries = tmp_path / "entries"
+    msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    assert "the test labels themselves" in msg and str(pred) in msg, msg
     assert not entries.exists()
 
 
@@ -766,6 +784,10 @@ def test_board_names_the_dataset_version_with_its_grid_and_config():
     assert "Scored on an earlier build of cpu-v1 (mesh 390cf5dc" in describe(
         {**recorded, "fingerprint": "390cf5dc" + "0" * 56}
     )
+    relabelled = {**recorded, "label_fingerprint": "c92860b2" + "0" * 56}
+    assert "NOT cpu-v1's recorded ones (label c92860b2" in describe(relabelled)
+    label = versions.get("cpu-v1").fingerprints["label"]
+    assert "NOT" not in describe({**recorded, "label_fingerprint": label})
 
 
 def test_simple_mesh_physics_computed_like_the_labeller_stores_it(data, tmp_path):

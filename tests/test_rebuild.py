@@ -163,6 +163,71 @@ def test_check_names_an_altered_label(tiny, tmp_path):
     assert f"object {object_id}: label differs" in proc.stderr
 
 
+def test_check_names_edited_radar_axes_and_dataset_json(tiny, tmp_path):
+    """The radar axes stored beside the labels and dataset.json are outside the fingerprints:
+    --check compares them with the version's radar config and the recorded dataset.json."""
+    data = tmp_path / "edited"
+    shutil.copytree(tiny, data)
+    with h5py.File(data / "shard-00000.h5", "r+") as f:
+        f["radar/aspect"][1] += 5.0
+    config = json.loads((data / "dataset.json").read_text())
+    (data / "dataset.json").write_text(json.dumps({**config, "seed": config["seed"] + 1}))
+    proc = dataset_cli(TINY, "--check", "--data", str(data))
+    assert proc.returncode == 1
+    differences = json.loads(proc.stdout)["differences"]
+    assert f"dataset.json differs: seed is {config['seed'] + 1}, recorded {config['seed']}" in (
+        differences
+    )
+    assert any(d.startswith("shard-00000.h5: radar axes differ") for d in differences)
+    assert "aspect_deg" in " ".join(differences) and "roll_deg" not in " ".join(differences)
+
+
+def test_the_board_refuses_a_version_relabelled_consistently(tiny, tmp_path):
+    """Labels edited and their fingerprints stamped again: the data is self-consistent but is
+    not the recorded version, so the public board refuses it; a private board takes it as no
+    version."""
+    from basic_shapes.shards import Shard
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.protocol import write_predictions
+    from leaderboard import cli as board
+
+    data = tmp_path / "relabelled"
+    shutil.copytree(tiny, data)
+    shard = data / "shard-00000.h5"
+    with h5py.File(shard, "r+") as f:
+        f["radar/response"][0] = f["radar/response"][0] * np.complex64(3)
+    with Shard(shard) as s:
+        stamp = s.radar.computed_fingerprint()
+    with h5py.File(shard, "r+") as f:
+        f["radar"].attrs["label_fingerprint"] = stamp
+    with BenchmarkData(data) as d:
+        test = d.object_rows("test")
+        rows = np.concatenate([r for o in test for r in (d.meshes_of(o), d.ood_meshes_of(o))])
+        uids = d.meshes["uid"][rows]
+        shape, fingerprints = d.target_shape, (d.fingerprint, d.label_fingerprint)
+    assert fingerprints[1] != versions.get(TINY).fingerprints["label"]
+    preds, results = tmp_path / "p.h5", tmp_path / "r.json"
+    write_predictions(
+        preds,
+        fingerprints[0],
+        uids,
+        np.full((len(uids), *shape), -30.0, np.float32),
+        label_fingerprint=fingerprints[1],
+    )
+    evaluate = [sys.executable, "-m", "benchmark.cli", "evaluate", "--data", str(data)]
+    evaluate += ["--predictions", str(preds), "--out", str(results), "--speed-ms", "1"]
+    assert subprocess.run(evaluate, capture_output=True).returncode == 0
+    submit = ["submit", str(results), "--predictions", str(preds), "--data", str(data)]
+    submit += ["--entries", str(tmp_path / "entries"), "--name", "x"]
+    with pytest.raises(SystemExit) as exc:
+        board.main(submit)
+    assert f"follows {TINY}'s recipe, but its fingerprints" in str(exc.value.code)
+    assert not (tmp_path / "entries").exists()
+    board.main([*submit, "--unregistered"])
+    (entry,) = (tmp_path / "entries").glob("*.json")
+    assert json.loads(entry.read_text())["dataset"]["version"] is None
+
+
 class _Quiet(http.server.SimpleHTTPRequestHandler):
     def log_message(self, *args):
         pass

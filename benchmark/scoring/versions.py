@@ -307,7 +307,7 @@ def check(version: DatasetVersion, directory: str | Path) -> dict:
             "fingerprints": found["fingerprints"],
         }  # a slice: shard by shard
         report["slice"] = sorted(names)
-    differences = mf.differences(expected, found)
+    differences = mf.differences(expected, found) + _coordinate_differences(version, directory)
     stack_changed = sorted(
         k
         for k in set(expected["stack"]) | set(found["stack"])
@@ -319,6 +319,24 @@ def check(version: DatasetVersion, directory: str | Path) -> dict:
         "differences": differences,
         "stack_differs": stack_changed,
     }
+
+
+def _coordinate_differences(version: DatasetVersion, directory: str | Path) -> list[str]:
+    """Shards whose radar axes are not those of the version's radar config. The fingerprints
+    cover the labels and the config they name, not the axes stored beside them."""
+    import numpy as np
+
+    from basic_shapes.shards import Shard, list_shards
+
+    config = version.radar_config()
+    out = []
+    for path in list_shards(directory):
+        with Shard(path) as s:
+            stored = s.radar.coordinates if s.has_labels else {}
+            axes = [a for a, v in stored.items() if not np.array_equal(v, getattr(config, a))]
+        if axes:
+            out.append(f"{path.name}: radar axes differ from {config.name}'s: {', '.join(axes)}")
+    return out
 
 
 def stack() -> dict:
