@@ -169,7 +169,9 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
     if names_e != names_f:
         missing = sorted(set(names_e) - set(names_f))
         extra = sorted(set(names_f) - set(names_e))
-        out.append(f"shards differ: missing {missing[:3]}, unexpected {extra[:3]}")
+        parts = [f"missing {missing[:3]}"] if missing else []
+        parts += [f"unexpected {extra[:3]}"] if extra else []
+        out.append(f"shards differ: {', '.join(parts) or 'in order'}")
     for se, sf in zip(expected["shards"], found["shards"]):
         if se["name"] != sf["name"]:
             continue
@@ -240,7 +242,9 @@ def _mesh_differences(obj: str, expected: list | dict, found: list | dict) -> li
     for me, mf in zip(expected, found):
         data = [k for k in ("vertices", "faces", "record", "physics") if me.get(k) != mf.get(k)]
         if data:
-            out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} differ")
+            plural = len(data) > 1 or data[0] in ("vertices", "faces")
+            verb = "differ" if plural else "differs"
+            out.append(f"{obj} mesh variant {me['variant']}: {', '.join(data)} {verb}")
     return out
 
 

@@ -418,6 +418,11 @@ class Shard:
     def has_labels(self) -> bool:
         return "radar/response" in self.file
 
+    @property
+    def has_radar(self) -> bool:
+        """A /radar group, complete or not (``radar`` says what is missing)."""
+        return "radar" in self.file
+
     @functools.cached_property
     @_readable
     def radar(self) -> RadarGroup:

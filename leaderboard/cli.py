@@ -142,8 +142,8 @@ def build_parser() -> ArgumentParser:
         "simulator run on each stored representation mesh (radar-sim label "
         "--mesh-labels), scored "
         "against the object's label like a model (test objects with mesh "
-        "physics only); speed = timing radar_sim on the example object's "
-        "meshes, or --ms-per-mesh.",
+        "physics only); speed = radar_sim timed on every scored test mesh, one "
+        "thread in a child process, or --ms-per-mesh.",
     )
     m.add_argument("--data", type=Path, required=True, help="the labelled dataset directory")
     m.add_argument("--entries", **new_entries)

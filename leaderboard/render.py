@@ -785,7 +785,9 @@ def build(entries: list[dict], progress: bool = False) -> dict[str, bytes]:
             )
         if figures.with_curves(g["models"]):
             drawings[f"curves-{g['short']}.png"] = lambda g=g: figures.training_curves(
-                g["models"], f"{g['dataset'].get('version') or g['short']}: validation curves"
+                g["models"],
+                f"{g['dataset'].get('version') or g['short']}: validation curves, as each "
+                "entry's training run recorded them (not re-run by the board)",
             )
         if g["example"]:
             drawings[f"example-{g['short']}.png"] = lambda g=g: figures.example(g["example"])

@@ -217,7 +217,8 @@ def dataset_signature(
     k = obj["shard_object_index"]
     title = f"object {obj['id']} ({obj['class']})"
     with Shard(path) as s:
-        radar = s.radar if s.has_labels else None
+        # a /radar group without its responses is a damaged label, not an unlabelled dataset
+        radar = s.radar if s.has_radar else None
         stored_vv = channel == "VV" and radar is not None and radar.has_frequency_response
         if variant is None and stored_vv:
             return (
@@ -253,7 +254,10 @@ def dataset_signature(
         faces,
         cfg,
         object_mode(obj["class"], mode),
-        f"{title}: its label, the primitive on a {len(faces)}-face simulation mesh",
+        f"{title}: its label, the primitive on a {len(faces)}-face simulation mesh"
+        if radar is not None
+        else f"{title}: not labelled; the label {cfg.name} would give, the primitive on a "
+        f"{len(faces)}-face simulation mesh",
         channel,
     )
 
@@ -326,6 +330,15 @@ def cmd_plot(args) -> None:
     print(f"wrote {args.out}")
 
 
+EPILOG = """examples:
+  radar-sim label --data data/bs --workers 2             # xband-v3: HH, VV, HV, edge diffraction
+  radar-sim plot --data data/bs --object 0 --out radar.png
+  radar-sim plot --data data/bs --object 0 --variant 1 --out v1.png   # a complex mesh, simulated
+  radar-sim rcs box.obj --freq 10 --aspect 0:90:15
+
+docs/RADAR.md is the physics; docs/CLI.md the conventions shared by the four tools."""
+
+
 def build_parser() -> ArgumentParser:
     p = ArgumentParser(
         prog="radar-sim",
@@ -333,6 +346,8 @@ def build_parser() -> ArgumentParser:
             "Exact physical-optics radar simulator: label Basic Shapes shards, print the RCS of a "
             f"mesh file, plot an object's signature. Units are metres; {CONVENTION}."
         ),
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_debug_flag(p)
     sub = p.add_subparsers(dest="command", required=True)
@@ -385,7 +400,8 @@ def build_parser() -> ArgumentParser:
     q = sub.add_parser(
         "rcs",
         help="print the monostatic RCS (dBsm) of a mesh file",
-        description=f"Monostatic RCS of one OBJ/STL/PLY mesh. {CONVENTION}. Line "
+        description=f"Monostatic RCS of one OBJ/STL/PLY mesh, VV channel, physical optics "
+        f"without edge diffraction (the mesh as given, not a primitive). {CONVENTION}. Line "
         "of sight (sin a cos r, sin a sin r, cos a) for aspect a, roll r.",
     )
     q.add_argument("meshfile", help="OBJ, STL or PLY file")

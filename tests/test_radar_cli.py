@@ -143,7 +143,8 @@ def test_plot_uses_stored_labels(tmp_path):
 
     data = write_dataset(tmp_path / "data", n_objects=1)
     _, _, simulated, title = dataset_signature(data, 0, "xband-v1")
-    assert "its label, the primitive on a 12-face simulation mesh" in title  # a cube: the box
+    # unlabelled: what labelling with that config would store (a cube: the box itself)
+    assert "not labelled; the label xband-v1 would give, the primitive on a 12-face" in title
     main(
         ["label", "--data", str(data), "--workers", "1", "--frequency-response"]
         + ["--config", "xband-v1"]
@@ -159,6 +160,11 @@ def test_plot_uses_stored_labels(tmp_path):
     np.testing.assert_array_equal(coords["aspect_deg"], config.aspect_deg)
     main(["plot", "--data", str(data), "--object", "0", "--out", str(tmp_path / "o0.png")])
     _check_png(tmp_path / "o0.png")
+    with h5py.File(data / "shard-00000.h5", "r+") as f:
+        del f["radar/response"]  # a damaged label is refused, not simulated in its place
+    assert "truncated /radar group, missing response" in one_line_error(
+        ["plot", "--data", str(data), "--object", "0", "--out", str(tmp_path / "o2.png")]
+    )
 
 
 def test_label_defaults_to_the_newest_config(tmp_path):

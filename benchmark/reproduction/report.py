@@ -415,6 +415,11 @@ def _num(x, digits: int = 1) -> str:
     return "-" if x is None else f"{x:.{digits}f}"
 
 
+def _seconds(x) -> str:
+    """Whole seconds, but a sub-second run (the tiny preset) is not shown as 0."""
+    return _num(x, 0 if x is None or x >= 1 else 2)
+
+
 def _cell(mean, std, ci, digits: int = 1) -> str:
     """mean ± std (across seeds) [95% interval of the seed-mean]."""
     if mean is None:
@@ -632,7 +637,7 @@ def render_markdown(table: dict) -> str:
             f"| {r['embedding']} | {r['pretraining']} | {r['training_meshes']} | "
             + _metric_cells(r, " †" if r["no_skill"] else "")
             + f" | {skill} | {delta} | {r['params']:,} | "
-            f"{_num(r['ms_per_mesh'], 2)} | {_num(r['train_seconds'], 0)} |"
+            f"{_num(r['ms_per_mesh'], 2)} | {_seconds(r['train_seconds'])} |"
         )
     strongest = table.get("strongest_reference")
     if strongest:

@@ -54,6 +54,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "epochs": "the cap on training epochs; a run with val objects stops at its plateau",
         "patience": "stop when the best val MSE is this many epochs old (the learning rate "
         "is halved at half of it)",
+        "dim": "width of the face embedding and the aggregator",
+        "embed_layers": "layers of the face embedding",
+        "agg_layers": "transformer layers of the aggregator over the faces",
+        "n_heads": "attention heads of the aggregator (dim must be a multiple)",
+        "decoder_hidden": "hidden width of the decoder to the range profiles",
+        "codebook_size": "token embedding: vectors per residual-quantizer codebook",
+        "n_quantizers": "token embedding: residual quantizers (codebooks) per face",
+        "batch_size": "meshes per batch",
+        "lr": "learning rate (AdamW)",
+        "weight_decay": "AdamW weight decay",
+        "pretrain_epochs": "epochs of pretraining (regimes classification, autoencoder)",
+        "pretrain_max_faces": "pretraining meshes are decimated to at most this many faces",
+        "pretrain_lr": "learning rate of pretraining",
+        "corpus_seed": "seed of the procedural pretraining corpus",
+        "seed": "seed of initialisation and batch order",
     }
     for f in fields(TrainConfig):
         default = getattr(defaults, f.name)
