@@ -77,7 +77,7 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
     diffs = [
         f"claimed {k} is missing (the re-score is {rescored[k]!r})"
         for k in (*METRIC_NAMES, "no_skill")
-        if claimed.get(k) is None
+        if claimed.get(k) is None and rescored[k] is not None
     ]
     cl, rs = claimed.get("per_class"), rescored["per_class"]
     if not isinstance(cl, dict) or set(cl) != set(rs):

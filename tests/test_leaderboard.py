@@ -356,6 +356,31 @@ def test_tampered_results_are_refused(case, data, submission, tmp_path):
     assert not entries.exists()
 
 
+def test_compare_checks_every_claimed_value_and_takes_the_re_scores_nulls():
+    from leaderboard.submit import compare
+
+    rescored = {
+        "simple_mse": 1.0,
+        "complex_mse": 2.0,
+        "variation_mse": 0.5,
+        "complex_mse_ci": [1.5, 2.5],
+        "no_skill": None,  # no training mean to test against
+        "no_skill_test": None,
+        "per_class": {"cube": {"simple_mse": 1.0, "n_objects": 3}},
+    }
+    assert compare(json.loads(json.dumps(rescored)), rescored) == []
+    assert compare({**rescored, "complex_mse_ci": [1.5, 2.6]}, rescored) == [
+        "claimed complex_mse_ci[1] 2.6 differs from the re-score 2.5"
+    ]
+    assert compare({**rescored, "no_skill": False}, rescored) == [
+        "claimed no_skill False differs from the re-score None"
+    ]
+    edited = {**rescored, "per_class": {"cube": {"simple_mse": 1.0, "n_objects": 4}}}
+    assert compare(edited, rescored) == [
+        "claimed per_class.cube.n_objects 4 differs from the re-score 3"
+    ]
+
+
 def test_the_answer_key_is_refused(data, tmp_path):
     """The test labels handed back as predictions are no model: refused, whatever the
     results claim."""
