@@ -321,6 +321,8 @@ def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
     assert json.loads(proc.stdout)["matches_recorded"] is True
     proc = dataset_cli(TINY, "--data", str(tmp_path / "x"), "--shards", "7", "--quiet")
     assert proc.returncode == 1 and "shard 7 does not exist" in proc.stderr
+    proc = dataset_cli(TINY, "--data", str(data), "--shards", "0", "--check")
+    assert proc.returncode == 1 and "--shards selects what to build" in proc.stderr
 
 
 @pytest.mark.slow  # two shards of real Blender, remeshing and labelling: CI's slow set

@@ -486,6 +486,11 @@ def run(args) -> int:
             "--data DIR is required (the directory to build, check, pack or fetch into)"
         )
     version = get(args.name)
+    if args.shards is not None and (args.check or args.pack or args.record or args.source):
+        raise VersionError(
+            "--shards selects what to build; --check, --pack, --record and --from take every "
+            "shard in --data (a directory holding a slice is checked shard by shard)"
+        )
     if getattr(args, "secret_seed_file", None) or getattr(args, "secret_seed_env", None):
         from benchmark.scoring import heldout
 
