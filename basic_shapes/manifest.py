@@ -103,13 +103,14 @@ def build(
     shards = [_shard_entry(p) for p in list_shards(directory)]
     labelled = all(s["label_fingerprint"] for s in shards)
     config = Path(directory) / "dataset.json"
+    settings = load_json(config, max_bytes=1 << 16, error=ShardError) if config.exists() else None
+    if settings is not None and not isinstance(settings, dict):
+        raise ShardError(f"{config}: not a JSON object")
     return {
         "format": FORMAT,
         "version": version,
         "stack": stack or {},
-        "config": load_json(config, max_bytes=1 << 16, error=ShardError)
-        if config.exists()
-        else None,
+        "config": settings,
         "fingerprints": {
             "mesh": _combined(s["fingerprint"] for s in shards),
             "label": _combined(s["label_fingerprint"] for s in shards) if labelled else None,
@@ -171,7 +172,7 @@ def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
         extra = sorted(set(names_f) - set(names_e))
         parts = [f"missing {missing[:3]}"] if missing else []
         parts += [f"unexpected {extra[:3]}"] if extra else []
-        out.append(f"shards differ: {', '.join(parts) or 'in order'}")
+        out.append(f"shards differ: {', '.join(parts) or 'the same names in another order'}")
     for se, sf in zip(expected["shards"], found["shards"]):
         if se["name"] != sf["name"]:
             continue

@@ -19,12 +19,14 @@ self-reported whatever the results JSON says. Only ``seed`` (the maintainers' ow
 from __future__ import annotations
 
 import os
+import reprlib
 from pathlib import Path
 
 from tqdm import tqdm
 
 from basic_shapes.infra import utc_timestamp
 from basic_shapes.manifest import file_sha256
+from basic_shapes.shards import list_shards
 from benchmark.scoring.data import BenchmarkData
 from benchmark.scoring.protocol import Predictions, load_results, score
 from leaderboard import example
@@ -74,15 +76,18 @@ def compare(claimed: dict, rescored: dict) -> list[str]:
     (intervals, OOD and peak metrics, per class and per remesher, references, the no-skill
     test) must be the re-score's as well: a results file cannot carry a number the board's
     re-score would not give."""
-    diffs = [
-        f"claimed {k} is missing (the re-score is {rescored[k]!r})"
-        for k in (*METRIC_NAMES, "no_skill")
-        if claimed.get(k) is None and rescored[k] is not None
-    ]
     cl, rs = claimed.get("per_class"), rescored["per_class"]
     if not isinstance(cl, dict) or set(cl) != set(rs):
-        names = sorted(cl) if isinstance(cl, dict) else cl
-        diffs.append(f"claimed per_class classes {names} differ from the re-score's {sorted(rs)}")
+        names = sorted(cl) if isinstance(cl, dict) else _short(cl)
+        return [f"claimed per_class classes {names} differ from the re-score's {sorted(rs)}"]
+    required = [("", claimed, rescored, (*METRIC_NAMES, "no_skill"))]
+    required += [(f"per_class.{c}.", cl[c], rs[c], METRIC_NAMES) for c in sorted(rs)]
+    diffs = [
+        f"claimed {where}{k} is missing (the re-score is {_short(r[k])})"
+        for where, c, r, names in required
+        for k in names
+        if k not in c and r.get(k) is not None
+    ]
     return diffs + _differences(claimed, rescored, "")
 
 
@@ -109,11 +114,20 @@ def _differences(claimed, rescored, where: str) -> list[str]:
             return []
     elif claimed == rescored and type(claimed) is type(rescored):
         return []
-    return [f"claimed {where} {claimed!r} differs from the re-score {rescored!r}"]
+    return [f"claimed {where} {_short(claimed)} differs from the re-score {_short(rescored)}"]
 
 
 def _number(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+_REPR = reprlib.Repr()  # Python 3.11: limits are attributes, not arguments
+_REPR.maxlevel, _REPR.maxdict, _REPR.maxlist, _REPR.maxstring = 2, 3, 4, 40
+
+
+def _short(x) -> str:
+    """A value for a one-line message: a whole sub-dict would make the line unreadable."""
+    return _REPR.repr(x)
 
 
 def dataset_version(
@@ -146,6 +160,12 @@ def dataset_version(
     if unregistered:
         return None
     if follows is not None:
+        shards, whole = len(list_shards(data_dir)), len(follows[0].manifest["shards"])
+        if shards < whole:
+            raise SubmissionError(
+                f"{data_dir}: a slice of {follows[0].name} ({shards} of {whole} shards); "
+                f"submit on a whole build, or pass --unregistered for a private board"
+            )
         raise SubmissionError(
             f"{data_dir}: follows {follows[0].name}'s recipe, but its fingerprints (mesh "
             f"{fingerprints[0][:8]}..., label {fingerprints[1][:8]}...) are not the recorded "
@@ -221,11 +241,12 @@ def submit(
                 rescored = score(data, preds)
             except (OSError, ValueError) as exc:
                 raise _refuse(predictions_path, exc) from None
-            if max(rescored["simple_mse"], rescored["complex_mse"]) <= ANSWER_KEY_MSE:
+            errors = [rescored[k] for k in ("simple_mse", "complex_mse")]
+            errors = [e for e in errors if e is not None]  # no complex meshes: Simple only
+            if errors and max(errors) <= ANSWER_KEY_MSE:
                 raise SubmissionError(
                     f"{predictions_path}: these predictions are the test labels themselves "
-                    f"(Simple and Complex MSE {rescored['complex_mse']:.1e} dB²): an answer key, "
-                    f"not a model"
+                    f"(MSE {max(errors):.1e} dB² at most): an answer key, not a model"
                 )
             diffs = compare(results["metrics"], rescored)
             if diffs:

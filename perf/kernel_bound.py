@@ -28,8 +28,8 @@ Reported: time / flop bound, time / work floor, ns per face per direction, the c
 with the portable product and with BLAS, the load average around each mesh, and the facets the
 kernel evaluates by its exact near-specular series (``po_kernel._add_series``): their number
 per direction (the kernel's rule applied in numpy) and their share of the time, that number
-times the CPU time of one call on a sample of those very facets (the first SERIES_SAMPLE met).
-Their number grows nearly as the square of the face count (docs/RADAR.md, "All of the rise
+times the CPU time of one call on a sample of those very facets (spread over the directions).
+Their number grows about as the face count to the power 1.8 (docs/RADAR.md, "The rise, net,
 is the series facets"). The counts assume a closed mesh (no facet lit from behind). With
 ``--baseline REV``, ``radar_sim`` and ``basic_shapes.portable`` at REV (read with git archive)
 are timed in the same run, interleaved with the working tree's code, and the two outputs are
@@ -171,13 +171,14 @@ def work_floor(mesh, k, n_dirs: int, lit_vertices: int) -> dict:
 
 def series_facets(mesh, k, dirs, tol) -> tuple[int, np.ndarray]:
     """Σ over directions of the lit facets that ``po_kernel.first_bounce`` evaluates by its
-    near-specular series (its classification, in numpy), and up to SERIES_SAMPLE of them as
-    rows (P, s0, s1, s2)."""
+    near-specular series (its classification, in numpy), and about SERIES_SAMPLE of them,
+    evenly spaced within every direction, as rows (P, s0, s1, s2)."""
     phase_error = current_field._Moments(k, mesh.radius, len(mesh.vertices)).phase_error
     area = facet.area_vectors(mesh.vertices[mesh.faces])
     v, f = mesh.vertices, mesh.faces
     k_lo, k_hi = float(k.min()), float(k.max())
     count, sample = 0, []
+    per_direction = -(-SERIES_SAMPLE // len(dirs))  # spread over every direction
     for r in dirs:
         p = area[:, 0] * r[0] + area[:, 1] * r[1] + area[:, 2] * r[2]
         s = v[:, 0] * r[0] + v[:, 1] * r[1] + v[:, 2] * r[2]
@@ -189,17 +190,18 @@ def series_facets(mesh, k, dirs, tol) -> tuple[int, np.ndarray]:
         weights = (abc != 0) & (d_max * phase_error <= tol * k_lo**2 * np.abs(abc))
         series = ~weights & ((2 * k_hi * d_max) ** 16 * po_kernel._SERIES_NEXT <= tol)
         count += int(series.sum())
-        if sum(map(len, sample)) < SERIES_SAMPLE:
-            sample.append(np.stack([p[lit], s0, s1, s2], axis=1)[series])
-    rows = np.concatenate(sample)[:SERIES_SAMPLE] if sample else np.zeros((0, 4))
+        rows = np.stack([p[lit], s0, s1, s2], axis=1)[series]
+        sample.append(rows[:: max(1, len(rows) // per_direction)][:per_direction])
+    rows = np.concatenate(sample) if sample else np.zeros((0, 4))
     return count, np.ascontiguousarray(rows)
 
 
 @njit
 def _series_calls(rows, k, two_dk, tol, work, coef, tab, par):
     row = np.zeros(len(k), dtype=np.complex128)
+    k_hi = k.max()  # once, as first_bounce does
     for p, s0, s1, s2 in rows:
-        po_kernel._add_series(row, k, k.max(), two_dk, tol, p, s0, s1, s2, work, coef, tab, par)
+        po_kernel._add_series(row, k, k_hi, two_dk, tol, p, s0, s1, s2, work, coef, tab, par)
     return row
 
 

@@ -255,9 +255,9 @@ def dataset_signature(
         cfg,
         object_mode(obj["class"], mode),
         f"{title}: its label, the primitive on a {len(faces)}-face simulation mesh"
-        if radar is not None
-        else f"{title}: not labelled; the label {cfg.name} would give, the primitive on a "
-        f"{len(faces)}-face simulation mesh",
+        if radar is not None and not config
+        else f"{title}: {'not labelled; ' if radar is None else ''}the label {cfg.name} would "
+        f"give, the primitive on a {len(faces)}-face simulation mesh",
         channel,
     )
 
@@ -343,8 +343,9 @@ def build_parser() -> ArgumentParser:
     p = ArgumentParser(
         prog="radar-sim",
         description=(
-            "Exact physical-optics radar simulator: label Basic Shapes shards, print the RCS of a "
-            f"mesh file, plot an object's signature. Units are metres; {CONVENTION}."
+            "Exact physical-optics radar simulator: label Basic Shapes shards, print the RCS\n"
+            "of a mesh file, plot an object's signature. Units are metres;\n"
+            f"{CONVENTION}."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -943,3 +943,15 @@ def test_reproduce_warns_that_the_paper_preset_needs_a_gpu(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith("benchmark reproduce: warning: the paper preset is sized for GPUs")
     assert str(tmp_path / "none") in str(exc.value.code)
+
+
+def test_every_train_option_is_explained():
+    """``benchmark train --help`` describes every TrainConfig field, not only its default."""
+    import argparse
+
+    from benchmark.training.train_cli import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    bare = [a.dest for a in parser._actions if (a.help or "").startswith(" (default")]
+    assert not bare, f"options without a description: {bare}"
