@@ -28,6 +28,7 @@ from basic_shapes.shards import Shard, ShardError, list_shards
 FORMAT = 1
 SHORT = 16  # hex digits of the per-object and per-mesh hashes: enough to tell which differs
 PER_MESH_LIMIT = 50_000  # meshes; a larger version's manifest folds each object's meshes
+LIMIT = 10  # differences reported: the first ones say where, the rest repeat
 
 
 def _short(*arrays) -> str:
@@ -161,7 +162,7 @@ def dumps(manifest: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def differences(expected: dict, found: dict, limit: int = 10) -> list[str]:
+def differences(expected: dict, found: dict, limit: int = LIMIT) -> list[str]:
     """Where ``found`` (a manifest of a directory) differs from ``expected``: shard, object,
     mesh and data, first difference first; [] when they agree (file hashes aside)."""
     out: list[str] = []

@@ -308,7 +308,7 @@ def check(version: DatasetVersion, directory: str | Path) -> dict:
         }  # a slice: shard by shard
         report["slice"] = sorted(names)
     differences = mf.differences(expected, found) + _coordinate_differences(version, directory)
-    differences = differences[:10]  # the first ones say where; the rest would only repeat
+    differences = differences[: mf.LIMIT]
     stack_changed = sorted(
         k
         for k in set(expected["stack"]) | set(found["stack"])
