@@ -31,7 +31,7 @@ per direction (the kernel's rule applied in numpy) and their share of the time, 
 times the CPU time of one call on a sample of those very facets (spread over the directions).
 Their number grows about as the face count to the power 1.8 (docs/RADAR.md, "The rise, net,
 is the series facets"). The counts assume a closed mesh (no facet lit from behind). With
-``--baseline REV``, ``radar_sim`` and ``basic_shapes.portable`` at REV (read with git archive)
+``--baseline REV``, ``radar_sim`` and ``basic_shapes`` at REV (read with git archive)
 are timed in the same run, interleaved with the working tree's code, and the two outputs are
 compared bit for bit (sha256 of the complex128 array). With ``--tol T``, the working tree's
 code is also timed at accuracy T instead of ``field.DEFAULT_TOL`` (fewer facets take the exact
@@ -77,18 +77,17 @@ SERIES_SAMPLE = 4096
 
 
 def load_baseline(rev: str, tmp: Path):
-    """``radar_sim`` and ``basic_shapes.portable`` at ``rev`` as the packages
-    ``baseline_radar_sim`` and ``baseline_portable``; returns the baseline's ``field``."""
-    for member in ("radar_sim", "basic_shapes/portable.py"):
+    """``radar_sim`` and ``basic_shapes`` at ``rev`` as the packages ``baseline_radar_sim``
+    and ``baseline_basic_shapes`` (both whole: an old kernel imports helpers that have since
+    moved); returns the baseline's ``field``."""
+    for package in ("radar_sim", "basic_shapes"):
         archive = subprocess.run(
-            ["git", "-C", str(ROOT), "archive", rev, member], check=True, capture_output=True
+            ["git", "-C", str(ROOT), "archive", rev, package], check=True, capture_output=True
         ).stdout
         subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
-    (tmp / "radar_sim").rename(tmp / "baseline_radar_sim")
-    (tmp / "basic_shapes" / "portable.py").rename(tmp / "baseline_portable.py")
-    for path in (tmp / "baseline_radar_sim").glob("*.py"):
-        text = re.sub(r"\bradar_sim\b", "baseline_radar_sim", path.read_text())
-        text = text.replace("basic_shapes.portable", "baseline_portable")
+        (tmp / package).rename(tmp / f"baseline_{package}")
+    for path in tmp.glob("baseline_*/*.py"):
+        text = re.sub(r"\b(radar_sim|basic_shapes)\b", r"baseline_\1", path.read_text())
         path.write_text(text)
     sys.path.insert(0, str(tmp))
     return importlib.import_module("baseline_radar_sim.field")

@@ -83,9 +83,12 @@ def _scale(object_id: int, salt: int) -> np.ndarray:
     return np.array([0.5 + 0.1 * object_id, 0.7 + 0.05 * salt, 0.9 - 0.03 * object_id])
 
 
-def make_dataset(directory: Path, salt: int = 0, config: str = "analytic-test") -> Path:
+def make_dataset(
+    directory: Path, salt: int = 0, config: str = "analytic-test", variants: int = 3
+) -> Path:
     """Two labelled shards (objects 0-4 and 5-8), written by the real shard writer; labels
-    stamped with radar config ``config``."""
+    stamped with radar config ``config``; ``variants`` meshes per object, the simple one
+    first (1: no complex meshes)."""
     directory.mkdir(parents=True)
     ids = list(range(9))
     for shard, chunk in enumerate((ids[:5], ids[5:])):
@@ -96,7 +99,7 @@ def make_dataset(directory: Path, salt: int = 0, config: str = "analytic-test") 
                 MeshRecord(
                     v, m.vertices.astype(np.float32), m.faces.astype(np.int32), 0.0, {"variant": v}
                 )
-                for v, m in enumerate(_meshes(CLASSES[oid // 3], scale))
+                for v, m in enumerate(_meshes(CLASSES[oid // 3], scale)[:variants])
             ]
             objects.append(
                 ObjectRecord(
@@ -149,13 +152,14 @@ def write_predictions(
     drop: int = 0,
     fingerprint: str | None = None,
     collapse: bool = False,
+    variants: int = 3,
 ) -> Path:
     """Predictions = exact dB target + per-class offset; ``drop`` omits the last test meshes."""
     uids, rows = [], []
     for oid in TEST_OBJECTS:
         t = target_db(response(_scale(oid, 0), oid))
         s, c = offsets[CLASSES[oid // 3]]
-        for v in range(3):
+        for v in range(variants):
             uids.append(mesh_uid(oid, v))
             rows.append(np.full_like(t, -30.0) if collapse else t + (s if v == 0 else c))
     if drop:
@@ -390,6 +394,19 @@ def test_the_answer_key_is_refused(data, tmp_path):
     entries = tmp_path / "entries"
     msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
     assert "the test labels themselves" in msg and str(pred) in msg, msg
+    assert not entries.exists()
+
+
+def test_the_answer_key_is_refused_without_complex_meshes(tmp_path):
+    """Only simple meshes (no Complex MSE to compare): the key is still refused."""
+    data = make_dataset(tmp_path / "simple-only", variants=1)
+    exact = {c: (0.0, 0.0) for c in OFFSETS}
+    pred = write_predictions(tmp_path / "key.h5", data, offsets=exact, variants=1)
+    results = write_results(tmp_path / "results.json", data, pred)
+    assert json.loads(results.read_text())["metrics"]["complex_mse"] is None
+    entries = tmp_path / "entries"
+    msg = refused("submit", results, "--predictions", pred, "--data", data, "--entries", entries)
+    assert "the test labels themselves" in msg, msg
     assert not entries.exists()
 
 

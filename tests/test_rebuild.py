@@ -188,7 +188,6 @@ def test_the_board_refuses_a_version_relabelled_consistently(tiny, tmp_path):
     version."""
     from basic_shapes.shards import Shard
     from benchmark.scoring.data import BenchmarkData
-    from benchmark.scoring.protocol import write_predictions
     from leaderboard import cli as board
 
     data = tmp_path / "relabelled"
@@ -201,11 +200,28 @@ def test_the_board_refuses_a_version_relabelled_consistently(tiny, tmp_path):
     with h5py.File(shard, "r+") as f:
         f["radar"].attrs["label_fingerprint"] = stamp
     with BenchmarkData(data) as d:
+        assert d.label_fingerprint != versions.get(TINY).fingerprints["label"]
+    submit = _submission(data, tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        board.main(submit)
+    assert f"follows {TINY}'s recipe, but its fingerprints" in str(exc.value.code)
+    assert not (tmp_path / "entries").exists()
+    board.main([*submit, "--unregistered"])
+    (entry,) = (tmp_path / "entries").glob("*.json")
+    assert json.loads(entry.read_text())["dataset"]["version"] is None
+
+
+def _submission(data: Path, tmp_path: Path) -> list[str]:
+    """``leaderboard submit``'s arguments for a constant -30 dB prediction of every test mesh
+    of ``data``, its results written by ``benchmark evaluate``; entries go to tmp_path."""
+    from benchmark.scoring.data import BenchmarkData
+    from benchmark.scoring.protocol import write_predictions
+
+    with BenchmarkData(data) as d:
         test = d.object_rows("test")
         rows = np.concatenate([r for o in test for r in (d.meshes_of(o), d.ood_meshes_of(o))])
         uids = d.meshes["uid"][rows]
         shape, fingerprints = d.target_shape, (d.fingerprint, d.label_fingerprint)
-    assert fingerprints[1] != versions.get(TINY).fingerprints["label"]
     preds, results = tmp_path / "p.h5", tmp_path / "r.json"
     write_predictions(
         preds,
@@ -216,16 +232,10 @@ def test_the_board_refuses_a_version_relabelled_consistently(tiny, tmp_path):
     )
     evaluate = [sys.executable, "-m", "benchmark.cli", "evaluate", "--data", str(data)]
     evaluate += ["--predictions", str(preds), "--out", str(results), "--speed-ms", "1"]
-    assert subprocess.run(evaluate, capture_output=True).returncode == 0
+    proc = subprocess.run(evaluate, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
     submit = ["submit", str(results), "--predictions", str(preds), "--data", str(data)]
-    submit += ["--entries", str(tmp_path / "entries"), "--name", "x"]
-    with pytest.raises(SystemExit) as exc:
-        board.main(submit)
-    assert f"follows {TINY}'s recipe, but its fingerprints" in str(exc.value.code)
-    assert not (tmp_path / "entries").exists()
-    board.main([*submit, "--unregistered"])
-    (entry,) = (tmp_path / "entries").glob("*.json")
-    assert json.loads(entry.read_text())["dataset"]["version"] is None
+    return [*submit, "--entries", str(tmp_path / "entries"), "--name", "x"]
 
 
 class _Quiet(http.server.SimpleHTTPRequestHandler):
@@ -330,7 +340,9 @@ def test_a_slice_of_shards_builds_and_checks_shard_by_shard(tmp_path):
 def test_hidden_slice_with_both_families_rebuilds(tmp_path, version):
     """Shards 56 (test frustums) and 187 (test rounded boxes), with their OOD meshes and
     labels, rebuild under the emulated foreign CPU to the recorded manifest (xband-v2 and
-    xband-v3 labels of the same meshes)."""
+    xband-v3 labels of the same meshes); the board refuses the slice as a slice."""
+    from leaderboard import cli as board
+
     data = tmp_path / version
     proc = dataset_cli(
         version,
@@ -355,6 +367,10 @@ def test_hidden_slice_with_both_families_rebuilds(tmp_path, version):
         if m["variant"] >= 900
     }
     assert ood == {36, 37, 38}  # isotropic, qem (rounded boxes) and delaunay (both)
+    with pytest.raises(SystemExit) as exc:  # the public board takes whole builds only
+        board.main(_submission(data, tmp_path))
+    assert f"a slice of {version} (2 of {len(expected)} shards)" in str(exc.value.code)
+    assert not (tmp_path / "entries").exists()
 
 
 @pytest.mark.parametrize("version", ["tiny-v2", TINY])
