@@ -48,7 +48,9 @@ def dataset(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # 1 vs 2 workers is also checked in the default set: tests/test_rebuild.py
 def test_bytes_do_not_depend_on_workers(dataset, tmp_path):
+    """In process, 1 and 2 worker processes and an existing Dask cluster: the same bytes."""
     assert cli.main(["generate", "--data", str(tmp_path / "two"), "--workers", "2", *SMALL]) == 0
     assert cli.main(["generate", "--data", str(tmp_path / "zero"), "--workers", "0", *SMALL]) == 0
     from basic_shapes.cluster import dask_client

@@ -25,6 +25,8 @@ from basic_shapes.infra import add_quiet_flag, hardware, number
 from benchmark.reproduction import report, runner
 from benchmark.reproduction.presets import PRESETS, ROWS, Preset, rows_of, seeds_of
 
+TABLE_EVERY_S = 30.0
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -177,9 +179,16 @@ def run(args: argparse.Namespace) -> None:
             with_plot,
         )
 
+    written = time.perf_counter()
+
     def done(cfg, result) -> None:
+        """The table follows a long run row by row; rows that take seconds (the tiny preset)
+        are tabled together, at most every TABLE_EVERY_S and once at the end."""
+        nonlocal written
         records.setdefault(cfg.name, {})[cfg.seed] = result
-        write()
+        if time.perf_counter() - written >= TABLE_EVERY_S:
+            write()
+            written = time.perf_counter()
 
     runner.run_jobs(
         cfgs,
