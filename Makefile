@@ -44,8 +44,9 @@ demo: install
 test: install browser
 	$(BIN)/python -m pytest
 
+# Test by test, not file by file: two of these take 5-7 min each and must not share a process.
 test-slow: install
-	$(BIN)/python -m pytest -m slow
+	$(BIN)/python -m pytest -m slow --dist load
 
 clean:
 	rm -rf $(VENV) out
