@@ -475,6 +475,8 @@ def test_released_weights_rescore_the_table(tiny, tmp_path):
     )
     again = json.loads((rescore / "table.json").read_text())
     assert not (rescore / "corpus.h5").exists()  # nothing was trained again
+    assert again["timing"]["rows_trained"] == 0
+    assert f"{len(RESCORED)} evaluated from saved weights" in (rescore / "table.md").read_text()
     assert [r["name"] for r in again["rows"]] == list(RESCORED)
     for b in again["rows"]:
         a = next(r for r in table["rows"] if r["name"] == b["name"])

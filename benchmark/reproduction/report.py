@@ -577,10 +577,12 @@ def _provenance(table: dict) -> str:
             "many meshes, it was timed alone. Train s: from the checkpoints' config.json "
             "where they were kept."
         )
+    evaluated = t.get("rows_evaluated", 0)  # from saved weights (benchmark weights --from)
     return (
         f"Hardware: {table['hardware']}; this invocation took "
         f"{t['total_s'] / 60:.1f} min, {t['rows_trained']} (row, seed) runs "
-        f"trained and {t['rows_reused']} reused from an earlier run "
+        f"trained{f', {evaluated} evaluated from saved weights,' if evaluated else ''} "
+        f"and {t['rows_reused']} reused from an earlier run "
         f"(generate {_num(t.get('generate_s'))} s, label "
         f"{_num(t.get('label_s'))} s, rows + timing "
         f"{_num(t['rows_s'])} s, {t['jobs']} job(s) x "

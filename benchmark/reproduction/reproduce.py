@@ -153,6 +153,7 @@ def run(args: argparse.Namespace) -> None:
     if corpus[0]:
         timing["corpus_s"] = time.perf_counter() - t0
     todo, records = runner.resume(cfgs, out, fingerprint, args.overwrite)
+    saved = sum(runner.trained(out, c, fingerprint) is not None for c in todo)  # evaluated only
     _warn_disk(out, len(todo), per_run)
     t_rows = time.perf_counter()
 
@@ -167,7 +168,8 @@ def run(args: argparse.Namespace) -> None:
                 "total_s": time.perf_counter() - t_start,
                 "jobs": jobs,
                 "threads_per_job": threads,
-                "rows_trained": len(todo),
+                "rows_trained": len(todo) - saved,
+                "rows_evaluated": saved,
                 "rows_reused": len(cfgs) - len(todo),
             },
         }

@@ -61,7 +61,7 @@ def checkpoint_dir(out: Path, name: str, seed: int) -> Path:
 
 
 # --- resume -----------------------------------------------------------------------------------
-def _trained(out: Path, cfg, fingerprint: str) -> dict | None:
+def trained(out: Path, cfg, fingerprint: str) -> dict | None:
     """The checkpoint config of a (row, seed) trained earlier with this exact config on
     this dataset."""
     try:
@@ -83,7 +83,7 @@ def _finished(out: Path, cfg, fingerprint: str) -> dict | None:
     """The results of a (row, seed) finished earlier with this exact config on this dataset."""
     from benchmark.scoring.protocol import ResultsError, load_results
 
-    ck = _trained(out, cfg, fingerprint)
+    ck = trained(out, cfg, fingerprint)
     results_path, predictions_path = row_files(out, cfg.name, cfg.seed)
     try:
         results = load_results(results_path)
@@ -125,7 +125,7 @@ def pretraining_corpus(
     pretrained = [
         c
         for c in cfgs
-        if c.regime in ("classification", "autoencoder") and _trained(out, c, fingerprint) is None
+        if c.regime in ("classification", "autoencoder") and trained(out, c, fingerprint) is None
     ]
     if not pretrained:
         return None, None
@@ -177,9 +177,9 @@ def run_row(
 
     ckpt = checkpoint_dir(out, cfg.name, cfg.seed)
     t0 = time.perf_counter()
-    trained = _trained(out, cfg, shared["fingerprint"])
-    if trained is not None:  # trained earlier, evaluation missing or interrupted
-        train_seconds = trained["train_seconds"]
+    earlier = trained(out, cfg, shared["fingerprint"])
+    if earlier is not None:  # trained earlier, evaluation missing or interrupted
+        train_seconds = earlier["train_seconds"]
     elif preset.launcher == "torchrun" and nproc > 1:
         run_tool(
             [
